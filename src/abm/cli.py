@@ -1,0 +1,58 @@
+"""The ``abm`` command.
+
+Each command group lives next to the code it drives, in a module that exposes
+``register(subparsers)``; this file only collects them. Heavy imports (torch, mujoco,
+transformers) happen inside the command functions so ``abm --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+import abm
+
+# Modules that add sub-commands, in the order they appear in ``abm --help``.
+COMMAND_MODULES: tuple[str, ...] = (
+    "abm.render.commands",
+)
+
+
+class CommandError(Exception):
+    """A user-facing error: printed as ``abm: error: ...`` without a traceback."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="abm",
+        description="Attention before Manipulation: ground the target object, mark it in virtual views, "
+        "and predict the next gripper keyframe.",
+    )
+    parser.add_argument("--version", action="version", version=f"abm {abm.__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 1
+    try:
+        return int(args.func(args) or 0)
+    except (CommandError, FileNotFoundError, ValueError, KeyError) as err:
+        message = err.args[0] if isinstance(err, KeyError) and err.args else err
+        print(f"abm: error: {message}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("abm: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,33 @@
+"""Geometry: deprojection, camera fusion, workspace cube, rotations and SE(3) augmentation."""
+
+from abm.geometry.augmentation import augment_scene, random_se3, transform_action, transform_points
+from abm.geometry.pointcloud import (
+    PointCloud,
+    depth_to_points,
+    fuse_cameras,
+    project_to_camera,
+    valid_depth_mask,
+)
+from abm.geometry.rotations import (
+    DEFAULT_ROTATION_BINS,
+    bins_to_euler,
+    bins_to_quat,
+    euler_to_bins,
+    euler_to_quat,
+    matrix_to_quat,
+    normalize_quaternion,
+    pose_matrix,
+    quat_angle_deg,
+    quat_to_bins,
+    quat_to_euler,
+    quat_to_matrix,
+)
+from abm.geometry.workspace import Workspace
+
+__all__ = [
+    "DEFAULT_ROTATION_BINS", "PointCloud", "Workspace", "augment_scene", "bins_to_euler", "bins_to_quat",
+    "depth_to_points", "euler_to_bins", "euler_to_quat", "fuse_cameras", "matrix_to_quat",
+    "normalize_quaternion", "pose_matrix", "project_to_camera", "quat_angle_deg", "quat_to_bins",
+    "quat_to_euler", "quat_to_matrix", "random_se3", "transform_action", "transform_points",
+    "valid_depth_mask",
+]

@@ -1,0 +1,95 @@
+"""Rotation helpers: quaternions (x, y, z, w), Euler angles, matrices and RVT-style rotation bins.
+
+Conversions go through :class:`scipy.spatial.transform.Rotation`. Euler angles use scipy's
+extrinsic ``"xyz"`` convention (rotate about world x, then world y, then world z).
+
+Rotation discretisation: each Euler angle in degrees is mapped to one of ``num_bins`` bins of width
+``360 / num_bins`` (72 bins = 5 degrees). Bin ``i`` is centred at ``-180 + i * width`` (so 0, ±90 and
+180 degrees are bin centres and decode exactly; -180 and 180 share bin 0). Decoding a bin and
+encoding again is exact, and any angle decodes within half a bin (2.5 degrees for 72 bins).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+EULER_ORDER = "xyz"
+DEFAULT_ROTATION_BINS = 72
+
+
+def normalize_quaternion(quat: np.ndarray) -> np.ndarray:
+    """Unit quaternion ``(..., 4)`` with non-negative ``w`` (the two signs are the same rotation)."""
+    quat = np.asarray(quat, np.float64)
+    norm = np.linalg.norm(quat, axis=-1, keepdims=True)
+    if np.any(norm < 1e-9):
+        raise ValueError("cannot normalise a zero quaternion")
+    quat = quat / norm
+    return np.where(quat[..., 3:4] < 0, -quat, quat)
+
+
+def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
+    """``(..., 4)`` quaternions (x, y, z, w) -> ``(..., 3, 3)`` rotation matrices."""
+    quat = np.asarray(quat, np.float64)
+    return Rotation.from_quat(quat.reshape(-1, 4)).as_matrix().reshape(*quat.shape[:-1], 3, 3)
+
+
+def matrix_to_quat(matrix: np.ndarray) -> np.ndarray:
+    """``(..., 3, 3)`` rotation matrices -> ``(..., 4)`` unit quaternions (x, y, z, w), ``w >= 0``."""
+    matrix = np.asarray(matrix, np.float64)
+    quat = Rotation.from_matrix(matrix.reshape(-1, 3, 3)).as_quat()
+    return normalize_quaternion(quat).reshape(*matrix.shape[:-2], 4)
+
+
+def quat_to_euler(quat: np.ndarray, degrees: bool = True) -> np.ndarray:
+    """``(..., 4)`` quaternions -> ``(..., 3)`` extrinsic xyz Euler angles."""
+    quat = np.asarray(quat, np.float64)
+    euler = Rotation.from_quat(quat.reshape(-1, 4)).as_euler(EULER_ORDER, degrees=degrees)
+    return euler.reshape(*quat.shape[:-1], 3)
+
+
+def euler_to_quat(euler: np.ndarray, degrees: bool = True) -> np.ndarray:
+    """``(..., 3)`` extrinsic xyz Euler angles -> ``(..., 4)`` unit quaternions (x, y, z, w)."""
+    euler = np.asarray(euler, np.float64)
+    quat = Rotation.from_euler(EULER_ORDER, euler.reshape(-1, 3), degrees=degrees).as_quat()
+    return normalize_quaternion(quat).reshape(*euler.shape[:-1], 4)
+
+
+def pose_matrix(position: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    """Position ``(3,)`` (m) and quaternion ``(4,)`` -> ``(4, 4)`` homogeneous transform."""
+    out = np.eye(4)
+    out[:3, :3] = quat_to_matrix(quat)
+    out[:3, 3] = position
+    return out
+
+
+def quat_angle_deg(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Geodesic angle in degrees between two (batches of) quaternions."""
+    r = Rotation.from_quat(np.atleast_2d(q1)).inv() * Rotation.from_quat(np.atleast_2d(q2))
+    return np.degrees(r.magnitude()).reshape(np.broadcast_shapes(np.shape(q1)[:-1], np.shape(q2)[:-1]))
+
+
+def euler_to_bins(euler_deg: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.ndarray:
+    """Euler angles in degrees ``(..., 3)`` -> integer bins ``(..., 3)`` in ``[0, num_bins)``."""
+    width = 360.0 / num_bins
+    shifted = np.asarray(euler_deg, np.float64) + 180.0
+    return np.mod(np.round(shifted / width).astype(np.int64), num_bins)
+
+
+def bins_to_euler(bins: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.ndarray:
+    """Integer bins ``(..., 3)`` -> Euler angles in degrees at the bin centres."""
+    bins = np.asarray(bins)
+    if np.any(bins < 0) or np.any(bins >= num_bins):
+        raise ValueError(f"rotation bins must lie in [0, {num_bins}), got {bins.tolist()}")
+    width = 360.0 / num_bins
+    return -180.0 + bins.astype(np.float64) * width
+
+
+def quat_to_bins(quat: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.ndarray:
+    """Quaternion(s) ``(..., 4)`` -> Euler bins ``(..., 3)``."""
+    return euler_to_bins(quat_to_euler(quat, degrees=True), num_bins)
+
+
+def bins_to_quat(bins: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.ndarray:
+    """Euler bins ``(..., 3)`` -> quaternion(s) ``(..., 4)`` at the bin centres."""
+    return euler_to_quat(bins_to_euler(bins, num_bins), degrees=True)

@@ -1,0 +1,219 @@
+"""Data contracts shared by every part of abm.
+
+Conventions (used everywhere in the package):
+
+* Lengths are metres, angles radians unless a name says ``_deg``.
+* The world frame is the robot-base frame: origin at the base of the arm, +x forward
+  (towards the table), +y to the robot's left, +z up.
+* Cameras follow the OpenCV convention: +x right, +y down, +z forward (the viewing
+  direction). ``extrinsics`` are **camera-to-world** 4x4 homogeneous transforms, so a
+  point ``p_cam`` seen by the camera is at ``extrinsics @ [p_cam, 1]`` in the world.
+* Quaternions are scalar-last ``(x, y, z, w)``, as in :class:`scipy.spatial.transform.Rotation`.
+
+Every dataclass validates itself on construction and raises :class:`ValueError` with the
+offending field named, so bad data is caught where it enters rather than deep inside a model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+Split = Literal["seen", "unseen", "compositional"]
+SPLITS: tuple[str, ...] = ("seen", "unseen", "compositional")
+
+
+def _check_array(
+    name: str,
+    value: Any,
+    shape: tuple[int | None, ...],
+    dtypes: tuple[type, ...] | None = None,
+) -> np.ndarray:
+    """Return ``value`` as an ndarray after checking its shape (``None`` = any size) and dtype."""
+    if not isinstance(value, np.ndarray):
+        raise ValueError(f"{name} must be a numpy array, got {type(value).__name__}")
+    if value.ndim != len(shape) or any(s is not None and s != v for s, v in zip(shape, value.shape, strict=True)):
+        want = "x".join("N" if s is None else str(s) for s in shape)
+        raise ValueError(f"{name} must have shape {want}, got {tuple(value.shape)}")
+    if dtypes is not None and not any(np.issubdtype(value.dtype, d) for d in dtypes):
+        names = " or ".join(d.__name__ for d in dtypes)
+        raise ValueError(f"{name} must have dtype {names}, got {value.dtype}")
+    return value
+
+
+def _check_rigid(name: str, value: np.ndarray, atol: float = 1e-4) -> None:
+    """Check that a 4x4 matrix is a rigid transform (orthonormal rotation, last row 0 0 0 1)."""
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"{name} contains non-finite values")
+    if not np.allclose(value[3], [0.0, 0.0, 0.0, 1.0], atol=atol):
+        raise ValueError(f"{name} must have last row [0, 0, 0, 1], got {value[3].tolist()}")
+    rot = value[:3, :3]
+    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
+        raise ValueError(f"{name} must contain a proper rotation (orthonormal, det +1)")
+
+
+@dataclass
+class CameraFrame:
+    """One calibrated RGB-D image.
+
+    Attributes:
+        rgb: ``uint8`` array ``(H, W, 3)``.
+        depth: ``float32`` array ``(H, W)``: distance along the camera +z axis in metres;
+            0, NaN or inf mark pixels without a measurement.
+        intrinsics: ``(3, 3)`` pinhole matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` in pixels,
+            OpenCV convention: the centre of pixel ``(row, col)`` is at image coordinates
+            ``(u, v) = (col, row)``, so a centred principal point is ``((W - 1) / 2, (H - 1) / 2)``.
+        extrinsics: ``(4, 4)`` camera-to-world transform (OpenCV camera axes).
+        segmentation: optional ``int32`` ``(H, W)`` object ids (simulation only; -1 = none).
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    intrinsics: np.ndarray
+    extrinsics: np.ndarray
+    segmentation: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        _check_array("CameraFrame.rgb", self.rgb, (None, None, 3), (np.uint8,))
+        h, w = self.rgb.shape[:2]
+        _check_array("CameraFrame.depth", self.depth, (h, w), (np.floating,))
+        self.intrinsics = np.asarray(_check_array("CameraFrame.intrinsics", self.intrinsics, (3, 3)), np.float64)
+        self.extrinsics = np.asarray(_check_array("CameraFrame.extrinsics", self.extrinsics, (4, 4)), np.float64)
+        _check_rigid("CameraFrame.extrinsics", self.extrinsics)
+        fx, fy = self.intrinsics[0, 0], self.intrinsics[1, 1]
+        if not (np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0):
+            raise ValueError(f"CameraFrame.intrinsics must have positive focal lengths, got fx={fx}, fy={fy}")
+        if self.segmentation is not None:
+            _check_array("CameraFrame.segmentation", self.segmentation, (h, w), (np.integer,))
+
+    @property
+    def height(self) -> int:
+        return int(self.rgb.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.rgb.shape[1])
+
+
+@dataclass
+class Observation:
+    """Everything the robot perceives at one (keyframe) time step.
+
+    Attributes:
+        cameras: camera name (e.g. ``"front"``, ``"wrist"``) -> :class:`CameraFrame`.
+        gripper_open: opening state in ``[0, 1]`` (1 = fully open).
+        gripper_pose: ``(4, 4)`` gripper-to-world transform of the tool centre point.
+        step: time step index of this observation within its episode.
+    """
+
+    cameras: dict[str, CameraFrame]
+    gripper_open: float
+    gripper_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
+    step: int = 0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.cameras, dict) or not self.cameras:
+            raise ValueError("Observation.cameras must be a non-empty dict of name -> CameraFrame")
+        for name, frame in self.cameras.items():
+            if not isinstance(frame, CameraFrame):
+                raise ValueError(f"Observation.cameras[{name!r}] must be a CameraFrame, got {type(frame).__name__}")
+        if not 0.0 <= float(self.gripper_open) <= 1.0:
+            raise ValueError(f"Observation.gripper_open must be in [0, 1], got {self.gripper_open}")
+        self.gripper_open = float(self.gripper_open)
+        self.gripper_pose = np.asarray(self.gripper_pose, np.float64)
+        _check_array("Observation.gripper_pose", self.gripper_pose, (4, 4))
+        _check_rigid("Observation.gripper_pose", self.gripper_pose)
+
+    def camera(self, name: str) -> CameraFrame:
+        """Return one camera, with an error listing the available ones when it is missing."""
+        try:
+            return self.cameras[name]
+        except KeyError:
+            raise KeyError(f"camera {name!r} not in observation; available: {sorted(self.cameras)}") from None
+
+
+@dataclass
+class KeyframeAction:
+    """The next gripper keyframe the policy asks for.
+
+    Attributes:
+        position: ``(3,)`` tool-centre-point target in the world frame, metres.
+        quaternion: ``(4,)`` target orientation, ``(x, y, z, w)``; normalised on construction.
+        gripper_open: whether the gripper should be open at the keyframe.
+        ignore_collision: whether the motion may move in a straight line ignoring collisions.
+    """
+
+    position: np.ndarray
+    quaternion: np.ndarray
+    gripper_open: bool
+    ignore_collision: bool = False
+
+    def __post_init__(self) -> None:
+        self.position = np.asarray(self.position, np.float64)
+        self.quaternion = np.asarray(self.quaternion, np.float64)
+        _check_array("KeyframeAction.position", self.position, (3,))
+        _check_array("KeyframeAction.quaternion", self.quaternion, (4,))
+        if not np.all(np.isfinite(self.position)):
+            raise ValueError("KeyframeAction.position contains non-finite values")
+        norm = float(np.linalg.norm(self.quaternion))
+        if not np.isfinite(norm) or norm < 1e-6:
+            raise ValueError("KeyframeAction.quaternion must be a non-zero finite quaternion (x, y, z, w)")
+        self.quaternion = self.quaternion / norm
+        self.gripper_open = bool(self.gripper_open)
+        self.ignore_collision = bool(self.ignore_collision)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """``(4, 4)`` gripper-to-world transform of the target."""
+        from abm.geometry.rotations import pose_matrix
+
+        return pose_matrix(self.position, self.quaternion)
+
+
+@dataclass
+class Episode:
+    """One demonstration or rollout, stored at keyframes.
+
+    Attributes:
+        task: task name, e.g. ``"place_food"``.
+        variation: index of the instruction/scene variation within the task.
+        split: ``"seen"``, ``"unseen"`` or ``"compositional"``.
+        instruction: the full English instruction.
+        object_names: segmentation id -> canonical object name for every object in the scene.
+        target_names: canonical names of the object(s) the instruction refers to.
+        steps: ``(observation, action)`` pairs: the action is the keyframe to reach from that observation.
+        success: whether the episode ended in success.
+        seed: the scene seed the episode was generated from (``-1`` if unknown).
+        metadata: free-form extra information (simulator version, timings, ...).
+    """
+
+    task: str
+    variation: int
+    split: str
+    instruction: str
+    object_names: dict[int, str]
+    target_names: list[str]
+    steps: list[tuple[Observation, KeyframeAction]]
+    success: bool
+    seed: int = -1
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.split not in SPLITS:
+            raise ValueError(f"Episode.split must be one of {SPLITS}, got {self.split!r}")
+        if not self.instruction.strip():
+            raise ValueError("Episode.instruction must not be empty")
+        for i, step in enumerate(self.steps):
+            if not (isinstance(step, tuple) and len(step) == 2):
+                raise ValueError(f"Episode.steps[{i}] must be an (Observation, KeyframeAction) pair")
+            obs, act = step
+            if not isinstance(obs, Observation) or not isinstance(act, KeyframeAction):
+                raise ValueError(f"Episode.steps[{i}] must be an (Observation, KeyframeAction) pair")
+        missing = [n for n in self.target_names if n not in self.object_names.values()]
+        if missing:
+            raise ValueError(f"Episode.target_names {missing} are not among the scene objects")
+
+    def __len__(self) -> int:
+        return len(self.steps)
