@@ -1,0 +1,169 @@
+"""Evaluation records, their resumable on-disk log, and the success tables.
+
+One :class:`EpisodeOutcome` per rollout is appended to a JSON-lines log as soon as the rollout ends,
+so an interrupted evaluation loses at most the episode in flight and a re-run skips finished ones.
+Success rates follow the paper's protocol: per repeat, the percentage of successful episodes; per
+(method, task, split), the mean and standard deviation of that percentage over the repeats.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+# Evaluation seeds live far from the data-generation seeds (which start at 0), so evaluation scenes
+# are never training scenes. Episode e of repeat r uses EVAL_SEED_BASE + r * SEEDS_PER_REPEAT + e.
+EVAL_SEED_BASE = 1_000_000
+SEEDS_PER_REPEAT = 10_000
+
+
+def eval_seed(repeat: int, episode: int) -> int:
+    """The scene seed of one evaluation episode: the same for every method, task-independent."""
+    if not 0 <= episode < SEEDS_PER_REPEAT:
+        raise ValueError(f"episode index must be in [0, {SEEDS_PER_REPEAT}), got {episode}")
+    return EVAL_SEED_BASE + repeat * SEEDS_PER_REPEAT + episode
+
+
+@dataclass
+class EpisodeOutcome:
+    """The result of one evaluation rollout.
+
+    Attributes:
+        method: the policy's variant name (``abm``, ``rvt``, ...) or a label for the run.
+        task, split: what was evaluated.
+        repeat, episode: indices within the protocol; ``seed`` is the scene seed used.
+        success: whether the task's success predicate held before the step limit.
+        steps: keyframes the policy predicted.
+        seconds: wall-clock time of the rollout.
+        error: the exception text when the rollout crashed (counted as a failure), else ``""``.
+    """
+
+    method: str
+    task: str
+    split: str
+    repeat: int
+    episode: int
+    seed: int
+    success: bool
+    steps: int = 0
+    seconds: float = 0.0
+    error: str = ""
+
+    @property
+    def key(self) -> tuple[str, str, str, int, int]:
+        return (self.method, self.task, self.split, self.repeat, self.episode)
+
+
+class OutcomeLog:
+    """Append-only JSON-lines file of :class:`EpisodeOutcome` records (one per line).
+
+    A truncated last line (the process was killed while writing) is ignored on reading.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    def read(self) -> list[EpisodeOutcome]:
+        if not self.path.exists():
+            return []
+        names = {f.name for f in fields(EpisodeOutcome)}
+        outcomes = []
+        for line in self.path.read_text().splitlines():
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # a partial line from an interrupted write
+            outcomes.append(EpisodeOutcome(**{k: v for k, v in record.items() if k in names}))
+        return outcomes
+
+    def done(self) -> set[tuple[str, str, str, int, int]]:
+        """Keys of the episodes already recorded."""
+        return {o.key for o in self.read()}
+
+    def append(self, outcome: EpisodeOutcome) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with self.path.open("a") as f:
+            f.write(json.dumps(asdict(outcome)) + "\n")
+            f.flush()
+
+
+@dataclass
+class SuccessRate:
+    """Success of one (method, task, split): percentages per repeat and their mean and std."""
+
+    method: str
+    task: str
+    split: str
+    per_repeat: list[float]
+    episodes: int
+    errors: int
+
+    @property
+    def mean(self) -> float:
+        return sum(self.per_repeat) / len(self.per_repeat)
+
+    @property
+    def std(self) -> float:
+        """Population standard deviation over repeats (0 for a single repeat)."""
+        m = self.mean
+        return math.sqrt(sum((x - m) ** 2 for x in self.per_repeat) / len(self.per_repeat))
+
+
+def aggregate(outcomes: Iterable[EpisodeOutcome]) -> list[SuccessRate]:
+    """Group outcomes by (method, task, split) and compute the per-repeat success percentages."""
+    groups: dict[tuple[str, str, str], dict[int, list[EpisodeOutcome]]] = defaultdict(lambda: defaultdict(list))
+    for o in outcomes:
+        groups[(o.method, o.task, o.split)][o.repeat].append(o)
+    rates = []
+    for (method, task, split), repeats in sorted(groups.items()):
+        per_repeat = [100.0 * sum(o.success for o in eps) / len(eps) for _, eps in sorted(repeats.items())]
+        all_eps = [o for eps in repeats.values() for o in eps]
+        rates.append(SuccessRate(method, task, split, per_repeat, len(all_eps), sum(bool(o.error) for o in all_eps)))
+    return rates
+
+
+def write_csv(rates: Sequence[SuccessRate], path: str | Path) -> None:
+    """One row per (method, task, split) with mean, std, repeats, episodes and crashed episodes."""
+    with Path(path).open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["method", "task", "split", "mean", "std", "repeats", "episodes", "errors"])
+        for r in rates:
+            writer.writerow([r.method, r.task, r.split, f"{r.mean:.2f}", f"{r.std:.2f}", len(r.per_repeat),
+                             r.episodes, r.errors])
+
+
+def write_json(rates: Sequence[SuccessRate], path: str | Path) -> None:
+    payload = [dict(asdict(r), mean=r.mean, std=r.std) for r in rates]
+    Path(path).write_text(json.dumps(payload, indent=2) + "\n")
+
+
+def markdown_table(rates: Sequence[SuccessRate], splits: Sequence[str] | None = None) -> str:
+    """The paper's Table 1 layout: one block per split, methods as rows, tasks as columns, plus the mean.
+
+    Cells read ``mean ± std`` success in percent; the "avg" column averages the task means.
+    """
+    splits = list(splits) if splits is not None else sorted({r.split for r in rates})
+    lines = []
+    for split in splits:
+        block = [r for r in rates if r.split == split]
+        if not block:
+            continue
+        tasks = sorted({r.task for r in block})
+        methods = list(dict.fromkeys(r.method for r in block))
+        cell = {(r.method, r.task): r for r in block}
+        lines.append(f"**{split}**\n")
+        lines.append("| method | " + " | ".join(tasks) + " | avg |")
+        lines.append("|---|" + "---|" * (len(tasks) + 1))
+        for m in methods:
+            row = [cell.get((m, t)) for t in tasks]
+            means = [r.mean for r in row if r is not None]
+            cells = [f"{r.mean:.1f} ± {r.std:.1f}" if r is not None else "–" for r in row]
+            avg = f"{sum(means) / len(means):.1f}" if means else "–"
+            lines.append(f"| {m} | " + " | ".join(cells) + f" | {avg} |")
+        lines.append("")
+    return "\n".join(lines)
