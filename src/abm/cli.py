@@ -17,6 +17,7 @@ import abm
 # Modules that add sub-commands, in the order they appear in ``abm --help``.
 COMMAND_MODULES: tuple[str, ...] = (
     "abm.render.commands",
+    "abm.grounding.commands",
 )
 
 

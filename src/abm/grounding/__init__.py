@@ -1,0 +1,77 @@
+"""Grounding: instruction decomposition, CLIP dense features, CLIP Feature Cloud, Object Mask Field.
+
+Typical use::
+
+    from abm.grounding import decompose_instruction, make_grounder, mask_views
+
+    target, skill = decompose_instruction("put the tomato in the plate")   # "tomato", "put X in the plate"
+    grounder = make_grounder("clip", model="openai/clip-vit-large-patch14-336")  # or make_grounder("oracle")
+    field = grounder.ground(observation, cloud, target, episode.object_names)  # MaskField over cloud points
+    views = mask_views(renderer, cloud, field.mask)                           # center-pixel masks (V, H, W)
+
+transformers is imported only when a CLIP model is built, so the oracle grounder and the instruction
+parser work without it.
+"""
+
+from abm.grounding.cache import GroundingCache, cloud_key, content_key, frame_key, image_key
+from abm.grounding.clip import (
+    DEFAULT_MODEL,
+    PRESETS,
+    ClipBackbone,
+    ClipWeightsNotFoundError,
+    load_clip,
+    random_clip,
+    tiny_clip,
+)
+from abm.grounding.feature_cloud import (
+    FeatureCloud,
+    build_feature_cloud,
+    lift_patch_features,
+    nearest_patch_index,
+    upsample_nearest,
+)
+from abm.grounding.grounders import (
+    GROUNDERS,
+    ClipGrounder,
+    Grounder,
+    OracleGrounder,
+    make_grounder,
+    match_object_ids,
+    target_point_mask,
+)
+from abm.grounding.instruction import (
+    InstructionError,
+    InstructionParser,
+    ParsedInstruction,
+    RewritingParser,
+    TemplateParser,
+    TemplateSet,
+    clip_prompt,
+    decompose_instruction,
+    load_templates,
+    normalize_instruction,
+)
+from abm.grounding.mask_field import (
+    DEFAULT_NEGATIVES,
+    DEFAULT_NORMALIZATION,
+    DEFAULT_THRESHOLD,
+    NORMALIZATIONS,
+    MaskField,
+    MaskFieldConfig,
+    MaskViews,
+    mask_field_from_features,
+    mask_views,
+    normalize_heatmap,
+    threshold_heatmap,
+)
+
+__all__ = [
+    "DEFAULT_MODEL", "DEFAULT_NEGATIVES", "DEFAULT_NORMALIZATION", "DEFAULT_THRESHOLD", "GROUNDERS",
+    "NORMALIZATIONS", "PRESETS", "ClipBackbone", "ClipGrounder", "ClipWeightsNotFoundError", "FeatureCloud",
+    "Grounder", "GroundingCache", "InstructionError", "InstructionParser", "MaskField", "MaskFieldConfig",
+    "MaskViews", "OracleGrounder", "ParsedInstruction", "RewritingParser", "TemplateParser", "TemplateSet",
+    "build_feature_cloud", "clip_prompt", "cloud_key", "content_key", "decompose_instruction", "frame_key",
+    "image_key", "lift_patch_features", "load_clip", "load_templates", "make_grounder", "mask_field_from_features",
+    "mask_views", "match_object_ids", "nearest_patch_index", "normalize_heatmap", "normalize_instruction",
+    "random_clip", "target_point_mask", "threshold_heatmap", "tiny_clip", "upsample_nearest",
+]

@@ -1,0 +1,358 @@
+"""Frozen CLIP backbone (transformers :class:`~transformers.CLIPModel`) with MaskCLIP dense features.
+
+Three things are computed, all without gradients:
+
+* :meth:`ClipBackbone.dense_features` — MaskCLIP patch features ``(B, h, w, D)``: every vision block
+  but the last runs normally; in the last block the query-key attention is skipped and the value path
+  ``out_proj(v_proj(layer_norm1(x)))`` is used alone (no residual, no MLP); the CLS token is dropped,
+  then the final LayerNorm (``post_layernorm``) and the visual projection are applied and every patch
+  feature is L2-normalised.
+* :meth:`ClipBackbone.text_features` — projected, L2-normalised text features ``(B, D)``.
+* :meth:`ClipBackbone.text_tokens` — the ``77 x D_text`` token embeddings (last hidden state of the
+  text encoder after its final LayerNorm, before the projection), for the policy's language tokens.
+
+Weights: :func:`load_clip` takes a hub name (default ``openai/clip-vit-large-patch14-336``) or a local
+directory and never downloads unless ``allow_download=True``; missing weights raise
+:class:`ClipWeightsNotFoundError` explaining how to provide them. :func:`tiny_clip` builds a tiny random
+model for tests and :func:`random_clip` full-size random models (``"vit-b16"``, ``"vit-l14-336"``) for
+speed measurements (same cost as the real ones).
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+DEFAULT_MODEL = "openai/clip-vit-large-patch14-336"
+TEXT_CONTEXT = 77
+CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
+CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+
+# Architectures of the public OpenAI checkpoints, for random-weight speed measurements.
+PRESETS: dict[str, dict[str, Any]] = {
+    "vit-b16": dict(
+        projection_dim=512,
+        vision=dict(hidden_size=768, intermediate_size=3072, num_hidden_layers=12, num_attention_heads=12,
+                    image_size=224, patch_size=16),
+        text=dict(hidden_size=512, intermediate_size=2048, num_hidden_layers=12, num_attention_heads=8),
+    ),
+    "vit-l14-336": dict(
+        projection_dim=768,
+        vision=dict(hidden_size=1024, intermediate_size=4096, num_hidden_layers=24, num_attention_heads=16,
+                    image_size=336, patch_size=14),
+        text=dict(hidden_size=768, intermediate_size=3072, num_hidden_layers=12, num_attention_heads=12),
+    ),
+    "tiny": dict(
+        projection_dim=16,
+        vision=dict(hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=2,
+                    image_size=64, patch_size=8),
+        text=dict(hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=2),
+    ),
+}
+
+
+class ClipWeightsNotFoundError(FileNotFoundError):
+    """Pretrained CLIP weights are not available on this machine."""
+
+
+def _missing_weights_message(name: str, reason: str) -> str:
+    return (
+        f"CLIP weights {name!r} are not available on this machine ({reason}).\n"
+        "Provide them in one of these ways:\n"
+        f"  1. on a machine with internet: `huggingface-cli download {name}` (or `hf download {name}`),\n"
+        "     copy its Hugging Face cache folder here and point HF_HOME at it (the default cache is\n"
+        "     ~/.cache/huggingface); the weights are then found offline;\n"
+        f"  2. or save a local directory there with `CLIPModel.from_pretrained({name!r}).save_pretrained(DIR)`\n"
+        "     plus the same for `CLIPTokenizer`, copy DIR here and pass it as the model\n"
+        "     (`abm ground --clip-model DIR`, `make_grounder('clip', model=DIR)`);\n"
+        "  3. or, on a connected machine, allow the download (`allow_download=True`, `--allow-download`).\n"
+        "In simulation, the oracle grounder (`--grounder oracle`) needs no weights."
+    )
+
+
+def _is_local_path(name: str) -> bool:
+    return Path(name).expanduser().exists() or name.startswith((".", "/", "~")) or name.count("/") > 1
+
+
+@dataclass
+class ClipBackbone:
+    """A frozen CLIP model, its tokenizer and its image normalisation.
+
+    Attributes:
+        model: the :class:`transformers.CLIPModel` (eval mode, no gradients).
+        tokenizer: a CLIP tokenizer (callable like a transformers tokenizer).
+        name: identifier used in cache keys (hub name, directory, or ``"random:<preset>:<seed>"``).
+        device: where the model lives.
+        dtype: parameter dtype (float32 on CPU; float16 recommended on CUDA).
+        image_mean, image_std: per-channel RGB normalisation for pixel values in ``[0, 1]``.
+    """
+
+    model: Any
+    tokenizer: Any
+    name: str
+    device: torch.device
+    dtype: torch.dtype = torch.float32
+    image_mean: tuple[float, float, float] = CLIP_MEAN
+    image_std: tuple[float, float, float] = CLIP_STD
+
+    # ---- architecture facts -------------------------------------------------------------------
+    @property
+    def image_size(self) -> int:
+        """Side in pixels of the square input the model was trained on (e.g. 336)."""
+        return int(self.model.config.vision_config.image_size)
+
+    @property
+    def patch_size(self) -> int:
+        return int(self.model.config.vision_config.patch_size)
+
+    @property
+    def grid_size(self) -> int:
+        """Patches per side at :attr:`image_size` (e.g. 24 for ViT-L/14 at 336)."""
+        return self.image_size // self.patch_size
+
+    @property
+    def embed_dim(self) -> int:
+        """Dimension ``D`` of the joint image-text space."""
+        return int(self.model.config.projection_dim)
+
+    @property
+    def text_width(self) -> int:
+        """Width ``D_text`` of the text encoder's token embeddings."""
+        return int(self.model.config.text_config.hidden_size)
+
+    @property
+    def logit_scale(self) -> float:
+        """CLIP's learned softmax temperature ``exp(logit_scale)`` (100 for the OpenAI models)."""
+        return float(self.model.logit_scale.detach().exp().item())
+
+    # ---- images ---------------------------------------------------------------------------------
+    def preprocess(self, images: Any, input_size: tuple[int, int] | None = None) -> torch.Tensor:
+        """Images -> normalised pixel values ``(B, 3, H_in, W_in)`` on :attr:`device`.
+
+        Args:
+            images: ``uint8`` array ``(B, H, W, 3)``, a sequence of ``uint8`` ``(H, W, 3)`` arrays (sizes may
+                differ), or a float tensor ``(B, 3, H, W)`` in ``[0, 1]``.
+            input_size: ``(H_in, W_in)`` the whole image is resized to (bicubic, no crop, so the patch grid
+                covers the full image); default ``(image_size, image_size)``. Each side must be a multiple
+                of the patch size; other sizes than the native one use interpolated position embeddings.
+        """
+        h_in, w_in = input_size or (self.image_size, self.image_size)
+        if h_in % self.patch_size or w_in % self.patch_size:
+            raise ValueError(f"input_size {(h_in, w_in)} must be a multiple of the patch size {self.patch_size}")
+        if isinstance(images, torch.Tensor):
+            batch = [images[i] for i in range(images.shape[0])] if images.ndim == 4 else [images]
+            tensors = [t.float() for t in batch]
+        else:
+            arrays = [images] if isinstance(images, np.ndarray) and images.ndim == 3 else list(images)
+            tensors = []
+            for i, a in enumerate(arrays):
+                a = np.asarray(a)
+                if a.ndim != 3 or a.shape[2] != 3:
+                    raise ValueError(f"image {i} must be (H, W, 3), got shape {a.shape}")
+                tensors.append(torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1).float() / 255.0)
+        out = []
+        for t in tensors:
+            t = t.to(self.device)
+            if t.shape[-2:] != (h_in, w_in):
+                t = F.interpolate(t[None], size=(h_in, w_in), mode="bicubic", align_corners=False)[0]
+            out.append(t.clamp(0.0, 1.0))
+        pixels = torch.stack(out)
+        mean = torch.tensor(self.image_mean, device=self.device).view(1, 3, 1, 1)
+        std = torch.tensor(self.image_std, device=self.device).view(1, 3, 1, 1)
+        return ((pixels - mean) / std).to(self.dtype)
+
+    @torch.no_grad()
+    def dense_features(self, images: Any, input_size: tuple[int, int] | None = None) -> torch.Tensor:
+        """MaskCLIP patch features ``(B, h, w, D)`` float32, unit length, for a batch of images.
+
+        ``h = H_in / patch_size`` and ``w = W_in / patch_size`` (see :meth:`preprocess`); patch ``(i, j)``
+        covers input rows ``[i p, (i + 1) p)`` and columns ``[j p, (j + 1) p)``.
+        """
+        pixels = self.preprocess(images, input_size)
+        vision = self.model.vision_model
+        native = pixels.shape[-2:] == (self.image_size, self.image_size)
+        x = vision.embeddings(pixels, interpolate_pos_encoding=not native)
+        x = vision.pre_layrnorm(x)
+        layers = vision.encoder.layers
+        for layer in layers[:-1]:
+            x = _run_layer(layer, x)
+        last = layers[-1]
+        x = last.self_attn.out_proj(last.self_attn.v_proj(last.layer_norm1(x)))
+        x = vision.post_layernorm(x[:, 1:])
+        x = self.model.visual_projection(x)
+        x = F.normalize(x.float(), dim=-1)
+        gh, gw = pixels.shape[-2] // self.patch_size, pixels.shape[-1] // self.patch_size
+        return x.reshape(x.shape[0], gh, gw, x.shape[-1])
+
+    # ---- text -----------------------------------------------------------------------------------
+    def tokenize(self, texts: Sequence[str]) -> dict[str, torch.Tensor]:
+        """Token ids and attention mask ``(B, 77)``, padded / truncated to CLIP's context length."""
+        if isinstance(texts, str):
+            texts = [texts]
+        enc = self.tokenizer(list(texts), padding="max_length", max_length=TEXT_CONTEXT, truncation=True,
+                             return_tensors="pt")
+        return {"input_ids": enc["input_ids"].to(self.device),
+                "attention_mask": enc["attention_mask"].to(self.device)}
+
+    @torch.no_grad()
+    def text_features(self, texts: Sequence[str]) -> torch.Tensor:
+        """Projected, L2-normalised text features ``(B, D)`` float32."""
+        out = self.model.text_model(**self.tokenize(texts))
+        feats = self.model.text_projection(out.pooler_output)
+        return F.normalize(feats.float(), dim=-1)
+
+    @torch.no_grad()
+    def text_tokens(self, texts: Sequence[str]) -> torch.Tensor:
+        """Token embeddings ``(B, 77, D_text)`` float32 (text encoder output before the projection)."""
+        out = self.model.text_model(**self.tokenize(texts))
+        return out.last_hidden_state.float()
+
+
+def _run_layer(layer: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """Run one CLIP encoder layer without masks (transformers 4.x returns a tuple, 5.x a tensor)."""
+    if "causal_attention_mask" in inspect.signature(layer.forward).parameters:
+        out = layer(x, None, None)
+    else:
+        out = layer(x, None)
+    return out[0] if isinstance(out, tuple) else out
+
+
+def _resolve_device(device: str | torch.device | None) -> torch.device:
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
+
+
+def _resolve_dtype(dtype: str | torch.dtype | None, device: torch.device) -> torch.dtype:
+    if dtype is None:
+        return torch.float16 if device.type == "cuda" else torch.float32
+    if isinstance(dtype, str):
+        return {"float32": torch.float32, "fp32": torch.float32, "float16": torch.float16,
+                "fp16": torch.float16, "bfloat16": torch.bfloat16, "bf16": torch.bfloat16}[dtype]
+    return dtype
+
+
+def _finish(model: Any, device: torch.device, dtype: torch.dtype) -> Any:
+    model = model.to(device=device, dtype=dtype).eval()
+    for p in model.parameters():
+        p.requires_grad_(False)
+    return model
+
+
+def build_config(preset: str = "tiny", vocab_size: int | None = None) -> Any:
+    """A :class:`transformers.CLIPConfig` for one of :data:`PRESETS`."""
+    from transformers import CLIPConfig
+
+    if preset not in PRESETS:
+        raise ValueError(f"unknown CLIP preset {preset!r}; choose from {sorted(PRESETS)}")
+    spec = PRESETS[preset]
+    text = dict(spec["text"], max_position_embeddings=TEXT_CONTEXT, projection_dim=spec["projection_dim"])
+    if vocab_size is not None:
+        # The offline tokenizer's ids: BOS = vocab_size - 2, EOS = PAD = vocab_size - 1.
+        text.update(vocab_size=vocab_size, bos_token_id=vocab_size - 2, eos_token_id=vocab_size - 1,
+                    pad_token_id=vocab_size - 1)
+    vision = dict(spec["vision"], projection_dim=spec["projection_dim"])
+    return CLIPConfig(text_config=text, vision_config=vision, projection_dim=spec["projection_dim"])
+
+
+def random_clip(
+    preset: str = "tiny",
+    seed: int = 0,
+    device: str | torch.device | None = "cpu",
+    dtype: str | torch.dtype | None = None,
+) -> ClipBackbone:
+    """A randomly initialised CLIP of a preset architecture with the offline tokenizer.
+
+    ``"tiny"`` (64 px, 8 px patches, D = 16) is for tests; ``"vit-b16"`` and ``"vit-l14-336"`` have the
+    cost of the real models and are meant for speed measurements. Deterministic for a given seed.
+    """
+    from transformers import CLIPModel
+
+    from abm.grounding.tokenizer import tiny_tokenizer
+
+    tokenizer = tiny_tokenizer()
+    vocab_size = len(tokenizer)
+    config = build_config(preset, vocab_size=vocab_size if preset == "tiny" else None)
+    if preset != "tiny":
+        config.text_config.vocab_size = max(config.text_config.vocab_size, vocab_size)
+        config.text_config.eos_token_id = tokenizer.eos_token_id
+        config.text_config.pad_token_id = tokenizer.pad_token_id
+        config.text_config.bos_token_id = tokenizer.bos_token_id
+    dev = _resolve_device(device)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        model = CLIPModel(config)
+    return ClipBackbone(_finish(model, dev, _resolve_dtype(dtype, dev)), tokenizer,
+                        f"random:{preset}:{seed}", dev, _resolve_dtype(dtype, dev))
+
+
+def tiny_clip(seed: int = 0, device: str | torch.device | None = "cpu") -> ClipBackbone:
+    """The tiny random CLIP used by tests (same code path as the real models)."""
+    return random_clip("tiny", seed=seed, device=device, dtype=torch.float32)
+
+
+def _image_stats(folder: Path) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    cfg = folder / "preprocessor_config.json"
+    if cfg.is_file():
+        data = json.loads(cfg.read_text(encoding="utf-8"))
+        if "image_mean" in data and "image_std" in data:
+            return tuple(float(v) for v in data["image_mean"]), tuple(float(v) for v in data["image_std"])
+    return CLIP_MEAN, CLIP_STD
+
+
+def load_clip(
+    name_or_path: str = DEFAULT_MODEL,
+    device: str | torch.device | None = None,
+    dtype: str | torch.dtype | None = None,
+    allow_download: bool = False,
+    seed: int = 0,
+) -> ClipBackbone:
+    """Load a CLIP backbone.
+
+    Args:
+        name_or_path: a hub name (found in the local Hugging Face cache, ``$HF_HOME``), a local directory
+            written by ``save_pretrained``, ``"tiny"`` or ``"random:<preset>"`` (random weights, see
+            :func:`random_clip`).
+        device: ``"cpu"``, ``"cuda"``...; default CUDA when available.
+        dtype: parameter dtype; default float16 on CUDA, float32 on CPU.
+        allow_download: also try the network when the weights are not cached (off by default, also
+            forced off by ``HF_HUB_OFFLINE=1``).
+
+    Raises:
+        ClipWeightsNotFoundError: the weights are not available (the message says how to provide them).
+    """
+    if name_or_path == "tiny":
+        return tiny_clip(seed=seed, device=device or "cpu")
+    if name_or_path.startswith("random:"):
+        return random_clip(name_or_path.split(":", 1)[1], seed=seed, device=device, dtype=dtype)
+    from transformers import CLIPModel, CLIPTokenizer
+
+    dev = _resolve_device(device)
+    dt = _resolve_dtype(dtype, dev)
+    offline = os.environ.get("HF_HUB_OFFLINE", "0") not in ("", "0") or \
+        os.environ.get("TRANSFORMERS_OFFLINE", "0") not in ("", "0")
+    local_only = not allow_download or offline
+    if _is_local_path(name_or_path):
+        folder = Path(name_or_path).expanduser()
+        if not (folder / "config.json").is_file():
+            raise ClipWeightsNotFoundError(_missing_weights_message(
+                name_or_path, f"no directory with a config.json at {folder}"))
+        source, mean_std = str(folder), _image_stats(folder)
+    else:
+        source, mean_std = name_or_path, (CLIP_MEAN, CLIP_STD)
+    try:
+        model = CLIPModel.from_pretrained(source, local_files_only=local_only)
+        tokenizer = CLIPTokenizer.from_pretrained(source, local_files_only=local_only)
+    except OSError as err:
+        reason = "not in the local cache, downloads disabled" if local_only else f"download failed: {err}"
+        raise ClipWeightsNotFoundError(_missing_weights_message(name_or_path, reason)) from err
+    return ClipBackbone(_finish(model, dev, dt), tokenizer, name_or_path, dev, dt, *mean_std)

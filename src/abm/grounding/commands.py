@@ -1,0 +1,174 @@
+"""``abm ground``: decompose an instruction, ground its target and write inspection PNGs.
+
+Works on one keyframe of an episode file (``--episode FILE --step K``) or on the built-in synthetic
+sample scene (default). Writes to ``--out``:
+
+* ``camera_<name>.png`` — each camera image, its heatmap overlay and its mask overlay, side by side;
+* ``topdown.png`` — the mask field seen from above (RGB, heatmap, mask) over the workspace;
+* ``views.png`` / ``view_<name>.png`` — the five virtual views with the center pixel marked, above the
+  re-rendered binary mask;
+* ``summary.json`` — instruction, target, skill, prompt, point counts, mask centre.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "ground",
+        help="ground an instruction's target object and write heatmap / mask / virtual-view PNGs",
+        description="Split the instruction into the target X and the skill, compute the Object Mask Field "
+        "of X over the fused point cloud (CLIP or oracle grounder), render it into the five virtual views "
+        "and write PNGs. Without --episode the built-in synthetic scene is used.",
+    )
+    p.add_argument("--episode", type=Path, help="episode file (abm.data.episode_store format)")
+    p.add_argument("--step", type=int, default=0, help="keyframe index within the episode (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the synthetic scene (without --episode)")
+    p.add_argument("--instruction", help="instruction (default: the episode's, or one naming a scene object)")
+    p.add_argument("--grounder", choices=("oracle", "clip"), default="oracle", help="grounder (default oracle)")
+    p.add_argument("--clip-model", default=None,
+                   help="CLIP hub name, local directory, 'tiny' or 'random:vit-b16' (default "
+                        "openai/clip-vit-large-patch14-336; needs the weights locally)")
+    p.add_argument("--allow-download", action="store_true", help="let transformers download CLIP weights")
+    p.add_argument("--normalization", choices=("raw", "minmax", "softmax"), default=None,
+                   help="heatmap normalisation (default softmax)")
+    p.add_argument("--threshold", type=float, default=None, help="mask threshold on the heatmap (default 0.7)")
+    p.add_argument("--cache", type=Path, default=None, help="grounding cache folder (default: none)")
+    p.add_argument("--resolution", type=int, default=220, help="virtual view side in pixels")
+    p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    p.add_argument("--out", type=Path, default=Path("out/ground"), help="output folder (default out/ground)")
+    p.set_defaults(func=run)
+
+
+def _load_scene(args: argparse.Namespace) -> tuple[Any, dict[int, str], str | None, str]:
+    """(observation, object names, episode instruction or None, description)."""
+    if args.episode is not None:
+        from abm.data.episode_store import load_episode  # written in parallel; imported only when used
+
+        episode = load_episode(args.episode)
+        if not 0 <= args.step < len(episode.steps):
+            raise ValueError(f"--step {args.step} is out of range: the episode has {len(episode.steps)} keyframes")
+        obs = episode.steps[args.step][0]
+        return obs, dict(episode.object_names), episode.instruction, f"{args.episode} step {args.step}"
+    from abm.render.synthetic import synthetic_scene
+
+    obs, names = synthetic_scene(seed=args.seed)
+    return obs, names, None, f"synthetic scene (seed {args.seed})"
+
+
+def _camera_panels(obs: Any, cloud: Any, field: Any) -> dict[str, np.ndarray]:
+    from abm.grounding.visualize import blend, colormap, hstack, label, upscale
+
+    panels = {}
+    for ci, name in enumerate(cloud.camera_names):
+        frame = obs.camera(name)
+        sel = cloud.camera_index == ci
+        rows, cols = cloud.pixels[sel, 0], cloud.pixels[sel, 1]
+        heat = np.zeros(frame.rgb.shape[:2], np.float32)
+        mask = np.zeros(frame.rgb.shape[:2], np.float32)
+        has = np.zeros(frame.rgb.shape[:2], bool)
+        heat[rows, cols] = field.heatmap[sel]
+        mask[rows, cols] = field.mask[sel]
+        has[rows, cols] = True
+        dim = blend(frame.rgb, np.zeros_like(frame.rgb), 0.5)
+        heat_img = np.where(has[..., None], blend(frame.rgb, colormap(heat), 0.3 + 0.5 * heat), dim)
+        red = np.zeros_like(frame.rgb)
+        red[..., 0] = 255
+        mask_img = np.where(has[..., None], blend(frame.rgb, red, 0.7 * mask), dim)
+        panels[name] = hstack([label(upscale(frame.rgb, 2), name), label(upscale(heat_img, 2), "heatmap"),
+                               label(upscale(mask_img, 2), "mask")])
+    return panels
+
+
+def _topdown(cloud: Any, field: Any, workspace: Any, resolution: int = 256) -> np.ndarray:
+    import torch
+
+    from abm.grounding.visualize import blend, colormap, hstack, label, to_uint8
+    from abm.render import OrthographicRenderer
+
+    renderer = OrthographicRenderer(workspace, resolution, views=("top",), splat_radius=1)
+    extra = torch.from_numpy(np.stack([field.heatmap, field.mask], axis=1))
+    out = renderer.render(torch.from_numpy(cloud.xyz), torch.from_numpy(cloud.rgb), extra=extra)
+    rgb = to_uint8(out.rgb[0, 0].permute(1, 2, 0).numpy())
+    occ = out.occupied[0, 0].numpy()[..., None]
+    heat = np.where(occ, colormap(out.extra[0, 0, 0].numpy()), 0).astype(np.uint8)
+    red = np.zeros_like(rgb)
+    red[..., 0] = 255
+    mask = blend(rgb, red, 0.8 * out.extra[0, 0, 1].numpy())
+    return hstack([label(rgb, "top: RGB (up = +x)"), label(heat, "heatmap"), label(mask, "mask")])
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+    from PIL import Image
+
+    from abm.geometry import Workspace, fuse_cameras
+    from abm.grounding.grounders import make_grounder
+    from abm.grounding.instruction import decompose_instruction
+    from abm.grounding.mask_field import mask_views
+    from abm.grounding.visualize import gray, hstack, label, mark_pixels, to_uint8, upscale, vstack
+    from abm.render import OrthographicRenderer
+
+    obs, names, episode_instruction, where = _load_scene(args)
+    instruction = args.instruction or episode_instruction or f"put the {next(iter(names.values()))} in the plate"
+    target, skill = decompose_instruction(instruction)
+    workspace = Workspace()
+    cloud = fuse_cameras(obs, workspace)
+
+    options: dict[str, Any] = {}
+    if args.grounder == "clip":
+        options = dict(device=args.device, allow_download=args.allow_download, cache=args.cache)
+        if args.clip_model:
+            options["model"] = args.clip_model
+        if args.normalization:
+            options["normalization"] = args.normalization
+        if args.threshold is not None:
+            options["threshold"] = args.threshold
+    elif args.normalization or args.threshold is not None or args.clip_model:
+        raise ValueError("--clip-model, --normalization and --threshold apply to --grounder clip only")
+    grounder = make_grounder(args.grounder, **options)
+    field = grounder.ground(obs, cloud, target, names)
+
+    renderer = OrthographicRenderer(workspace, args.resolution, splat_radius=1, device=args.device)
+    views = renderer.render(torch.from_numpy(cloud.xyz), torch.from_numpy(cloud.rgb))
+    mviews = mask_views(renderer, cloud, field.mask)
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name, panel in _camera_panels(obs, cloud, field).items():
+        Image.fromarray(panel).save(args.out / f"camera_{name}.png")
+    Image.fromarray(_topdown(cloud, field, workspace)).save(args.out / "topdown.png")
+    tiles = []
+    for vi, view in enumerate(renderer.views):
+        rgb = upscale(to_uint8(views.rgb[0, vi].permute(1, 2, 0).cpu().numpy()), 2)
+        rows, cols = np.nonzero(mviews.center[vi].cpu().numpy())
+        rgb = mark_pixels(rgb, [(2 * r + 1, 2 * c + 1) for r, c in zip(rows, cols, strict=True)], radius=7)
+        full = upscale(gray(mviews.full[vi].cpu().numpy()), 2)
+        tile = vstack([label(rgb, f"{view} (center pixel marked)"), label(full, "re-rendered mask")])
+        Image.fromarray(tile).save(args.out / f"view_{view}.png")
+        tiles.append(tile)
+    Image.fromarray(hstack(tiles)).save(args.out / "views.png")
+
+    center = field.center(cloud.xyz)
+    summary = {
+        "scene": where, "instruction": instruction, "target": target, "skill": skill,
+        "grounder": args.grounder, "prompt": field.prompt, "found": field.found,
+        "points": len(cloud), "mask_points": int(field.mask.sum()),
+        "mask_center_m": None if center is None else [round(float(c), 4) for c in center],
+        "center_pixels": {v: [int(x) for x in np.argwhere(mviews.center[i].cpu().numpy()).reshape(-1)]
+                          for i, v in enumerate(renderer.views)},
+    }
+    if args.grounder == "clip":
+        summary.update(model=grounder.model_name, normalization=grounder.config.normalization,
+                       threshold=grounder.config.threshold)
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    print(f"{where}: {instruction!r} -> target {target!r}, skill {skill!r}")
+    print(f"{args.grounder} grounder: {summary['mask_points']} of {len(cloud)} points masked, found={field.found}")
+    print(f"wrote camera_*.png, topdown.png, views.png, view_*.png and summary.json to {args.out}/")
+    return 0

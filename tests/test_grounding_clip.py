@@ -1,0 +1,149 @@
+"""CLIP backbone: MaskCLIP dense features, text features, loading and its errors (tiny random model)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+pytest.importorskip("transformers")
+
+from abm.grounding.clip import (  # noqa: E402
+    TEXT_CONTEXT,
+    ClipWeightsNotFoundError,
+    build_config,
+    load_clip,
+    tiny_clip,
+)
+
+
+@pytest.fixture(scope="module")
+def clip():
+    return tiny_clip(seed=0)
+
+
+@pytest.fixture(scope="module")
+def images():
+    return np.random.default_rng(1).integers(0, 256, size=(3, 40, 52, 3), dtype=np.uint8)
+
+
+def _linear(x: torch.Tensor, layer: torch.nn.Linear) -> torch.Tensor:
+    out = x @ layer.weight.T
+    return out + layer.bias if layer.bias is not None else out
+
+
+def _layer_norm(x: torch.Tensor, ln: torch.nn.LayerNorm) -> torch.Tensor:
+    mu = x.mean(-1, keepdim=True)
+    var = ((x - mu) ** 2).mean(-1, keepdim=True)
+    return (x - mu) / torch.sqrt(var + ln.eps) * ln.weight + ln.bias
+
+
+def test_maskclip_matches_hand_computation(clip, images):
+    feats = clip.dense_features(images)
+    g = clip.grid_size
+    assert feats.shape == (3, g, g, clip.embed_dim)
+    with torch.no_grad():
+        pixels = clip.preprocess(images)
+        vision = clip.model.vision_model
+        hidden = vision(pixel_values=pixels, output_hidden_states=True).hidden_states
+        x = hidden[-2]  # the input of the last block: every earlier block ran normally
+        last = vision.encoder.layers[-1]
+        v = _linear(_layer_norm(x, last.layer_norm1), last.self_attn.v_proj)
+        y = _linear(v, last.self_attn.out_proj)[:, 1:]  # no attention mixing, residual or MLP; CLS dropped
+        y = _layer_norm(y, vision.post_layernorm) @ clip.model.visual_projection.weight.T
+        y = y / y.norm(dim=-1, keepdim=True)
+    torch.testing.assert_close(feats, y.reshape(3, g, g, -1), atol=1e-5, rtol=1e-5)
+    assert torch.allclose(feats.norm(dim=-1), torch.ones(3, g, g), atol=1e-5)
+
+
+def test_maskclip_is_not_the_standard_last_block(clip, images):
+    """Sanity check that the value-only path differs from running the last block normally."""
+    with torch.no_grad():
+        pixels = clip.preprocess(images)
+        vision = clip.model.vision_model
+        out = vision(pixel_values=pixels).last_hidden_state[:, 1:]
+        std = F.normalize(clip.model.visual_projection(vision.post_layernorm(out)), dim=-1)
+    assert not torch.allclose(std.reshape(clip.dense_features(images).shape), clip.dense_features(images))
+
+
+def test_preprocess_resizes_any_size_and_list_input(clip):
+    a = np.zeros((30, 30, 3), np.uint8)
+    b = np.full((100, 70, 3), 255, np.uint8)
+    px = clip.preprocess([a, b])
+    assert px.shape == (2, 3, clip.image_size, clip.image_size)
+    mean = torch.tensor(clip.image_mean).view(3, 1, 1)
+    std = torch.tensor(clip.image_std).view(3, 1, 1)
+    torch.testing.assert_close(px[0], ((0 - mean) / std).expand(3, clip.image_size, clip.image_size))
+    torch.testing.assert_close(px[1], ((1 - mean) / std).expand(3, clip.image_size, clip.image_size))
+    with pytest.raises(ValueError, match="multiple of the patch size"):
+        clip.preprocess([a], input_size=(30, 30))
+    with pytest.raises(ValueError, match=r"\(H, W, 3\)"):
+        clip.preprocess([np.zeros((5, 5), np.uint8)])
+
+
+def test_non_native_input_size_interpolates_position_embeddings(clip, images):
+    p = clip.patch_size
+    feats = clip.dense_features(images, input_size=(6 * p, 10 * p))
+    assert feats.shape == (3, 6, 10, clip.embed_dim)
+    assert torch.isfinite(feats).all()
+
+
+def test_batching_does_not_change_features(clip, images):
+    together = clip.dense_features(images)
+    alone = torch.cat([clip.dense_features(images[i:i + 1]) for i in range(3)])
+    torch.testing.assert_close(together, alone, atol=1e-5, rtol=1e-5)
+
+
+def test_text_features_and_tokens(clip):
+    prompts = ["a photo of a tomato", "a photo of an orange juice"]
+    feats = clip.text_features(prompts)
+    assert feats.shape == (2, clip.embed_dim)
+    assert torch.allclose(feats.norm(dim=-1), torch.ones(2), atol=1e-5)
+    assert not torch.allclose(feats[0], feats[1])
+    with torch.no_grad():
+        enc = clip.tokenize(prompts)
+        out = clip.model.text_model(**enc)
+        manual = F.normalize(clip.model.text_projection(out.pooler_output), dim=-1)
+    torch.testing.assert_close(feats, manual)
+    tokens = clip.text_tokens(["put X in the plate", "close X"])
+    assert tokens.shape == (2, TEXT_CONTEXT, clip.text_width)
+    torch.testing.assert_close(clip.text_tokens(["close X"])[0], tokens[1])
+
+
+def test_tiny_model_is_deterministic(clip, images):
+    again = tiny_clip(seed=0)
+    torch.testing.assert_close(again.dense_features(images), clip.dense_features(images))
+    other = tiny_clip(seed=1)
+    assert not torch.allclose(other.dense_features(images), clip.dense_features(images))
+
+
+def test_local_directory_round_trip(clip, images, tmp_path):
+    clip.model.save_pretrained(tmp_path)
+    clip.tokenizer.save_pretrained(tmp_path)
+    loaded = load_clip(str(tmp_path), device="cpu")
+    torch.testing.assert_close(loaded.dense_features(images), clip.dense_features(images))
+    torch.testing.assert_close(loaded.text_features(["a photo of a cup"]), clip.text_features(["a photo of a cup"]))
+
+
+def test_missing_weights_explain_how_to_provide_them(tmp_path, monkeypatch):
+    monkeypatch.setenv("HF_HOME", str(tmp_path / "hf"))
+    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "hf" / "hub"))
+    with pytest.raises(ClipWeightsNotFoundError) as err:
+        load_clip("openai/clip-vit-large-patch14-336", device="cpu")
+    message = str(err.value)
+    assert "huggingface-cli download openai/clip-vit-large-patch14-336" in message
+    assert "HF_HOME" in message and "local directory" in message
+    with pytest.raises(ClipWeightsNotFoundError, match="config.json"):
+        load_clip(str(tmp_path / "no_such_dir"))
+    assert issubclass(ClipWeightsNotFoundError, FileNotFoundError)
+
+
+def test_presets_have_the_real_architectures():
+    b16 = build_config("vit-b16")
+    assert (b16.vision_config.image_size, b16.vision_config.patch_size, b16.projection_dim) == (224, 16, 512)
+    l14 = build_config("vit-l14-336")
+    assert (l14.vision_config.image_size, l14.vision_config.patch_size, l14.vision_config.hidden_size,
+            l14.vision_config.num_hidden_layers, l14.projection_dim) == (336, 14, 1024, 24, 768)
+    with pytest.raises(ValueError, match="unknown CLIP preset"):
+        build_config("vit-h14")
