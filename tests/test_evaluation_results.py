@@ -81,3 +81,40 @@ def test_eval_seeds_are_shared_and_distinct():
     assert len(seeds) == 125 and min(seeds) >= 1_000_000
     with pytest.raises(ValueError, match="episode index"):
         eval_seed(0, 10_000)
+
+
+def test_interrupted_evaluation_resumes_without_repeating(tmp_path):
+    from abm.evaluation.runner import evaluate
+
+    calls = []
+
+    def fake_runner(job, settings):
+        if len(calls) == 5 and not any(c == "interrupted" for c in calls):
+            calls.append("interrupted")
+            raise KeyboardInterrupt
+        calls.append(job.key)
+        return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
+                              success=job.episode % 2 == 0)
+
+    kwargs = dict(runs=["runA"], tasks=["t1", "t2"], split="seen", out_dir=tmp_path, episodes=3, repeats=2,
+                  progress=False, labels={"runA": "abm"}, runner=fake_runner)
+    with pytest.raises(KeyboardInterrupt):
+        evaluate(**kwargs)
+    assert len(OutcomeLog(tmp_path / "outcomes.jsonl").read()) == 5
+    rates = evaluate(**kwargs)
+    executed = [c for c in calls if c != "interrupted"]
+    assert len(executed) == 12 and len(set(executed)) == 12  # every job exactly once over both runs
+    assert [r.per_repeat for r in rates] == [[pytest.approx(200 / 3)] * 2] * 2
+    assert (tmp_path / "results.md").read_text().startswith("**seen**")
+
+
+def test_crashed_episode_is_a_recorded_failure(tmp_path, monkeypatch):
+    from abm.evaluation import runner
+
+    def broken_policy(run, settings):
+        raise RuntimeError("no checkpoint here")
+
+    monkeypatch.setattr(runner, "_load_policy", broken_policy)
+    job = runner.EvalJob("runA", "abm", "pick_block", "seen", 0, 0, eval_seed(0, 0))
+    outcome = runner.run_job(job, runner.EvalSettings())
+    assert outcome.success is False and "RuntimeError: no checkpoint here" in outcome.error

@@ -17,7 +17,11 @@ import abm
 # Modules that add sub-commands, in the order they appear in ``abm --help``.
 COMMAND_MODULES: tuple[str, ...] = (
     "abm.render.commands",
+    "abm.data.commands",
     "abm.grounding.commands",
+    "abm.train.commands",
+    "abm.evaluation.commands",
+    "abm.quickstart",
 )
 
 

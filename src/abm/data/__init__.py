@@ -1,0 +1,1 @@
+"""Data: on-disk episode store, demonstration generation and keyframe datasets."""

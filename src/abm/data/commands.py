@@ -1,0 +1,80 @@
+"""``abm data generate`` and ``abm data info``."""
+
+from __future__ import annotations
+
+import argparse
+from collections import defaultdict
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    data = subparsers.add_parser("data", help="generate and inspect demonstration episodes")
+    sub = data.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
+
+    gen = sub.add_parser("generate", help="run the scripted expert and save demonstrations (resumable)")
+    gen.add_argument("--task", required=True, help="task name, e.g. place_food")
+    gen.add_argument("--split", required=True, help="object split: seen or unseen")
+    gen.add_argument("--episodes", type=int, required=True, help="number of successful demonstrations")
+    gen.add_argument("--out", required=True, type=Path, help="output directory")
+    gen.add_argument("--workers", type=int, default=1, help="parallel worker processes")
+    gen.add_argument("--seed", type=int, default=0, help="first scene seed")
+    gen.add_argument("--resolution", type=int, default=128, help="camera resolution (pixels, square)")
+    gen.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
+    gen.set_defaults(func=_generate)
+
+    info = sub.add_parser("info", help="summarise the episodes in a directory")
+    info.add_argument("dir", type=Path)
+    info.set_defaults(func=_info)
+    data.set_defaults(func=lambda args: data.print_help() or 1)
+
+
+def _generate(args: argparse.Namespace) -> int:
+    from abm.cli import CommandError
+    from abm.data.generate import generate
+    from abm.sim.assets import AssetNotFoundError
+    from abm.sim.splits import SplitFileError
+    from abm.sim.tasks import TASKS
+
+    if args.task not in TASKS:
+        raise CommandError(f"unknown task {args.task!r}; known tasks: {', '.join(sorted(TASKS))}")
+    if args.episodes < 1:
+        raise CommandError(f"--episodes must be at least 1, got {args.episodes}")
+    if args.workers < 1:
+        raise CommandError(f"--workers must be at least 1, got {args.workers}")
+    if not 16 <= args.resolution <= 1024:
+        raise CommandError(f"--resolution must be between 16 and 1024, got {args.resolution}")
+    try:
+        report = generate(args.task, args.split, args.episodes, args.out, workers=args.workers,
+                          seed=args.seed, resolution=args.resolution, splits_path=args.splits)
+    except (SplitFileError, AssetNotFoundError) as err:
+        raise CommandError(str(err)) from None
+    print(f"{args.task}/{args.split}: {report.created} new, {report.skipped} already present, "
+          f"{len(report.failed_seeds)} expert failures, {report.seconds:.0f} s "
+          f"({report.episodes_per_minute:.1f} episodes/min) -> {args.out}")
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    from abm.cli import CommandError
+    from abm.data.episode_store import EpisodeFormatError, EpisodeStore
+
+    if not args.dir.is_dir():
+        raise CommandError(f"not a directory: {args.dir}")
+    try:
+        store = EpisodeStore(args.dir)
+    except EpisodeFormatError as err:
+        raise CommandError(str(err)) from None
+    groups: dict[tuple[str, str], list] = defaultdict(list)
+    for info in store.episodes:
+        groups[(info.task, info.split)].append(info)
+    total_bytes = sum(info.path.stat().st_size for info in store.episodes)
+    print(f"{args.dir}: {len(store)} episodes, {total_bytes / 1e6:.1f} MB")
+    if not groups:
+        return 0
+    print(f"{'task':<16}{'split':<14}{'episodes':>9}{'success':>9}{'keyframes':>11}{'MB':>9}")
+    for (task, split), infos in sorted(groups.items()):
+        size = sum(i.path.stat().st_size for i in infos) / 1e6
+        keyframes = sum(i.num_keyframes for i in infos)
+        ok = sum(i.success for i in infos)
+        print(f"{task:<16}{split:<14}{len(infos):>9}{ok:>9}{keyframes:>11}{size:>9.1f}")
+    return 0

@@ -1,0 +1,261 @@
+"""On-disk episodes: one HDF5 file per :class:`abm.types.Episode`.
+
+File layout (``FORMAT_VERSION`` 1); ``K`` keyframes, per camera ``H x W`` pixels::
+
+    /                       attrs: format_version, task, split, variation, instruction, success, seed,
+                                   num_keyframes, object_names (JSON {id: name}), target_names (JSON),
+                                   camera_names (JSON), metadata (JSON)
+    /observations/gripper_open   (K,)       float32
+    /observations/gripper_pose   (K, 4, 4)  float64
+    /observations/step           (K,)       int64
+    /observations/cameras/<name>/rgb           (K, H, W, 3) uint8    gzip, one chunk per keyframe
+    /observations/cameras/<name>/depth         (K, H, W)    float32  gzip, metres along +z
+    /observations/cameras/<name>/segmentation  (K, H, W)    int32    gzip (only if present)
+    /observations/cameras/<name>/intrinsics    (K, 3, 3)    float64
+    /observations/cameras/<name>/extrinsics    (K, 4, 4)    float64  camera-to-world, OpenCV axes
+    /actions/position          (K, 3) float64
+    /actions/quaternion        (K, 4) float64  (x, y, z, w)
+    /actions/gripper_open      (K,)   bool
+    /actions/ignore_collision  (K,)   bool
+
+Writes are atomic (temporary file in the same folder, then :func:`os.replace`), so an interrupted run
+never leaves a complete-looking partial file. Any unreadable, incomplete or wrong-version file raises
+:class:`EpisodeFormatError` naming the file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from abm.types import CameraFrame, Episode, KeyframeAction, Observation
+
+FORMAT_VERSION: int = 1
+EPISODE_SUFFIX = ".h5"
+_COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+
+
+class EpisodeFormatError(ValueError):
+    """An episode file that cannot be read: the message names the file and the problem."""
+
+
+@dataclass(frozen=True)
+class EpisodeInfo:
+    """Metadata of one stored episode (read without touching the image data)."""
+
+    path: Path
+    task: str
+    split: str
+    variation: int
+    instruction: str
+    num_keyframes: int
+    success: bool
+    seed: int
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"metadata value of type {type(value).__name__} is not JSON-serialisable")
+
+
+def save_episode(episode: Episode, path: str | os.PathLike) -> None:
+    """Write ``episode`` to ``path`` atomically (parents are created)."""
+    import h5py
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    steps = episode.steps
+    camera_names = list(steps[0][0].cameras) if steps else []
+    for k, (obs, _) in enumerate(steps):
+        if list(obs.cameras) != camera_names:
+            raise ValueError(f"keyframe {k} has cameras {list(obs.cameras)}, expected {camera_names}")
+    try:
+        with h5py.File(tmp, "w") as f:
+            attrs = f.attrs
+            attrs["format_version"] = FORMAT_VERSION
+            attrs["task"] = episode.task
+            attrs["split"] = episode.split
+            attrs["variation"] = int(episode.variation)
+            attrs["instruction"] = episode.instruction
+            attrs["success"] = bool(episode.success)
+            attrs["seed"] = int(episode.seed)
+            attrs["num_keyframes"] = len(steps)
+            attrs["object_names"] = json.dumps({str(k): v for k, v in episode.object_names.items()})
+            attrs["target_names"] = json.dumps(list(episode.target_names))
+            attrs["camera_names"] = json.dumps(camera_names)
+            attrs["metadata"] = json.dumps(episode.metadata, default=_json_default)
+            obs_g = f.create_group("observations")
+            obs_g["gripper_open"] = np.array([o.gripper_open for o, _ in steps], np.float32)
+            obs_g["gripper_pose"] = np.array([o.gripper_pose for o, _ in steps], np.float64).reshape(-1, 4, 4)
+            obs_g["step"] = np.array([o.step for o, _ in steps], np.int64)
+            cams = obs_g.create_group("cameras")
+            for name in camera_names:
+                frames = [o.cameras[name] for o, _ in steps]
+                g = cams.create_group(name)
+                h, w = frames[0].height, frames[0].width
+                g.create_dataset("rgb", data=np.stack([c.rgb for c in frames]), chunks=(1, h, w, 3),
+                                 **_COMPRESSION)
+                g.create_dataset("depth", data=np.stack([c.depth for c in frames]).astype(np.float32),
+                                 chunks=(1, h, w), **_COMPRESSION)
+                if all(c.segmentation is not None for c in frames):
+                    g.create_dataset("segmentation", data=np.stack([c.segmentation for c in frames])
+                                     .astype(np.int32), chunks=(1, h, w), **_COMPRESSION)
+                g["intrinsics"] = np.stack([c.intrinsics for c in frames])
+                g["extrinsics"] = np.stack([c.extrinsics for c in frames])
+            act = f.create_group("actions")
+            act["position"] = np.array([a.position for _, a in steps], np.float64).reshape(-1, 3)
+            act["quaternion"] = np.array([a.quaternion for _, a in steps], np.float64).reshape(-1, 4)
+            act["gripper_open"] = np.array([a.gripper_open for _, a in steps], bool)
+            act["ignore_collision"] = np.array([a.ignore_collision for _, a in steps], bool)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _open(path: Path):
+    import h5py
+
+    if not path.is_file():
+        raise FileNotFoundError(f"episode file not found: {path}")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as err:
+        raise EpisodeFormatError(f"{path}: not a readable HDF5 episode file ({err})") from None
+    version = f.attrs.get("format_version")
+    if version is None:
+        f.close()
+        raise EpisodeFormatError(f"{path}: missing 'format_version' attribute (not an abm episode file)")
+    if int(version) != FORMAT_VERSION:
+        f.close()
+        raise EpisodeFormatError(f"{path}: episode format version {int(version)} is not supported "
+                                 f"(this abm reads version {FORMAT_VERSION})")
+    return f
+
+
+def _attr(f, path: Path, key: str):
+    try:
+        return f.attrs[key]
+    except KeyError:
+        raise EpisodeFormatError(f"{path}: missing attribute {key!r}") from None
+
+
+def _info(f, path: Path) -> EpisodeInfo:
+    return EpisodeInfo(path=path, task=str(_attr(f, path, "task")), split=str(_attr(f, path, "split")),
+                       variation=int(_attr(f, path, "variation")),
+                       instruction=str(_attr(f, path, "instruction")),
+                       num_keyframes=int(_attr(f, path, "num_keyframes")),
+                       success=bool(_attr(f, path, "success")), seed=int(_attr(f, path, "seed")))
+
+
+def read_info(path: str | os.PathLike) -> EpisodeInfo:
+    """Metadata of one episode file (no image data is read)."""
+    path = Path(path)
+    f = _open(path)
+    with f:
+        return _info(f, path)
+
+
+def _read_step(f, path: Path, k: int, camera_names: list[str]) -> tuple[Observation, KeyframeAction]:
+    try:
+        obs_g, act = f["observations"], f["actions"]
+        cameras = {}
+        for name in camera_names:
+            g = obs_g["cameras"][name]
+            cameras[name] = CameraFrame(
+                rgb=g["rgb"][k], depth=g["depth"][k], intrinsics=g["intrinsics"][k],
+                extrinsics=g["extrinsics"][k],
+                segmentation=g["segmentation"][k] if "segmentation" in g else None)
+        obs = Observation(cameras=cameras, gripper_open=float(obs_g["gripper_open"][k]),
+                          gripper_pose=obs_g["gripper_pose"][k], step=int(obs_g["step"][k]))
+        action = KeyframeAction(position=act["position"][k], quaternion=act["quaternion"][k],
+                                gripper_open=bool(act["gripper_open"][k]),
+                                ignore_collision=bool(act["ignore_collision"][k]))
+    except (KeyError, OSError, ValueError, IndexError) as err:
+        raise EpisodeFormatError(f"{path}: keyframe {k} cannot be read ({err})") from None
+    return obs, action
+
+
+def _json_attr(f, path: Path, key: str):
+    try:
+        return json.loads(_attr(f, path, key))
+    except json.JSONDecodeError as err:
+        raise EpisodeFormatError(f"{path}: attribute {key!r} is not valid JSON ({err})") from None
+
+
+def load_episode(path: str | os.PathLike) -> Episode:
+    """Read a whole episode written by :func:`save_episode`."""
+    path = Path(path)
+    f = _open(path)
+    with f:
+        info = _info(f, path)
+        camera_names = _json_attr(f, path, "camera_names")
+        steps = [_read_step(f, path, k, camera_names) for k in range(info.num_keyframes)]
+        object_names = {int(k): v for k, v in _json_attr(f, path, "object_names").items()}
+        try:
+            return Episode(task=info.task, variation=info.variation, split=info.split,
+                           instruction=info.instruction, object_names=object_names,
+                           target_names=list(_json_attr(f, path, "target_names")), steps=steps,
+                           success=info.success, seed=info.seed, metadata=_json_attr(f, path, "metadata"))
+        except ValueError as err:
+            raise EpisodeFormatError(f"{path}: invalid episode ({err})") from None
+
+
+def find_episode_files(root: str | os.PathLike) -> list[Path]:
+    """Episode files under ``root`` (recursively, sorted; temporary files are skipped)."""
+    root = Path(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"episode directory not found: {root}")
+    return sorted(p for p in root.rglob(f"*{EPISODE_SUFFIX}") if p.is_file() and not p.name.startswith("."))
+
+
+class EpisodeStore:
+    """All episodes under a directory, indexed by their metadata.
+
+    Args:
+        root: directory scanned recursively for ``*.h5`` episode files.
+    """
+
+    def __init__(self, root: str | os.PathLike) -> None:
+        self.root = Path(root)
+        self.episodes: list[EpisodeInfo] = [read_info(p) for p in find_episode_files(self.root)]
+
+    def __len__(self) -> int:
+        return len(self.episodes)
+
+    def _info(self, i: int) -> EpisodeInfo:
+        if not 0 <= i < len(self.episodes):
+            raise IndexError(f"episode index {i} out of range (store has {len(self.episodes)} episodes)")
+        return self.episodes[i]
+
+    def load(self, i: int) -> Episode:
+        """The whole episode ``i``."""
+        return load_episode(self._info(i).path)
+
+    def load_step(self, i: int, k: int) -> tuple[Observation, KeyframeAction]:
+        """Only keyframe ``k`` of episode ``i`` (reads one chunk per camera array)."""
+        info = self._info(i)
+        if not 0 <= k < info.num_keyframes:
+            raise IndexError(f"keyframe {k} out of range ({info.path} has {info.num_keyframes} keyframes)")
+        f = _open(info.path)
+        with f:
+            return _read_step(f, info.path, k, _json_attr(f, info.path, "camera_names"))
+
+    def select(self, tasks: Iterable[str] | None = None, splits: Iterable[str] | None = None) -> list[int]:
+        """Indices of the episodes whose task and split are among the given ones (``None`` = any)."""
+        tasks = set(tasks) if tasks is not None else None
+        splits = set(splits) if splits is not None else None
+        return [i for i, e in enumerate(self.episodes)
+                if (tasks is None or e.task in tasks) and (splits is None or e.split in splits)]

@@ -1,0 +1,129 @@
+"""Generate expert demonstrations on ABM-Bench into an episode directory (parallel, resumable).
+
+Layout: ``OUT/<task>/<split>/episode_<seed>.h5``. Seeds ``seed, seed+1, ...`` are tried in order until
+``episodes`` successful demonstrations exist; a seed whose expert failed leaves a small
+``episode_<seed>.failed`` marker so that re-running skips it, and finished episodes are never redone.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+
+MAX_SEED_FACTOR = 3  # give up after trying this many seeds per requested episode
+
+
+@dataclass
+class GenerationReport:
+    """What a generation run did.
+
+    Attributes:
+        created: episodes written by this run.
+        skipped: successful episodes already present (resume).
+        failed_seeds: seeds whose expert failed in this run.
+        seconds: wall-clock time of this run.
+    """
+
+    created: int
+    skipped: int
+    failed_seeds: list[int]
+    seconds: float
+
+    @property
+    def episodes_per_minute(self) -> float:
+        return 60.0 * self.created / self.seconds if self.seconds > 0 else 0.0
+
+
+def episode_path(out: Path, task: str, split: str, seed: int) -> Path:
+    return Path(out) / task / split / f"episode_{seed:06d}.h5"
+
+
+def _failed_marker(path: Path) -> Path:
+    return path.with_suffix(".failed")
+
+
+def generate_one(task: str, split: str, seed: int, out: str, resolution: int,
+                 splits_path: str | None) -> tuple[int, bool, str]:
+    """Run the expert for one seed and save it if successful. Returns ``(seed, success, note)``."""
+    from abm.data.episode_store import save_episode
+    from abm.sim.env import make_env, run_expert
+
+    path = episode_path(Path(out), task, split, seed)
+    with make_env(task, split, seed, resolution=resolution, splits_path=splits_path) as env:
+        episode = run_expert(env, record=True)
+    if episode.success:
+        save_episode(episode, path)
+        return seed, True, ""
+    marker = _failed_marker(path)
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    marker.write_text(f"expert failed; motions: {episode.metadata.get('motions')}\n")
+    return seed, False, str(episode.metadata.get("motions"))
+
+
+def generate(task: str, split: str, episodes: int, out: str | Path, workers: int = 1, seed: int = 0,
+             resolution: int = 128, splits_path: str | Path | None = None, progress: bool = True
+             ) -> GenerationReport:
+    """Make sure ``episodes`` successful demonstrations of ``task``/``split`` exist under ``out``."""
+    from tqdm import tqdm
+
+    from abm.sim.env import make_env
+
+    make_env(task, split, seed, resolution=resolution, splits_path=splits_path)  # validates early
+    out = Path(out)
+    start = time.perf_counter()
+    done = 0
+    pending_seeds: list[int] = []
+    s = seed
+    limit = seed + MAX_SEED_FACTOR * max(episodes, 1) + 10
+    # Resume: count what exists, queue the rest.
+    while done + len(pending_seeds) < episodes and s < limit:
+        path = episode_path(out, task, split, s)
+        if path.is_file():
+            done += 1
+        elif not _failed_marker(path).is_file():
+            pending_seeds.append(s)
+        s += 1
+    skipped = done
+    failed: list[int] = []
+    created = 0
+    bar = tqdm(total=episodes, initial=done, desc=f"{task}/{split}", unit="ep", disable=not progress)
+    ctx = multiprocessing.get_context("spawn")
+    next_seed = s
+    args = (str(out), int(resolution), str(splits_path) if splits_path else None)
+    with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx) as pool:
+        running: set[Future] = set()
+        queue = list(pending_seeds)
+
+        def submit_more() -> None:
+            nonlocal next_seed
+            while len(running) < max(1, workers) and done + created + len(running) < episodes:
+                if queue:
+                    sd = queue.pop(0)
+                elif next_seed < limit:
+                    sd = next_seed
+                    next_seed += 1
+                    path = episode_path(out, task, split, sd)
+                    if path.is_file() or _failed_marker(path).is_file():
+                        continue
+                else:
+                    return
+                running.add(pool.submit(generate_one, task, split, sd, *args))
+
+        submit_more()
+        while running:
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                running.discard(fut)
+                sd, ok, note = fut.result()
+                if ok:
+                    created += 1
+                    bar.update(1)
+                else:
+                    failed.append(sd)
+                    bar.write(f"seed {sd}: expert failed ({note}); trying another seed")
+            submit_more()
+    bar.close()
+    return GenerationReport(created, skipped, sorted(failed), time.perf_counter() - start)

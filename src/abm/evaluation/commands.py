@@ -1,0 +1,71 @@
+"""``abm eval``: roll out trained policies in ABM-Bench and print the success table."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "eval",
+        help="evaluate trained policies on seeded benchmark episodes (success tables)",
+        description="Roll out one or more trained policies on the same seeded scenes and write per-episode "
+        "outcomes (resumable), results.json/csv and a markdown table in the paper's layout.",
+    )
+    p.add_argument("--run", action="append", required=True, type=Path,
+                   help="training run folder or checkpoint; repeat for several methods")
+    p.add_argument("--tasks", nargs="+", default=None,
+                   help="tasks to evaluate (default: every task the split defines objects for)")
+    p.add_argument("--split", default="unseen", choices=("seen", "unseen", "compositional"))
+    p.add_argument("--episodes", type=int, default=25, help="episodes per task and repeat (paper: 25)")
+    p.add_argument("--repeats", type=int, default=5, help="repeats with different scenes (paper: 5)")
+    p.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
+    p.add_argument("--grounder", choices=("clip", "oracle"), default=None,
+                   help="override the grounder stored in the checkpoint")
+    p.add_argument("--device", default="cpu", help="torch device for the policy (cpu, cuda)")
+    p.add_argument("--max-steps", type=int, default=10, help="keyframes before an episode counts as failed")
+    p.add_argument("--resolution", type=int, default=128, help="camera resolution in pixels")
+    p.add_argument("--splits", type=Path, default=None, help="object split file replacing the built-in one")
+    p.add_argument("--gifs", type=int, default=0, help="save front-camera GIFs of this many episodes per task")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: FIRST_RUN/eval_SPLIT)")
+    p.set_defaults(func=run)
+
+
+def default_tasks(split: str, splits_path: Path | None) -> list[str]:
+    """Tasks whose objects the split file defines for ``split``."""
+    from abm.sim.splits import load_splits
+    from abm.sim.tasks import TASKS
+
+    splits = load_splits(splits_path)
+    return [name for name in sorted(TASKS) if split in splits.tasks.get(name, {})]
+
+
+def run(args: argparse.Namespace) -> int:
+    from abm.cli import CommandError
+    from abm.evaluation.results import markdown_table
+    from abm.evaluation.runner import EvalSettings, evaluate
+    from abm.sim.tasks import TASKS
+
+    for r in args.run:
+        if not r.exists():
+            raise CommandError(f"run {r} does not exist (give a training run folder or a checkpoint file)")
+    if args.episodes < 1 or args.repeats < 1:
+        raise CommandError("--episodes and --repeats must be at least 1")
+    tasks = args.tasks or default_tasks(args.split, args.splits)
+    unknown = [t for t in tasks if t not in TASKS]
+    if unknown:
+        raise CommandError(f"unknown tasks {unknown}; known tasks: {sorted(TASKS)}")
+    if not tasks:
+        raise CommandError(f"no task defines objects for the {args.split!r} split")
+    out = args.out or (args.run[0] if args.run[0].is_dir() else args.run[0].parent) / f"eval_{args.split}"
+    settings = EvalSettings(device=args.device, grounder=args.grounder, resolution=args.resolution,
+                            max_steps=args.max_steps, splits_path=str(args.splits) if args.splits else None)
+    rates = evaluate(args.run, tasks, args.split, out, args.episodes, args.repeats, args.workers, settings,
+                     gifs=args.gifs)
+    print(markdown_table([r for r in rates if r.split == args.split and r.task in tasks]))
+    errors = sum(r.errors for r in rates)
+    if errors:
+        print(f"{errors} episode(s) crashed and count as failures; see {out / 'outcomes.jsonl'}")
+    print(f"results: {out / 'results.md'} (also .json, .csv; per-episode outcomes in outcomes.jsonl)")
+    return 0

@@ -1,0 +1,234 @@
+"""Seeded policy rollouts in ABM-Bench and the success tables they produce.
+
+Every (task, split, repeat, episode) uses the scene seed :func:`~abm.evaluation.results.eval_seed`, so
+all methods face exactly the same scenes. Each finished rollout is appended to
+``OUT/outcomes.jsonl`` at once; re-running the same command skips what is there (resume), and a
+rollout that raises is recorded as a failure with its error instead of stopping the evaluation.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from abm.evaluation.results import (
+    EpisodeOutcome,
+    OutcomeLog,
+    SuccessRate,
+    aggregate,
+    eval_seed,
+    markdown_table,
+    write_csv,
+    write_json,
+)
+
+
+@dataclass(frozen=True)
+class EvalJob:
+    """One rollout to run: which policy on which seeded scene."""
+
+    run: str
+    method: str
+    task: str
+    split: str
+    repeat: int
+    episode: int
+    seed: int
+    gif_path: str = ""
+
+    @property
+    def key(self) -> tuple[str, str, str, int, int]:
+        return (self.method, self.task, self.split, self.repeat, self.episode)
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """Options shared by every rollout of an evaluation."""
+
+    device: str = "cpu"
+    grounder: str | None = None  # None = the grounder stored in the checkpoint
+    resolution: int = 128
+    max_steps: int = 10
+    splits_path: str | None = None
+
+
+_POLICIES: dict[tuple[str, str | None, str], Any] = {}  # per-process cache of loaded policies
+
+
+def _load_policy(run: str, settings: EvalSettings) -> Any:
+    from abm.policy.inference import Policy
+
+    key = (run, settings.grounder, settings.device)
+    if key not in _POLICIES:
+        grounder = {"kind": settings.grounder} if settings.grounder else None
+        _POLICIES[key] = Policy.load(run, device=settings.device, grounder=grounder)
+    return _POLICIES[key]
+
+
+def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
+    """Roll out one episode; never raises (a crash becomes a failed outcome with its error text)."""
+    from abm.sim.env import make_env, run_policy
+
+    start = time.perf_counter()
+    steps = 0
+    try:
+        policy = _load_policy(job.run, settings)
+        with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
+                      splits_path=settings.splits_path) as env:
+            episode = run_policy(env, lambda obs: policy.act(obs, env.instruction, env.object_names))
+            steps = len(episode.steps)
+            if job.gif_path:
+                save_rollout_gif(episode, job.gif_path)
+        return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
+                              bool(episode.success), steps, time.perf_counter() - start)
+    except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
+        text = f"{type(err).__name__}: {err}"
+        tb = traceback.format_exc(limit=3).strip().splitlines()
+        return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, False,
+                              steps, time.perf_counter() - start, error=f"{text} | {tb[-3] if len(tb) > 2 else ''}")
+
+
+def _worker_init() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def method_labels(runs: Sequence[str | Path]) -> dict[str, str]:
+    """Table labels of runs: the policy variant, or ``variant (run folder)`` when variants repeat."""
+    from abm.train.checkpoint import load_checkpoint
+
+    variants = {str(r): load_checkpoint(r, map_location="cpu")["policy_config"]["variant"] for r in runs}
+    counts: dict[str, int] = {}
+    for v in variants.values():
+        counts[v] = counts.get(v, 0) + 1
+    return {r: (v if counts[v] == 1 else f"{v} ({Path(r).name})") for r, v in variants.items()}
+
+
+def plan_jobs(
+    runs: Sequence[str | Path],
+    tasks: Sequence[str],
+    split: str,
+    episodes: int,
+    repeats: int,
+    out_dir: Path,
+    gifs: int = 0,
+    labels: dict[str, str] | None = None,
+) -> list[EvalJob]:
+    """All rollouts of the protocol, in a fixed order; GIFs for the first ``gifs`` episodes of repeat 0."""
+    labels = labels or method_labels(runs)
+    jobs = []
+    for run in map(str, runs):
+        for task in tasks:
+            for repeat in range(repeats):
+                for ep in range(episodes):
+                    gif = ""
+                    if repeat == 0 and ep < gifs:
+                        gif = str(out_dir / "gifs" / f"{labels[run]}_{task}_{split}_{ep:03d}.gif".replace(" ", "_"))
+                    jobs.append(EvalJob(run, labels[run], task, split, repeat, ep, eval_seed(repeat, ep), gif))
+    return jobs
+
+
+def evaluate(
+    runs: Sequence[str | Path],
+    tasks: Sequence[str],
+    split: str,
+    out_dir: str | Path,
+    episodes: int = 25,
+    repeats: int = 5,
+    workers: int = 1,
+    settings: EvalSettings | None = None,
+    gifs: int = 0,
+    progress: bool = True,
+    labels: dict[str, str] | None = None,
+    runner: Callable[[EvalJob, EvalSettings], EpisodeOutcome] = run_job,
+) -> list[SuccessRate]:
+    """Evaluate policies on one split and write ``outcomes.jsonl``, ``results.{json,csv,md}`` to ``out_dir``.
+
+    Args:
+        runs: training run folders (or checkpoint files), one per method.
+        tasks: task names.
+        split: ``seen``, ``unseen`` or ``compositional``.
+        episodes, repeats: the protocol (paper: 25 episodes x 5 repeats).
+        workers: parallel rollout processes (each loads its own policy and simulator).
+        gifs: front-camera GIFs with the predicted keyframes for this many episodes per task.
+        labels: run -> method label for the tables (default: from the checkpoints, see :func:`method_labels`).
+        runner: the function that rolls out one job (replaceable for tests).
+
+    Returns:
+        success rates of every (method, task) on ``split`` for all outcomes in the log.
+    """
+    from tqdm import tqdm
+
+    settings = settings or EvalSettings()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    log = OutcomeLog(out / "outcomes.jsonl")
+    done = log.done()
+    jobs = [j for j in plan_jobs(runs, tasks, split, episodes, repeats, out, gifs, labels) if j.key not in done]
+    bar = tqdm(total=len(jobs), desc=f"eval {split}", unit="ep", disable=not progress)
+    successes = 0
+    if workers <= 1:
+        for job in jobs:
+            outcome = runner(job, settings)
+            log.append(outcome)
+            successes += outcome.success
+            bar.update(1)
+            bar.set_postfix(success=f"{successes}/{bar.n}")
+    else:
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init) as pool:
+            futures = [pool.submit(runner, job, settings) for job in jobs]
+            for fut in as_completed(futures):
+                outcome = fut.result()
+                log.append(outcome)
+                successes += outcome.success
+                bar.update(1)
+                bar.set_postfix(success=f"{successes}/{bar.n}")
+    bar.close()
+    return write_reports(log.read(), out)
+
+
+def write_reports(outcomes: Sequence[EpisodeOutcome], out_dir: Path) -> list[SuccessRate]:
+    """Aggregate all outcomes in a folder's log into results.json / results.csv / results.md."""
+    rates = aggregate(outcomes)
+    write_json(rates, out_dir / "results.json")
+    write_csv(rates, out_dir / "results.csv")
+    (out_dir / "results.md").write_text(markdown_table(rates) + "\n")
+    return rates
+
+
+def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seconds_per_frame: float = 0.6) -> None:
+    """Write a GIF of one camera over the rollout, each frame marked with the keyframe predicted from it."""
+    from PIL import Image, ImageDraw
+
+    from abm.geometry import project_to_camera
+
+    frames = []
+    for obs, action in episode.steps:
+        frame = obs.camera(camera)
+        img = Image.fromarray(frame.rgb).resize((frame.width * 2, frame.height * 2), Image.NEAREST)
+        u, v, z = project_to_camera(action.position[None], frame.intrinsics, frame.extrinsics)[0]
+        if z > 0 and np.isfinite(u) and np.isfinite(v):
+            draw = ImageDraw.Draw(img)
+            cx, cy = 2 * u + 1, 2 * v + 1
+            color = (0, 255, 0) if action.gripper_open else (255, 0, 255)
+            draw.ellipse([cx - 5, cy - 5, cx + 5, cy + 5], outline=color, width=2)
+        frames.append(img)
+    if frames:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(seconds_per_frame * 1000),
+                       loop=0)
+
+
+def default_workers() -> int:
+    """Half the cores (rendering and the policy each use threads), at least 1."""
+    return max(1, (os.cpu_count() or 2) // 2)

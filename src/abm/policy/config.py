@@ -1,0 +1,162 @@
+"""Configuration of the multi-view transformer: variant (which inputs) and sizes (preset).
+
+One :class:`PolicyConfig` describes a model completely; it is stored in every checkpoint, and a
+checkpoint only loads into a model built from an equal config (see :func:`check_compatible`).
+
+Presets (``PolicyConfig.from_preset``):
+
+========== ====== ========= ====== ============ ======= ================ ===========
+preset     views  view res  patch  tokens/view  width   layers (in/joint) stem ch.
+========== ====== ========= ====== ============ ======= ================ ===========
+``paper``  5      220       11     20 x 20      512     8 (4 / 4)        64
+``small``  5      96        8      12 x 12      128     4 (2 / 2)        32
+========== ====== ========= ====== ============ ======= ================ ===========
+
+Both use 77 language tokens, 72 rotation bins per Euler axis (5 degrees), 2-way gripper and
+ignore-collision heads. ``small`` is sized from docs/notes on a 2-core CPU (~8 samples/s training).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+from abm.policy.variants import VARIANTS, VariantSpec, get_variant
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "paper": dict(resolution=220, patch_size=11, width=512, layers_within=4, layers_joint=4, heads=8,
+                  stem_channels=64, decoder_channels=16, mlp_ratio=4.0),
+    "small": dict(resolution=96, patch_size=8, width=128, layers_within=2, layers_joint=2, heads=4,
+                  stem_channels=32, decoder_channels=16, mlp_ratio=2.0),
+}
+
+
+@dataclass
+class PolicyConfig:
+    """Everything that determines the shapes of a :class:`~abm.policy.mvt.MultiViewTransformer`.
+
+    Attributes:
+        variant: ``abm``, ``rvt``, ``ifd``, ``stack``, ``concat-rerendered`` or ``concat-full``
+            (see :mod:`abm.policy.variants`).
+        preset: the preset the sizes came from (``paper``, ``small`` or ``custom``); informational
+            but checked on checkpoint loading.
+        num_views: number of virtual views ``V`` (the renderer's views, in order).
+        views: names of the virtual views.
+        resolution: side ``H = W`` of every view in pixels.
+        patch_size: side of a token's patch in pixels; must divide ``resolution``.
+        width: transformer width ``d``.
+        layers_within: attention layers applied to each view's tokens separately.
+        layers_joint: attention layers over all views' tokens plus the language tokens.
+        heads: attention heads (must divide ``width``).
+        mlp_ratio: hidden size of the transformer MLP relative to ``width``.
+        stem_channels: channels of the full-resolution conv stem.
+        decoder_channels: channels of the up-sampled heatmap decoder (per pixel).
+        image_channels: RVT input channels per view (rgb 3, depth 1, xyz 3, pixel location 3).
+        lang_tokens: language tokens ``L`` (77 for CLIP).
+        lang_dim: dimension of the language token embeddings.
+        ifd_feature_dim: dimension of the per-point CLIP features (``ifd`` only).
+        proprio_dim: proprioception size (gripper open, gripper position in cube coordinates).
+        rotation_bins: bins per Euler axis.
+        dropout: dropout in attention / MLP.
+        workspace_center: workspace cube centre (m), used for action decoding.
+        workspace_size: workspace cube edge (m).
+    """
+
+    variant: str = "abm"
+    preset: str = "small"
+    views: tuple[str, ...] = ("front", "back", "left", "right", "top")
+    resolution: int = 96
+    patch_size: int = 8
+    width: int = 128
+    layers_within: int = 2
+    layers_joint: int = 2
+    heads: int = 4
+    mlp_ratio: float = 2.0
+    stem_channels: int = 32
+    decoder_channels: int = 16
+    image_channels: int = 10
+    lang_tokens: int = 77
+    lang_dim: int = 512
+    ifd_feature_dim: int = 512
+    proprio_dim: int = 4
+    rotation_bins: int = 72
+    dropout: float = 0.0
+    workspace_center: tuple[float, float, float] = (0.5, 0.0, 0.35)
+    workspace_size: float = 1.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        get_variant(self.variant)  # raises on an unknown variant
+        self.views = tuple(self.views)
+        self.workspace_center = tuple(float(c) for c in self.workspace_center)
+        if self.resolution % self.patch_size:
+            raise ValueError(f"patch_size {self.patch_size} must divide the view resolution {self.resolution}")
+        if self.width % self.heads:
+            raise ValueError(f"heads {self.heads} must divide width {self.width}")
+        if self.layers_within < 0 or self.layers_joint < 0 or self.layers_within + self.layers_joint == 0:
+            raise ValueError("the transformer needs at least one layer")
+        if 360 % self.rotation_bins:
+            raise ValueError(f"rotation_bins must divide 360, got {self.rotation_bins}")
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def spec(self) -> VariantSpec:
+        """The input/conditioning choices of this config's variant."""
+        return get_variant(self.variant)
+
+    @property
+    def num_views(self) -> int:
+        return len(self.views)
+
+    @property
+    def grid(self) -> int:
+        """Tokens per view side (``resolution // patch_size``)."""
+        return self.resolution // self.patch_size
+
+    @classmethod
+    def from_preset(cls, preset: str, variant: str = "abm", **overrides: Any) -> PolicyConfig:
+        """Config of a size preset (``paper`` or ``small``) for one variant; ``overrides`` replace fields.
+
+        A config with overridden sizes keeps the preset name with ``+custom`` appended so a
+        checkpoint tells how it was built.
+        """
+        if preset not in PRESETS:
+            raise ValueError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
+        values: dict[str, Any] = dict(PRESETS[preset])
+        size_keys = set(values) | {"views", "lang_tokens", "rotation_bins"}
+        name = preset + ("+custom" if any(k in size_keys for k in overrides) else "")
+        values.update(overrides)
+        return cls(variant=variant, preset=name, **values)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-compatible dict (tuples become lists)."""
+        out = dataclasses.asdict(self)
+        out["views"] = list(self.views)
+        out["workspace_center"] = list(self.workspace_center)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> PolicyConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise a clear error."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ValueError(f"unknown policy config fields {unknown}")
+        return cls(**data)
+
+
+def check_compatible(stored: PolicyConfig, wanted: PolicyConfig) -> None:
+    """Raise ``ValueError`` naming the difference when a checkpoint's config does not match a model's."""
+    if stored.variant != wanted.variant:
+        raise ValueError(
+            f"checkpoint is of variant {stored.variant!r} but the model is {wanted.variant!r}; "
+            f"train or load a {wanted.variant!r} checkpoint (known variants: {sorted(VARIANTS)})"
+        )
+    a, b = stored.to_dict(), wanted.to_dict()
+    diffs = [f"{k}: checkpoint {a[k]!r} vs model {b[k]!r}" for k in a if k != "extra" and a[k] != b[k]]
+    if diffs:
+        raise ValueError(
+            f"checkpoint preset {stored.preset!r} does not match the model preset {wanted.preset!r}: "
+            + "; ".join(diffs)
+        )

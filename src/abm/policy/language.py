@@ -1,0 +1,112 @@
+"""Language goals for the policy: a small encoder interface and its implementations.
+
+The policy reads ``L`` language-token embeddings of width ``D`` (77 x 512 for CLIP ViT-B text
+features, 77 x 768 for ViT-L). Encoders are described by a JSON-compatible *spec* stored in every
+checkpoint so :class:`~abm.policy.inference.Policy` can rebuild the same encoder:
+
+* ``{"kind": "hash", "dim": D, "tokens": L, "seed": s}`` — :class:`HashLanguageEncoder`, a frozen,
+  weight-free encoder: every lower-cased word maps to a fixed pseudo-random unit vector (seeded by a
+  CRC32 of the word) plus a fixed position vector. It distinguishes instructions by their words, needs
+  no download, and is what tests and CPU experiments use.
+* ``{"kind": "clip", ...grounder options}`` — CLIP text tokens through the grounding package's
+  ``ClipGrounder.skill_embeddings`` (the paper's choice), see :class:`ClipLanguageEncoder`.
+"""
+
+from __future__ import annotations
+
+import re
+import zlib
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+
+_WORD = re.compile(r"[a-z0-9]+")
+
+
+class LanguageEncoder(Protocol):
+    """Texts -> ``(B, tokens, dim)`` float32 token embeddings (frozen)."""
+
+    tokens: int
+    dim: int
+
+    def encode(self, texts: Sequence[str]) -> torch.Tensor: ...
+
+    def spec(self) -> dict[str, Any]: ...
+
+
+class HashLanguageEncoder:
+    """Weight-free deterministic word embeddings (see module docstring).
+
+    Args:
+        dim: embedding width ``D``.
+        tokens: sequence length ``L`` (texts longer than ``L`` words are truncated; the rest is 0).
+        seed: changes every vector.
+    """
+
+    def __init__(self, dim: int = 512, tokens: int = 77, seed: int = 0) -> None:
+        self.dim, self.tokens, self.seed = int(dim), int(tokens), int(seed)
+        rng = np.random.default_rng([self.seed, 1])
+        self._pos = rng.standard_normal((self.tokens, self.dim)).astype(np.float32) * 0.1
+
+    def _word(self, word: str) -> np.ndarray:
+        rng = np.random.default_rng([self.seed, zlib.crc32(word.encode())])
+        vec = rng.standard_normal(self.dim).astype(np.float32)
+        return vec / np.linalg.norm(vec)
+
+    def encode(self, texts: Sequence[str]) -> torch.Tensor:
+        """``(B, tokens, dim)``."""
+        out = np.zeros((len(texts), self.tokens, self.dim), np.float32)
+        for i, text in enumerate(texts):
+            words = _WORD.findall(text.lower())[: self.tokens]
+            for j, word in enumerate(words):
+                out[i, j] = self._word(word) + self._pos[j]
+        return torch.from_numpy(out)
+
+    def spec(self) -> dict[str, Any]:
+        return {"kind": "hash", "dim": self.dim, "tokens": self.tokens, "seed": self.seed}
+
+
+class ClipLanguageEncoder:
+    """CLIP text tokens of the grounding package's CLIP model (``skill_embeddings``).
+
+    Args:
+        grounder: an object with ``skill_embeddings(texts) -> (B, 77, D)``.
+        spec: the options it was built from (stored in checkpoints).
+    """
+
+    def __init__(self, grounder: Any, spec: dict[str, Any]) -> None:
+        self.grounder = grounder
+        self._spec = dict(spec)
+        probe = self.encode(["x"])
+        self.tokens, self.dim = int(probe.shape[1]), int(probe.shape[2])
+
+    def encode(self, texts: Sequence[str]) -> torch.Tensor:
+        with torch.no_grad():
+            return torch.as_tensor(self.grounder.skill_embeddings(list(texts))).float().cpu()
+
+    def spec(self) -> dict[str, Any]:
+        return dict(self._spec)
+
+
+def make_language_encoder(spec: dict[str, Any]) -> LanguageEncoder:
+    """Build an encoder from its spec (see module docstring)."""
+    kind = spec.get("kind")
+    if kind == "hash":
+        return HashLanguageEncoder(int(spec.get("dim", 512)), int(spec.get("tokens", 77)), int(spec.get("seed", 0)))
+    if kind == "clip":
+        from abm.policy.conditioning import make_grounder_from_spec
+
+        grounder = make_grounder_from_spec({**spec, "kind": "clip"})
+        return ClipLanguageEncoder(grounder, spec)
+    raise ValueError(f"unknown language encoder kind {kind!r}; use 'hash' or 'clip'")
+
+
+def encode_unique(encoder: LanguageEncoder, texts: Sequence[str]) -> dict[str, torch.Tensor]:
+    """Encode each distinct text once: text -> ``(tokens, dim)`` float32 (the dataset's language cache)."""
+    unique = sorted(set(texts))
+    if not unique:
+        return {}
+    emb = encoder.encode(unique)
+    return {t: emb[i].contiguous() for i, t in enumerate(unique)}

@@ -1,0 +1,255 @@
+"""The RVT-style multi-view transformer shared by every variant (abm, rvt, ifd and the ablations).
+
+Data flow for a batch of ``B`` samples with ``V`` virtual views of ``H x W`` pixels:
+
+1. **Stem**: a 3x3 conv over each view's 10 RVT channels (+1 mask channel for ``stack``) at full
+   resolution -> ``C`` stem channels.
+2. **Conditioning after the stem**: the variant's mask channel (``abm``: centre pixel,
+   ``concat-*``: soft / binary mask) and/or the re-rendered CLIP features (``ifd``, projected per
+   point to ``C`` channels, then gathered into the views through the renderer's visible-point index)
+   are concatenated with the stem features and fused by a 1x1 conv.
+3. **Patchify**: a ``p x p`` stride-``p`` conv (``C`` channels) and a linear map -> ``(H/p) x (W/p)``
+   tokens of width ``d`` per view, plus a
+   learned position embedding per view and token and the projected proprioception on every token.
+4. **Transformer**: ``layers_within`` pre-norm blocks over each view's tokens separately, then
+   ``layers_joint`` blocks over all views' tokens together with the ``L`` projected language tokens.
+   Attention uses :func:`torch.nn.functional.scaled_dot_product_attention`.
+5. **Heads**: tokens are up-sampled by pixel shuffle back to ``H x W``, added to a 1x1 projection of
+   the stem features (skip connection) and decoded by two small convs into one translation logit per
+   pixel and view. A global feature per view (max-pooled tokens and tokens pooled with the predicted
+   heatmap) goes through an MLP to the rotation logits (3 axes x ``rotation_bins``), gripper-open and
+   ignore-collision logits (2 each).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from abm.policy.config import PolicyConfig
+
+
+@dataclass
+class PolicyOutput:
+    """Raw model outputs (logits).
+
+    Attributes:
+        heatmap: ``(B, V, H, W)`` translation logits per view (softmax over each view's pixels).
+        rotation: ``(B, 3, bins)`` logits of the extrinsic xyz Euler-angle bins.
+        gripper: ``(B, 2)`` logits, index 1 = open.
+        collision: ``(B, 2)`` logits, index 1 = ignore collisions.
+    """
+
+    heatmap: torch.Tensor
+    rotation: torch.Tensor
+    gripper: torch.Tensor
+    collision: torch.Tensor
+
+
+class Attention(nn.Module):
+    """Multi-head self-attention through ``scaled_dot_product_attention``."""
+
+    def __init__(self, width: int, heads: int, dropout: float) -> None:
+        super().__init__()
+        self.heads = heads
+        self.qkv = nn.Linear(width, 3 * width)
+        self.proj = nn.Linear(width, width)
+        self.dropout = dropout
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``x`` ``(B, T, d)`` -> ``(B, T, d)``."""
+        b, t, d = x.shape
+        q, k, v = self.qkv(x).view(b, t, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
+        out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
+        return self.proj(out.transpose(1, 2).reshape(b, t, d))
+
+
+class Block(nn.Module):
+    """Pre-norm transformer block: ``x + attn(ln(x))``, then ``x + mlp(ln(x))``."""
+
+    def __init__(self, width: int, heads: int, mlp_ratio: float, dropout: float) -> None:
+        super().__init__()
+        hidden = int(width * mlp_ratio)
+        self.norm1 = nn.LayerNorm(width)
+        self.attn = Attention(width, heads, dropout)
+        self.norm2 = nn.LayerNorm(width)
+        self.mlp = nn.Sequential(nn.Linear(width, hidden), nn.GELU(), nn.Dropout(dropout), nn.Linear(hidden, width))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = x + self.attn(self.norm1(x))
+        return x + self.mlp(self.norm2(x))
+
+
+class MultiViewTransformer(nn.Module):
+    """One model class for all variants; the variant in ``config`` decides which inputs it takes."""
+
+    def __init__(self, config: PolicyConfig) -> None:
+        super().__init__()
+        self.config = config
+        spec = config.spec
+        c, d, p, v = config.stem_channels, config.width, config.patch_size, config.num_views
+        in_ch = config.image_channels + (1 if spec.uses_mask and spec.mask_stage == "input" else 0)
+        self.stem = nn.Sequential(nn.Conv2d(in_ch, c, 3, padding=1), nn.GELU())
+        extra = (1 if spec.uses_mask and spec.mask_stage == "stem" else 0) + (c if spec.clip_features else 0)
+        self.ifd_proj = nn.Linear(config.ifd_feature_dim, c) if spec.clip_features else None
+        self.fuse = nn.Sequential(nn.Conv2d(c + extra, c, 1), nn.GELU()) if extra else nn.Identity()
+        self.patchify = nn.Conv2d(c, c, p, stride=p)
+        self.embed = nn.Linear(c, d)
+        tokens = config.grid**2
+        self.view_pos = nn.Parameter(torch.randn(v, tokens, d) * 0.02)
+        self.proprio = nn.Linear(config.proprio_dim, d)
+        self.lang_proj = nn.Linear(config.lang_dim, d)
+        self.lang_pos = nn.Parameter(torch.randn(config.lang_tokens, d) * 0.02)
+        self.within = nn.ModuleList(
+            Block(d, config.heads, config.mlp_ratio, config.dropout) for _ in range(config.layers_within)
+        )
+        self.joint = nn.ModuleList(
+            Block(d, config.heads, config.mlp_ratio, config.dropout) for _ in range(config.layers_joint)
+        )
+        self.norm = nn.LayerNorm(d)
+        dc = config.decoder_channels
+        self.up = nn.Linear(d, dc * p * p)
+        self.skip = nn.Conv2d(c, dc, 1)
+        self.decode = nn.Sequential(nn.GELU(), nn.Conv2d(dc, dc, 3, padding=1), nn.GELU(), nn.Conv2d(dc, 1, 1))
+        out = 3 * config.rotation_bins + 2 + 2
+        self.global_head = nn.Sequential(nn.Linear(2 * d * v, d), nn.GELU(), nn.Linear(d, out))
+
+    # ------------------------------------------------------------------ input checks
+    def _check(
+        self,
+        images: torch.Tensor,
+        proprio: torch.Tensor,
+        lang: torch.Tensor,
+        mask: torch.Tensor | None,
+        ifd_features: torch.Tensor | None,
+        ifd_index: torch.Tensor | None,
+    ) -> None:
+        cfg, spec = self.config, self.config.spec
+        want = (cfg.num_views, cfg.image_channels, cfg.resolution, cfg.resolution)
+        if images.dim() != 5 or tuple(images.shape[1:]) != want:
+            raise ValueError(f"images must be (B, {', '.join(map(str, want))}), got {tuple(images.shape)}")
+        b = images.shape[0]
+        if spec.uses_mask:
+            if mask is None:
+                raise ValueError(
+                    f"variant {spec.name!r} needs a mask input of shape (B, {cfg.num_views}, 1, "
+                    f"{cfg.resolution}, {cfg.resolution}) ({spec.mask} mask from the grounder); got none"
+                )
+            if tuple(mask.shape) != (b, cfg.num_views, 1, cfg.resolution, cfg.resolution):
+                raise ValueError(
+                    f"mask must be ({b}, {cfg.num_views}, 1, {cfg.resolution}, {cfg.resolution}) for variant "
+                    f"{spec.name!r}, got {tuple(mask.shape)}"
+                )
+        elif mask is not None:
+            raise ValueError(f"variant {spec.name!r} takes no mask input, but one was given")
+        if spec.clip_features:
+            if ifd_features is None or ifd_index is None:
+                raise ValueError(
+                    f"variant {spec.name!r} needs ifd_features (B, N, {cfg.ifd_feature_dim}) and ifd_index "
+                    f"(B, V, H, W) (re-rendered CLIP point features); got none"
+                )
+            if ifd_features.dim() != 3 or ifd_features.shape[0] != b or ifd_features.shape[2] != cfg.ifd_feature_dim:
+                raise ValueError(
+                    f"ifd_features must be ({b}, N, {cfg.ifd_feature_dim}), got {tuple(ifd_features.shape)}"
+                )
+            if tuple(ifd_index.shape) != (b, cfg.num_views, cfg.resolution, cfg.resolution):
+                raise ValueError(f"ifd_index must be ({b}, {cfg.num_views}, H, W), got {tuple(ifd_index.shape)}")
+        elif ifd_features is not None:
+            raise ValueError(f"variant {spec.name!r} takes no CLIP features, but ifd_features were given")
+        if tuple(proprio.shape) != (b, cfg.proprio_dim):
+            raise ValueError(f"proprio must be ({b}, {cfg.proprio_dim}), got {tuple(proprio.shape)}")
+        if tuple(lang.shape) != (b, cfg.lang_tokens, cfg.lang_dim):
+            raise ValueError(
+                f"lang must be ({b}, {cfg.lang_tokens}, {cfg.lang_dim}) language token embeddings, "
+                f"got {tuple(lang.shape)}"
+            )
+
+    # ------------------------------------------------------------------ forward
+    def forward(
+        self,
+        images: torch.Tensor,
+        proprio: torch.Tensor,
+        lang: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        ifd_features: torch.Tensor | None = None,
+        ifd_index: torch.Tensor | None = None,
+    ) -> PolicyOutput:
+        """Predict a keyframe.
+
+        Args:
+            images: ``(B, V, 10, H, W)`` rendered RVT channels (rgb, depth, xyz, pixel location).
+            proprio: ``(B, proprio_dim)`` gripper open state and position (cube coordinates).
+            lang: ``(B, L, lang_dim)`` language token embeddings.
+            mask: ``(B, V, 1, H, W)`` the variant's mask channel (mask variants only).
+            ifd_features: ``(B, N, ifd_feature_dim)`` per-point CLIP features (``ifd`` only).
+            ifd_index: ``(B, V, H, W)`` int64 index of the point visible in each pixel, -1 where empty
+                (``ifd`` only).
+        """
+        self._check(images, proprio, lang, mask, ifd_features, ifd_index)
+        cfg, spec = self.config, self.config.spec
+        b, v, _, h, w = images.shape
+        g, d = cfg.grid, cfg.width
+        x = images
+        if spec.uses_mask and spec.mask_stage == "input":
+            x = torch.cat([x, mask.to(x.dtype)], dim=2)
+        stem = self.stem(x.flatten(0, 1))  # (B*V, C, H, W)
+        parts = [stem]
+        if spec.uses_mask and spec.mask_stage == "stem":
+            parts.append(mask.flatten(0, 1).to(stem.dtype))
+        if spec.clip_features:
+            parts.append(self._render_features(ifd_features, ifd_index).to(stem.dtype))
+        feat = self.fuse(torch.cat(parts, dim=1)) if len(parts) > 1 else stem
+
+        tok = self.embed(self.patchify(feat).flatten(2).transpose(1, 2)).reshape(b, v, g * g, d)
+        tok = tok + self.view_pos + self.proprio(proprio).view(b, 1, 1, d)
+        tok = tok.reshape(b * v, g * g, d)
+        for blk in self.within:
+            tok = blk(tok)
+        lang_tok = self.lang_proj(lang) + self.lang_pos
+        seq = torch.cat([tok.reshape(b, v * g * g, d), lang_tok], dim=1)
+        for blk in self.joint:
+            seq = blk(seq)
+        tok = self.norm(seq[:, : v * g * g]).reshape(b * v, g * g, d)
+
+        # translation heatmap: pixel-shuffle tokens to full resolution, skip-connect the stem
+        p = cfg.patch_size
+        up = self.up(tok).transpose(1, 2).reshape(b * v, -1, g, g)
+        up = F.pixel_shuffle(up, p)  # (B*V, dc, H, W)
+        heat = self.decode(up + self.skip(stem)).view(b, v, h, w)
+
+        # global feature: max-pooled tokens + tokens pooled by the (detached) heatmap per view
+        prob = torch.softmax(heat.detach().float().flatten(2), -1).view(b * v, 1, h, w)
+        weights = F.avg_pool2d(prob, p).flatten(1) * (p * p)  # (B*V, g*g), sums to 1
+        pooled = torch.einsum("nt,ntd->nd", weights.to(tok.dtype), tok)
+        glob = torch.cat([tok.amax(1), pooled], dim=-1).reshape(b, v * 2 * d)
+        out = self.global_head(glob)
+        nb = cfg.rotation_bins
+        return PolicyOutput(
+            heatmap=heat,
+            rotation=out[:, : 3 * nb].reshape(b, 3, nb),
+            gripper=out[:, 3 * nb : 3 * nb + 2],
+            collision=out[:, 3 * nb + 2 :],
+        )
+
+    def _render_features(self, features: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+        """Project per-point features to the stem width and gather them into the views.
+
+        Projection and gathering commute (rendering picks one point per pixel), so projecting the
+        ``N`` points first is the cheap way of fusing re-rendered CLIP feature maps.
+
+        Returns:
+            ``(B*V, C, H, W)``, zero where no point is visible.
+        """
+        b, v, h, w = index.shape
+        proj = self.ifd_proj(features.to(self.ifd_proj.weight.dtype))  # (B, N, C)
+        flat = index.reshape(b, v * h * w)
+        valid = (flat >= 0).unsqueeze(-1)
+        gathered = torch.gather(proj, 1, flat.clamp(min=0).unsqueeze(-1).expand(-1, -1, proj.shape[-1]))
+        gathered = gathered * valid
+        return gathered.view(b, v, h, w, -1).permute(0, 1, 4, 2, 3).flatten(0, 1)
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())

@@ -1,0 +1,171 @@
+"""``abm quickstart``: the whole method end to end on a laptop CPU, with no arguments.
+
+1. generate a small set of expert demonstrations (seen objects) for the trainable tasks;
+2. train the ``small`` ``abm`` policy and the ``rvt`` baseline on them;
+3. evaluate both on the same seeded scenes with seen and with unseen objects;
+4. write a report folder: the success table, training curves, the virtual views with the mask,
+   and rollout GIFs.
+
+Every stage resumes: re-running the command skips finished episodes, continues training from the
+last checkpoint and skips finished evaluation episodes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+CPU_CLIP_MODEL = "openai/clip-vit-base-patch16"  # the CPU-sized CLIP tried first on CPU
+GPU_CLIP_MODEL = "openai/clip-vit-large-patch14-336"  # the paper's model
+
+
+@dataclass
+class QuickstartConfig:
+    """Sizes of the quickstart run (defaults fit about 20 minutes on a 2-core CPU)."""
+
+    out: Path = Path("out/quickstart")
+    tasks: list[str] = field(default_factory=lambda: ["pick_block", "place_food", "place_wine"])
+    methods: list[str] = field(default_factory=lambda: ["abm", "rvt"])
+    episodes: int = 6
+    steps: int = 250
+    batch: int = 8
+    eval_episodes: int = 3
+    max_steps: int = 8
+    workers: int = 2
+    resolution: int = 128
+    device: str = "cpu"
+    clip_model: str | None = None
+    seed: int = 0
+
+
+def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict]:
+    """The CLIP grounder when weights load locally, else the oracle grounder with a printed warning."""
+    from abm.grounding.clip import ClipWeightsNotFoundError, load_clip
+
+    model = cfg.clip_model or (GPU_CLIP_MODEL if cfg.device.startswith("cuda") else CPU_CLIP_MODEL)
+    try:
+        load_clip(model, device="cpu")
+    except (ClipWeightsNotFoundError, OSError) as err:
+        first = str(err).splitlines()[0]
+        print(f"WARNING: CLIP weights {model!r} are not available ({first}).\n"
+              "WARNING: using the ORACLE grounder (simulator segmentation) instead of CLIP; the masks are "
+              "ground truth, so the table measures the policy, not CLIP grounding. Provide weights with "
+              "--clip-model DIR (see docs/grounding.md).", file=sys.stderr)
+        return "oracle", {}
+    print(f"grounder: CLIP {model}")
+    return "clip", {"model": model}
+
+
+def run_quickstart(cfg: QuickstartConfig) -> Path:
+    """Run all stages; returns the report folder."""
+    import torch
+
+    from abm.data.generate import generate
+    from abm.evaluation.results import markdown_table
+    from abm.evaluation.runner import EvalSettings, evaluate, write_reports
+    from abm.train.loop import TrainConfig, train
+
+    start = time.perf_counter()
+    out = cfg.out
+    data, runs_dir, report = out / "data", out / "runs", out / "report"
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    grounder, options = choose_grounder(cfg)
+
+    print(f"[1/4] demonstrations: {cfg.episodes} per task, seen objects -> {data}")
+    for i, task in enumerate(cfg.tasks):
+        generate(task, "seen", cfg.episodes, data, workers=cfg.workers, seed=cfg.seed + 1000 * i,
+                 resolution=cfg.resolution)
+
+    runs = {}
+    for method in cfg.methods:
+        run = runs_dir / method
+        print(f"[2/4] training {method} (small preset, {cfg.steps} steps) -> {run}")
+        resume = (run / "checkpoints").is_dir() and any((run / "checkpoints").glob("*.pt"))
+        tc = TrainConfig(method=method, preset="small", out=run, data=data, tasks=list(cfg.tasks), splits=["seen"],
+                         steps=cfg.steps, batch=cfg.batch, checkpoint_every=max(50, cfg.steps // 4), device=cfg.device,
+                         grounder=grounder, grounder_options=options, seed=cfg.seed, resume=resume)
+        train(tc)
+        runs[method] = run
+
+    settings = EvalSettings(device=cfg.device, resolution=cfg.resolution, max_steps=cfg.max_steps)
+    eval_dir = out / "eval"
+    for split in ("seen", "unseen"):
+        print(f"[3/4] evaluating {', '.join(cfg.methods)} on {split} objects ({cfg.eval_episodes} episodes per task)")
+        evaluate(list(runs.values()), cfg.tasks, split, eval_dir, episodes=cfg.eval_episodes, repeats=1,
+                 workers=cfg.workers, settings=settings, gifs=1)
+
+    print(f"[4/4] report -> {report}")
+    from abm.evaluation.results import OutcomeLog
+
+    rates = write_reports(OutcomeLog(eval_dir / "outcomes.jsonl").read(), eval_dir)
+    write_report(report, runs, eval_dir, data, cfg, grounder)
+    table = markdown_table(rates, splits=["seen", "unseen"])
+    print(table)
+    print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
+    return report
+
+
+def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path, cfg: QuickstartConfig,
+                 grounder: str) -> None:
+    """Table, curves, example views and GIFs in one folder with a README that links them."""
+    from abm.data.episode_store import EpisodeStore
+    from abm.evaluation.report import plot_training_curves, views_figure
+    from abm.policy.inference import Policy
+
+    report.mkdir(parents=True, exist_ok=True)
+    shutil.copy(eval_dir / "results.md", report / "results.md")
+    plot_training_curves({m: r for m, r in runs.items()}, report / "training_curves.png")
+    figures = []
+    if "abm" in runs:
+        store = EpisodeStore(data)
+        index = store.select(tasks=[cfg.tasks[0]])[0]
+        episode = store.load(index)
+        obs, _ = episode.steps[0]
+        policy = Policy.load(runs["abm"], device="cpu")
+        inputs = policy.prepare(obs, episode.instruction, episode.object_names)
+        mask = inputs["mask"][0].numpy() if "mask" in inputs else None
+        views_figure(inputs["images"][0].numpy(), mask, list(policy.config.views), report / "virtual_views.png")
+        figures.append(f"![virtual views]({'virtual_views.png'})\n\n*{episode.instruction}*: the five virtual "
+                       "views (top) and the target's centre-pixel mask in magenta (bottom).")
+    gifs = sorted((eval_dir / "gifs").glob("*.gif"))
+    for gif in gifs:
+        shutil.copy(gif, report / gif.name)
+    lines = [
+        "# abm quickstart report", "",
+        f"Tasks: {', '.join(cfg.tasks)}; {cfg.episodes} demonstrations per task (seen objects); "
+        f"`small` preset, {cfg.steps} steps, batch {cfg.batch}; grounder: {grounder}; "
+        f"{cfg.eval_episodes} evaluation episodes per task and split (max {cfg.max_steps} keyframes).", "",
+        "## Success rate (%)", "", (report / "results.md").read_text(), "",
+        "## Training curves", "", "![training curves](training_curves.png)", "",
+        "## What the policy sees", "", *figures, "",
+        "## Rollouts", "", *[f"![{g.stem}]({g.name})" for g in gifs], "",
+    ]
+    (report / "README.md").write_text("\n".join(lines))
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    d = QuickstartConfig()
+    p = subparsers.add_parser(
+        "quickstart",
+        help="generate data, train abm and rvt, evaluate on seen/unseen objects, write a report (~20 min CPU)",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument("--out", type=Path, default=d.out, help=f"output folder (default: {d.out})")
+    p.add_argument("--tasks", nargs="+", default=d.tasks, help="trainable tasks to use")
+    p.add_argument("--methods", nargs="+", default=d.methods, help="policy variants to train and compare")
+    p.add_argument("--episodes", type=int, default=d.episodes, help="demonstrations per task")
+    p.add_argument("--steps", type=int, default=d.steps, help="training steps per method")
+    p.add_argument("--batch", type=int, default=d.batch, help="training batch size")
+    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes, help="evaluation episodes per task and split")
+    p.add_argument("--max-steps", type=int, default=d.max_steps, help="keyframes per evaluation episode")
+    p.add_argument("--workers", type=int, default=d.workers, help="parallel processes for data and evaluation")
+    p.add_argument("--device", default=d.device, help="torch device (cpu, cuda)")
+    p.add_argument("--clip-model", default=None, help="CLIP weights (hub name or local folder) for the grounder")
+    p.set_defaults(func=lambda args: run_quickstart(QuickstartConfig(
+        out=args.out, tasks=args.tasks, methods=args.methods, episodes=args.episodes, steps=args.steps,
+        batch=args.batch, eval_episodes=args.eval_episodes, max_steps=args.max_steps, workers=args.workers,
+        device=args.device, clip_model=args.clip_model)) and 0)

@@ -1,0 +1,145 @@
+"""Render calibrated RGB-D-segmentation frames from the scene cameras.
+
+This is the simulator boundary for cameras: MuJoCo cameras look along their -z axis with +y up; the
+frames returned here follow abm's OpenCV convention (+z forward, +y down), with camera-to-world
+extrinsics, metric depth along +z and pinhole intrinsics whose centred principal point is
+``((W - 1) / 2, (H - 1) / 2)``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import platform
+from collections.abc import Sequence
+
+import numpy as np
+
+from abm.types import CameraFrame
+
+# MuJoCo camera axes -> OpenCV camera axes (flip y and z).
+_MJ_TO_CV = np.diag([1.0, -1.0, -1.0])
+
+
+def intrinsics_matrix(fovy_deg: float, height: int, width: int) -> np.ndarray:
+    """``(3, 3)`` pinhole matrix of a MuJoCo camera (square pixels, centred principal point)."""
+    fy = 0.5 * height / np.tan(np.radians(fovy_deg) / 2)
+    return np.array([[fy, 0.0, (width - 1) / 2], [0.0, fy, (height - 1) / 2], [0.0, 0.0, 1.0]])
+
+
+def camera_extrinsics(model, data, camera_id: int) -> np.ndarray:
+    """``(4, 4)`` camera-to-world transform in OpenCV axes for MuJoCo camera ``camera_id``."""
+    del model
+    out = np.eye(4)
+    out[:3, :3] = data.cam_xmat[camera_id].reshape(3, 3) @ _MJ_TO_CV
+    out[:3, 3] = data.cam_xpos[camera_id]
+    return out
+
+
+def _use_backend(backend: str) -> bool:
+    """Point MuJoCo's renderer at an offscreen GL backend (``"egl"`` or ``"osmesa"``)."""
+    try:
+        from mujoco.rendering.classic import gl_context
+
+        gl_context.GLContext = importlib.import_module(f"mujoco.{backend}").GLContext
+    except Exception:  # noqa: BLE001 - any import problem means "not available"
+        return False
+    os.environ["MUJOCO_GL"] = backend
+    return True
+
+
+def ensure_headless_gl() -> None:
+    """Select EGL (else OSMesa) when no display exists and MuJoCo fell back to GLFW.
+
+    MuJoCo reads ``MUJOCO_GL`` once when it is imported; ``abm.sim`` sets ``egl`` as default, but if
+    ``mujoco`` was imported first the GLFW backend would be chosen and fail without a display.
+    """
+    if platform.system() != "Linux" or os.environ.get("DISPLAY"):
+        return
+    try:
+        from mujoco.rendering.classic import gl_context
+    except ImportError:  # pragma: no cover - other mujoco layouts
+        return
+    chosen = getattr(gl_context, "_MUJOCO_GL", "")
+    if chosen in ("", "glfw", "enable", "enabled", "on", "true", "1"):
+        _use_backend("egl") or _use_backend("osmesa")
+
+
+def _make_renderer(model, height: int, width: int):
+    import mujoco
+
+    ensure_headless_gl()
+    try:
+        return mujoco.Renderer(model, height, width)
+    except Exception as first:  # noqa: BLE001 - retry with the software backend
+        if os.environ.get("MUJOCO_GL") == "egl" and _use_backend("osmesa"):
+            try:
+                return mujoco.Renderer(model, height, width)
+            except Exception:  # noqa: BLE001
+                pass
+        raise RuntimeError(
+            f"MuJoCo cannot render offscreen ({first}). Use MUJOCO_GL=egl (Mesa EGL) or MUJOCO_GL=osmesa "
+            "with `apt-get install -y libosmesa6`, set before mujoco is imported."
+        ) from first
+
+
+class CameraRig:
+    """Renders the named cameras of a model into :class:`abm.types.CameraFrame` objects.
+
+    Args:
+        model: the compiled :class:`mujoco.MjModel`.
+        camera_names: which model cameras to render.
+        height, width: image size in pixels.
+        geom_to_object: ``(ngeom,)`` int32 segmentation id of each geom (-1 = not an object).
+    """
+
+    def __init__(self, model, camera_names: Sequence[str], height: int, width: int,
+                 geom_to_object: np.ndarray) -> None:
+        import mujoco
+
+        self.model = model
+        self.height, self.width = int(height), int(width)
+        self.camera_names = list(camera_names)
+        self.camera_ids = []
+        for name in self.camera_names:
+            cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, name)
+            if cid < 0:
+                raise KeyError(f"camera {name!r} not in the model")
+            self.camera_ids.append(cid)
+        self.geom_to_object = np.asarray(geom_to_object, np.int32)
+        self._renderer = _make_renderer(model, self.height, self.width)
+        self._geom_type = int(mujoco.mjtObj.mjOBJ_GEOM)
+        self._zfar = float(model.vis.map.zfar * model.stat.extent)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def render(self, data) -> dict[str, CameraFrame]:
+        """Render every camera at the current simulator state."""
+        renderer = self._renderer
+        frames: dict[str, CameraFrame] = {}
+        for name, cid in zip(self.camera_names, self.camera_ids, strict=True):
+            renderer.update_scene(data, camera=cid)
+            rgb = renderer.render().copy()
+            renderer.enable_depth_rendering()
+            depth = renderer.render().astype(np.float32)
+            renderer.disable_depth_rendering()
+            renderer.enable_segmentation_rendering()
+            seg_raw = renderer.render()
+            renderer.disable_segmentation_rendering()
+            depth[~np.isfinite(depth) | (depth >= 0.99 * self._zfar)] = 0.0
+            ids, types = seg_raw[..., 0], seg_raw[..., 1]
+            seg = np.full(ids.shape, -1, np.int32)
+            is_geom = (types == self._geom_type) & (ids >= 0) & (ids < len(self.geom_to_object))
+            seg[is_geom] = self.geom_to_object[ids[is_geom]]
+            fovy = float(self.model.cam_fovy[cid])
+            frames[name] = CameraFrame(
+                rgb=rgb,
+                depth=depth,
+                intrinsics=intrinsics_matrix(fovy, self.height, self.width),
+                extrinsics=camera_extrinsics(self.model, data, cid),
+                segmentation=seg,
+            )
+        return frames

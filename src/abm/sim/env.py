@@ -1,0 +1,165 @@
+"""Environment API for policies and scripted experts.
+
+Example::
+
+    env = make_env("place_food", split="seen", seed=3, resolution=128)
+    obs = env.reset()
+    while True:
+        obs, success, info = env.step(policy(obs))
+        if info["done"]:
+            break
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+
+from abm.sim.scene import CAMERA_NAMES
+from abm.sim.simulation import Simulation
+from abm.sim.splits import load_splits
+from abm.sim.tasks import Task, TaskInstance, get_task
+from abm.types import Episode, KeyframeAction, Observation
+
+DEFAULT_MAX_STEPS = 25
+Policy = Callable[[Observation], KeyframeAction]
+
+
+class TaskEnv:
+    """One task episode in simulation, stepped one keyframe at a time.
+
+    Args:
+        task: a task name or :class:`Task` instance.
+        split: ``"seen"`` / ``"unseen"`` (or any split the split file defines).
+        seed: scene seed (same seed -> same scene).
+        resolution: square camera resolution in pixels.
+        max_steps: keyframes before an episode ends unsuccessfully.
+        splits_path: optional replacement split file.
+        camera_names: cameras rendered into observations.
+    """
+
+    def __init__(self, task: str | Task, split: str = "seen", seed: int = 0, resolution: int = 128,
+                 max_steps: int = DEFAULT_MAX_STEPS, splits_path: str | Path | None = None,
+                 camera_names: Sequence[str] = CAMERA_NAMES) -> None:
+        self.task = task if isinstance(task, Task) else get_task(task, load_splits(splits_path))
+        self.split, self.seed = split, int(seed)
+        self.resolution, self.max_steps = int(resolution), int(max_steps)
+        self.camera_names = tuple(camera_names)
+        self.instance: TaskInstance = self.task.sample(self.seed, split)
+        self.sim: Simulation | None = None
+        self.steps = 0
+
+    @property
+    def instruction(self) -> str:
+        return self.instance.instruction
+
+    @property
+    def object_names(self) -> dict[int, str]:
+        return self.instance.scene.object_names
+
+    @property
+    def target_names(self) -> list[str]:
+        return list(self.instance.target_names)
+
+    def reset(self) -> Observation:
+        """Build (first call) or reset the scene and return the first observation."""
+        if self.sim is None:
+            self.sim = Simulation(self.instance.scene, self.resolution, self.camera_names)
+        else:
+            self.sim.reset()
+        self.steps = 0
+        return self.sim.observe()
+
+    def _require_sim(self) -> Simulation:
+        if self.sim is None:
+            raise RuntimeError("call env.reset() before env.step() / env.success()")
+        return self.sim
+
+    def success(self) -> bool:
+        return bool(self.task.success(self._require_sim(), self.instance))
+
+    def step(self, action: KeyframeAction, render: bool = True
+             ) -> tuple[Observation | None, bool, dict[str, Any]]:
+        """Execute one keyframe.
+
+        Returns:
+            ``(observation, success, info)``; ``info`` holds ``"motion"`` (a
+            :class:`abm.sim.robot.MotionResult`), ``"done"`` (success, or the step budget is spent)
+            and ``"step"``. ``observation`` is ``None`` when ``render`` is false.
+        """
+        sim = self._require_sim()
+        if not isinstance(action, KeyframeAction):
+            raise TypeError(f"env.step needs a KeyframeAction, got {type(action).__name__}")
+        motion = sim.execute(action)
+        self.steps += 1
+        success = self.success()
+        done = success or self.steps >= self.max_steps
+        obs = sim.observe() if render else None
+        return obs, success, {"motion": motion, "done": done, "step": self.steps}
+
+    def expert_actions(self):
+        """The task's scripted expert for the current state (a generator of keyframes)."""
+        return self.task.expert(self._require_sim(), self.instance)
+
+    def close(self) -> None:
+        if self.sim is not None:
+            self.sim.close()
+            self.sim = None
+
+    def __enter__(self) -> TaskEnv:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def make_env(task: str, split: str = "seen", seed: int = 0, resolution: int = 128, **kwargs) -> TaskEnv:
+    """Create a :class:`TaskEnv` (see its arguments)."""
+    return TaskEnv(task, split, seed, resolution, **kwargs)
+
+
+def _episode(env: TaskEnv, steps, success: bool, extra: dict[str, Any]) -> Episode:
+    return Episode(task=env.task.name, variation=env.instance.variation, split=env.split,
+                   instruction=env.instruction, object_names=env.object_names,
+                   target_names=env.target_names, steps=steps, success=success, seed=env.seed,
+                   metadata={"resolution": env.resolution, "mujoco": mujoco.__version__, **extra})
+
+
+def run_expert(env: TaskEnv, record: bool = True) -> Episode:
+    """Roll out the scripted expert; returns the episode of (observation, keyframe) pairs."""
+    start = time.perf_counter()
+    env.reset()
+    sim = env._require_sim()
+    steps: list[tuple[Observation, KeyframeAction]] = []
+    motions = []
+    for action in env.expert_actions():
+        obs = sim.observe() if record else None
+        motion = sim.execute(action)
+        motions.append(motion.status)
+        if record:
+            steps.append((obs, action))
+        if motion.status == "unreachable":
+            break
+    success = env.success()
+    return _episode(env, steps, success, {"motions": motions,
+                                          "seconds": round(time.perf_counter() - start, 3)})
+
+
+def run_policy(env: TaskEnv, policy: Policy, max_steps: int | None = None) -> Episode:
+    """Roll out ``policy`` (Observation -> KeyframeAction) until success or the step budget."""
+    obs = env.reset()
+    steps: list[tuple[Observation, KeyframeAction]] = []
+    success = False
+    motions = []
+    for _ in range(max_steps or env.max_steps):
+        action = policy(obs)
+        steps.append((obs, action))
+        obs, success, info = env.step(action)
+        motions.append(info["motion"].status)
+        if info["done"]:
+            break
+    return _episode(env, steps, success, {"motions": motions})

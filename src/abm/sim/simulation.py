@@ -1,0 +1,128 @@
+"""One running scene: MuJoCo model + data, cameras, robot controller and object bookkeeping."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from abm.sim.cameras import CameraRig
+from abm.sim.robot import MotionResult, RobotController
+from abm.sim.scene import CAMERA_NAMES, OBJECT_PREFIX, SceneSpec, build_spec
+from abm.types import KeyframeAction, Observation
+
+SETTLE_SECONDS = 0.3
+
+
+class Simulation:
+    """A built scene ready to step, render and control.
+
+    Args:
+        scene: what to build.
+        resolution: camera image size (square), pixels.
+        camera_names: cameras to render (subset of :data:`abm.sim.scene.CAMERA_NAMES`).
+    """
+
+    def __init__(self, scene: SceneSpec, resolution: int = 128,
+                 camera_names: Sequence[str] = CAMERA_NAMES) -> None:
+        import mujoco
+
+        self._mujoco = mujoco
+        if resolution < 8:
+            raise ValueError(f"resolution must be at least 8 pixels, got {resolution}")
+        self.scene = scene
+        self.resolution = int(resolution)
+        spec = build_spec(scene)
+        spec.visual.global_.offwidth = max(640, self.resolution)
+        spec.visual.global_.offheight = max(480, self.resolution)
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self.object_root_bodies = [m.body(f"{OBJECT_PREFIX.format(i)}root").id for i in range(len(scene.objects))]
+        body_to_object = np.full(m.nbody, -1, np.int32)
+        for i, root in enumerate(self.object_root_bodies):
+            body_to_object[m.body_rootid == root] = i
+        self.geom_to_object = body_to_object[m.geom_bodyid]
+        robot_root = m.body("panda_link0").id
+        robot_geoms = m.body_rootid[m.geom_bodyid] == robot_root
+        names = [m.geom(g).name for g in range(m.ngeom)]
+        finger_geoms = np.array(["finger_collision" in n for n in names])
+        for g in range(m.ngeom):
+            if not names[g] and self.geom_to_object[g] >= 0:
+                names[g] = scene.objects[self.geom_to_object[g]].name
+        self.robot = RobotController(m, self.data, robot_geoms, finger_geoms, self.geom_to_object, names)
+        self.camera_names = list(camera_names)
+        self._cameras: CameraRig | None = None
+        self.step_count = 0
+        self.reset()
+
+    # --- lifecycle ---------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to the scene's initial state: objects at their poses, arm at the start posture."""
+        self._mujoco.mj_resetData(self.model, self.data)
+        self.robot.set_arm(np.asarray(self.scene.robot_qpos), gripper_open=True)
+        self.step_seconds(SETTLE_SECONDS)
+        self.step_count = 0
+
+    def close(self) -> None:
+        if self._cameras is not None:
+            self._cameras.close()
+            self._cameras = None
+
+    def __enter__(self) -> Simulation:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def step_seconds(self, seconds: float) -> None:
+        """Advance physics with the current controls."""
+        for _ in range(max(1, int(round(seconds / self.model.opt.timestep)))):
+            self._mujoco.mj_step(self.model, self.data)
+
+    # --- perception --------------------------------------------------------------------------
+    @property
+    def cameras(self) -> CameraRig:
+        if self._cameras is None:
+            self._cameras = CameraRig(self.model, self.camera_names, self.resolution, self.resolution,
+                                      self.geom_to_object)
+        return self._cameras
+
+    def observe(self) -> Observation:
+        """Render all cameras and read the gripper state at the current time."""
+        return Observation(cameras=self.cameras.render(self.data), gripper_open=self.robot.gripper_opening(),
+                           gripper_pose=self.robot.tcp_pose(), step=self.step_count)
+
+    # --- objects -----------------------------------------------------------------------------
+    def object_index(self, name: str) -> int:
+        return self.scene.index(name)
+
+    def object_pose(self, obj: int | str) -> np.ndarray:
+        """``(4, 4)`` body-to-world pose of a scene object (by id or canonical name)."""
+        i = self.object_index(obj) if isinstance(obj, str) else int(obj)
+        body = self.object_root_bodies[i]
+        out = np.eye(4)
+        out[:3, :3] = self.data.xmat[body].reshape(3, 3)
+        out[:3, 3] = self.data.xpos[body]
+        return out
+
+    def object_contacts(self, a: int, b: int) -> bool:
+        """Whether objects ``a`` and ``b`` touch."""
+        g2o = self.geom_to_object
+        for c in self.data.contact[: self.data.ncon]:
+            o1, o2 = g2o[c.geom1], g2o[c.geom2]
+            if {o1, o2} == {a, b} and c.dist < 2e-3:
+                return True
+        return False
+
+    def held_objects(self) -> set[int]:
+        return self.robot.held_objects()
+
+    # --- control -----------------------------------------------------------------------------
+    def execute(self, action: KeyframeAction) -> MotionResult:
+        """Move to the keyframe pose, then open/close the gripper (not when unreachable)."""
+        result = self.robot.move_to(action.matrix, action.ignore_collision)
+        if result.status != "unreachable":
+            self.robot.actuate_gripper(action.gripper_open)
+        self.step_count += 1
+        return result

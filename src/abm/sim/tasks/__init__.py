@@ -1,0 +1,16 @@
+"""ABM-Bench tasks: importing this package registers every built-in task in :data:`TASKS`."""
+
+from abm.sim.tasks import pick_block, place_food, place_wine  # noqa: F401  (registration)
+from abm.sim.tasks.base import TASKS, Task, TaskInstance, register_task
+
+
+def get_task(name: str, splits=None) -> Task:
+    """An instance of a registered task (``splits``: :class:`abm.sim.splits.ObjectSplits` or ``None``)."""
+    try:
+        cls = TASKS[name]
+    except KeyError:
+        raise KeyError(f"unknown task {name!r}; known tasks: {sorted(TASKS)}") from None
+    return cls(splits)
+
+
+__all__ = ["TASKS", "Task", "TaskInstance", "get_task", "register_task"]

@@ -1,0 +1,243 @@
+"""Task interface, registry and shared helpers (layout sampling, top-down pick-and-place expert).
+
+A task is a small class registered with :func:`register_task`. It must provide:
+
+* ``name`` and ``templates`` (instruction templates with ``{target}``);
+* ``categories``: catalog categories its split objects may belong to (checked when splits load);
+* :meth:`Task.sample`: seeded scene sampler -> :class:`TaskInstance`;
+* :meth:`Task.success`: success predicate on the simulator state;
+* :meth:`Task.expert`: scripted expert, a generator of :class:`abm.types.KeyframeAction` that may read
+  the simulator between keyframes.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from abm.geometry.rotations import matrix_to_quat
+from abm.sim.catalog import catalog_entry, object_geometry
+from abm.sim.scene import PlacedObject, SceneSpec
+from abm.types import KeyframeAction
+
+TASKS: dict[str, type[Task]] = {}
+
+# Table region where objects are placed (m, world frame).
+TABLE_X = (0.33, 0.68)
+TABLE_Y = (-0.3, 0.3)
+OBJECT_GAP = 0.045          # m of free space between footprints
+APPROACH_HEIGHT = 0.10      # m above the grasp / place pose
+LIFT_HEIGHT = 0.15          # m lifted after grasping
+DROP_HEIGHT = 0.01          # m above the support surface when releasing
+FINGER_REACH = 0.06         # m from the TCP to the outside of an open finger
+
+
+def register_task(cls: type[Task]) -> type[Task]:
+    """Class decorator adding a task to :data:`TASKS` under ``cls.name``."""
+    if cls.name in TASKS:
+        raise ValueError(f"task {cls.name!r} registered twice")
+    TASKS[cls.name] = cls
+    return cls
+
+
+@dataclass
+class TaskInstance:
+    """One sampled episode setup.
+
+    Attributes:
+        task, split, seed: identification.
+        variation: index of the target object in the split's object list.
+        instruction: the English instruction.
+        scene: objects and their poses.
+        target_names: objects the instruction refers to.
+        info: task-specific data (e.g. which object is the goal), JSON-friendly.
+    """
+
+    task: str
+    split: str
+    seed: int
+    variation: int
+    instruction: str
+    scene: SceneSpec
+    target_names: list[str]
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class Task(ABC):
+    """Base class of ABM-Bench tasks. Instances are stateless apart from the object splits."""
+
+    name: ClassVar[str]
+    templates: ClassVar[tuple[str, ...]]
+    categories: ClassVar[tuple[str, ...]]
+
+    def __init__(self, splits=None) -> None:
+        from abm.sim.splits import load_splits
+
+        self.splits = splits if splits is not None else load_splits()
+
+    @classmethod
+    def check_objects(cls, names: list[str]) -> str | None:
+        """A problem description if ``names`` cannot be targets of this task, else ``None``."""
+        bad = [n for n in names if catalog_entry(n).category not in cls.categories]
+        if bad:
+            return f"objects {bad} are not of the categories this task uses ({list(cls.categories)})"
+        return None
+
+    def objects(self, split: str) -> list[str]:
+        return self.splits.objects(self.name, split)
+
+    def instruction(self, target: str) -> str:
+        """Instruction for a target (first template)."""
+        return self.templates[0].format(target=target)
+
+    def pick_target(self, rng: np.random.Generator, split: str) -> tuple[str, int, list[str]]:
+        """``(target, variation, other objects of the split)`` for a seeded episode."""
+        names = self.objects(split)
+        variation = int(rng.integers(len(names)))
+        return names[variation], variation, [n for i, n in enumerate(names) if i != variation]
+
+    @abstractmethod
+    def sample(self, seed: int, split: str) -> TaskInstance:
+        """Seeded, reproducible scene sampler."""
+
+    @abstractmethod
+    def success(self, sim, instance: TaskInstance) -> bool:
+        """Whether the task is solved in the simulator's current state."""
+
+    @abstractmethod
+    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+        """Scripted expert keyframes; reads ``sim`` between keyframes."""
+
+
+# --- layout ----------------------------------------------------------------------------------------
+def sample_layout(rng: np.random.Generator, names: list[str], fixed_yaw: dict[str, tuple[float, float]]
+                  | None = None, max_tries: int = 500) -> list[PlacedObject]:
+    """Place objects at random non-overlapping table poses (first names first).
+
+    Args:
+        names: canonical names in placement order.
+        fixed_yaw: optional name -> (low, high) yaw range in radians (default: any yaw).
+    """
+    fixed_yaw = fixed_yaw or {}
+    for _ in range(50):
+        placed: list[PlacedObject] = []
+        radii: list[float] = []
+        for name in names:
+            radius = object_geometry(name).footprint_radius
+            for _ in range(max_tries):
+                x = rng.uniform(TABLE_X[0] + 0.5 * radius, TABLE_X[1] - 0.3 * radius)
+                y = rng.uniform(TABLE_Y[0] + 0.3 * radius, TABLE_Y[1] - 0.3 * radius)
+                if all(np.hypot(x - p.x, y - p.y) > radius + r + OBJECT_GAP
+                       for p, r in zip(placed, radii, strict=True)):
+                    lo, hi = fixed_yaw.get(name, (-np.pi, np.pi))
+                    placed.append(PlacedObject(name, float(x), float(y), float(rng.uniform(lo, hi))))
+                    radii.append(radius)
+                    break
+            else:
+                break
+        if len(placed) == len(names):
+            return placed
+    raise RuntimeError(f"could not place {names} on the table without overlap")
+
+
+# --- grasping --------------------------------------------------------------------------------------
+def top_down_pose(position: np.ndarray, finger_axis_yaw: float) -> np.ndarray:
+    """``(4, 4)`` TCP pose pointing straight down with the fingers closing along ``finger_axis_yaw``."""
+    axis = np.array([np.cos(finger_axis_yaw), np.sin(finger_axis_yaw), 0.0])
+    z = np.array([0.0, 0.0, -1.0])
+    x = np.cross(axis, z)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, axis, z], axis=1)
+    pose[:3, 3] = position
+    return pose
+
+
+def action(pose: np.ndarray, gripper_open: bool, ignore_collision: bool) -> KeyframeAction:
+    return KeyframeAction(pose[:3, 3].copy(), matrix_to_quat(pose[:3, :3]), gripper_open, ignore_collision)
+
+
+def grasp_pose(sim, index: int) -> np.ndarray:
+    """Top-down grasp of object ``index`` across its narrower horizontal side, at its grasp height."""
+    name = sim.scene.objects[index].name
+    geo = object_geometry(name)
+    entry = catalog_entry(name)
+    pose = sim.object_pose(index)
+    center_local = geo.center
+    ex, ey = geo.upper[0] - geo.lower[0], geo.upper[1] - geo.lower[1]
+    center = pose[:3, :3] @ center_local + pose[:3, 3]
+    # Fingers close across the narrower side; for near-square footprints take the side whose open
+    # fingers stay farthest from the neighbouring objects.
+    if abs(ex - ey) < 0.015:
+        candidates = [pose[:3, 0], pose[:3, 1]]
+    else:
+        candidates = [pose[:3, 0] if ex < ey else pose[:3, 1]]
+
+    def clearance(axis: np.ndarray) -> float:
+        best = np.inf
+        for j, other in enumerate(sim.scene.objects):
+            if j == index:
+                continue
+            xy = sim.object_pose(j)[:2, 3]
+            radius = object_geometry(other.name).footprint_radius
+            for sign in (-1.0, 1.0):
+                finger = center[:2] + sign * FINGER_REACH * axis[:2]
+                best = min(best, float(np.linalg.norm(finger - xy)) - radius)
+        return best
+
+    local_axis = max(candidates, key=clearance)
+    yaw = float(np.arctan2(local_axis[1], local_axis[0]))
+    bottom = pose[2, 3] + geo.lower[2]
+    if entry.grasp_height is not None:
+        z = bottom + entry.grasp_height
+    else:
+        z = max(bottom + geo.height - 0.02, bottom + 0.5 * geo.height)
+    z = max(z, 0.013)
+    return top_down_pose(np.array([center[0], center[1], z]), yaw)
+
+
+def pick_and_place(sim, index: int, place_xy: np.ndarray, surface_z: float,
+                   place_yaw: float | None = None) -> Iterator[KeyframeAction]:
+    """Six RLBench-style keyframes: approach, grasp, lift, move, place (release), retreat.
+
+    Args:
+        index: object to pick.
+        place_xy: ``(2,)`` where the object's grasp point should end up (m, world).
+        surface_z: height of the support surface at the place location (m).
+        place_yaw: finger-axis yaw when placing (default: as grasped).
+    """
+    grasp = grasp_pose(sim, index)
+    above = grasp.copy()
+    above[2, 3] += APPROACH_HEIGHT
+    yield action(above, True, False)                      # approach
+    yield action(grasp, False, True)                      # grasp
+    lift = grasp.copy()
+    lift[2, 3] += LIFT_HEIGHT
+    yield action(lift, False, True)                       # lift
+    # Height of the object's bottom below the TCP, measured now that it is held.
+    name = sim.scene.objects[index].name
+    obj = sim.object_pose(index)
+    tcp = sim.robot.tcp_pose()
+    bottom_below_tcp = tcp[2, 3] - (obj[2, 3] + object_geometry(name).lower[2])
+    bottom_below_tcp = float(np.clip(bottom_below_tcp, 0.0, 0.2))
+    # Keep the grasped point's horizontal offset from the TCP so the object lands where asked.
+    yaw = place_yaw if place_yaw is not None else float(np.arctan2(tcp[1, 1], tcp[0, 1]))
+    place = top_down_pose(np.array([place_xy[0], place_xy[1], surface_z + bottom_below_tcp + DROP_HEIGHT]), yaw)
+    move = place.copy()
+    move[2, 3] = max(place[2, 3] + APPROACH_HEIGHT, lift[2, 3])
+    yield action(move, False, False)                      # move above the goal
+    yield action(place, True, True)                       # place and release
+    retreat = place.copy()
+    retreat[2, 3] += APPROACH_HEIGHT
+    yield action(retreat, True, True)                     # retreat
+
+
+def resting_on(sim, index: int, max_bottom: float) -> bool:
+    """Whether object ``index`` is not held and its bottom is below ``max_bottom`` (m)."""
+    if index in sim.held_objects():
+        return False
+    name = sim.scene.objects[index].name
+    return bool(sim.object_pose(index)[2, 3] + object_geometry(name).lower[2] < max_bottom)

@@ -1,0 +1,43 @@
+"""pick_block: "put the X block on the target" (X a colour)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from abm.sim.catalog import catalog_entry
+from abm.sim.scene import SceneSpec
+from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, resting_on, sample_layout
+from abm.types import KeyframeAction
+
+NUM_DISTRACTORS = 2
+
+
+@register_task
+class PickBlock(Task):
+    name = "pick_block"
+    templates = ("put the {target} on the target", "stack the {target} on the target")
+    categories = ("block",)
+
+    def sample(self, seed: int, split: str) -> TaskInstance:
+        rng = np.random.default_rng([seed, 2])
+        target, variation, others = self.pick_target(rng, split)
+        count = min(NUM_DISTRACTORS, len(others))
+        distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]
+        objects = sample_layout(rng, ["target", target, *distractors])
+        return TaskInstance(self.name, split, seed, variation, self.instruction(target),
+                            SceneSpec(objects), [target], {"target": 1, "goal": 0})
+
+    def success(self, sim, instance: TaskInstance) -> bool:
+        block, goal = instance.info["target"], instance.info["goal"]
+        b, g = sim.object_pose(block), sim.object_pose(goal)
+        half = catalog_entry("target").size[0]
+        local = g[:3, :3].T @ (b[:3, 3] - g[:3, 3])
+        inside = bool(np.all(np.abs(local[:2]) < half))
+        return inside and resting_on(sim, block, max_bottom=0.02)
+
+    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+        goal = sim.object_pose(instance.info["goal"])
+        surface = 2 * catalog_entry("target").size[2]
+        yield from pick_and_place(sim, instance.info["target"], goal[:2, 3], surface)

@@ -1,0 +1,93 @@
+"""Policy checkpoints: atomic saving, finding the latest one in a run, loading with clear errors.
+
+A checkpoint is a ``torch.save`` dict::
+
+    format: "abm-policy", version: 1,
+    policy_config: PolicyConfig.to_dict(), variant: str, preset: str,
+    language: encoder spec, grounder: grounder spec, camera_names: list | None,
+    model: state_dict, step: int,
+    # training state (absent from exported inference checkpoints)
+    optimizer, scheduler, rng: {torch, numpy, python, cuda}, train_config: dict
+
+Runs keep them as ``RUN/checkpoints/step_00001000.pt``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import torch
+
+FORMAT = "abm-policy"
+VERSION = 1
+_STEP_FILE = re.compile(r"step_(\d+)\.pt$")
+
+
+def checkpoint_dir(run_dir: str | Path) -> Path:
+    return Path(run_dir) / "checkpoints"
+
+
+def checkpoint_path(run_dir: str | Path, step: int) -> Path:
+    return checkpoint_dir(run_dir) / f"step_{step:08d}.pt"
+
+
+def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
+    """Write atomically (temporary file + rename), so an interruption never leaves a broken checkpoint."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    torch.save({"format": FORMAT, "version": VERSION, **payload}, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def list_checkpoints(run_dir: str | Path) -> list[tuple[int, Path]]:
+    """``(step, path)`` of a run's checkpoints, oldest first."""
+    folder = checkpoint_dir(run_dir)
+    if not folder.is_dir():
+        return []
+    found = []
+    for p in folder.iterdir():
+        m = _STEP_FILE.search(p.name)
+        if m:
+            found.append((int(m.group(1)), p))
+    return sorted(found)
+
+
+def resolve_checkpoint(run_or_ckpt: str | Path) -> Path:
+    """A checkpoint file itself, or the latest checkpoint of a run folder."""
+    p = Path(run_or_ckpt)
+    if p.is_file():
+        return p
+    if p.is_dir():
+        ckpts = list_checkpoints(p)
+        if not ckpts:
+            raise FileNotFoundError(f"no checkpoint in {checkpoint_dir(p)} (expected step_XXXXXXXX.pt files)")
+        return ckpts[-1][1]
+    raise FileNotFoundError(f"no checkpoint or run folder at {p}")
+
+
+def load_checkpoint(run_or_ckpt: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Load and sanity-check a checkpoint (file or run folder)."""
+    path = resolve_checkpoint(run_or_ckpt)
+    try:
+        data = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
+        raise ValueError(f"cannot read checkpoint {path}: {err}") from err
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ValueError(f"{path} is not an abm policy checkpoint")
+    if int(data.get("version", 0)) > VERSION:
+        raise ValueError(f"{path} has checkpoint version {data['version']}; this abm reads up to {VERSION}")
+    data["path"] = str(path)
+    return data
+
+
+def prune_checkpoints(run_dir: str | Path, keep: int) -> None:
+    """Delete all but the ``keep`` newest checkpoints (``keep <= 0`` keeps all)."""
+    if keep <= 0:
+        return
+    for _, p in list_checkpoints(run_dir)[:-keep]:
+        p.unlink(missing_ok=True)

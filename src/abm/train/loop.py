@@ -1,0 +1,442 @@
+"""Behaviour-cloning training loop for every policy variant (single process or ``torchrun`` DDP).
+
+* LAMB (``torch_optimizer.Lamb``), linear warm-up then cosine decay, gradient-norm clipping,
+  bf16 autocast on CUDA.
+* Data: :class:`~abm.data.keyframes.KeyframeDataset` with the deterministic
+  :class:`~abm.data.keyframes.StepSampler` (rank-sharded like ``DistributedSampler``), so a run
+  resumed from a checkpoint sees exactly the batches the uninterrupted run would have seen.
+* Distributed: launched by ``torchrun`` (``WORLD_SIZE`` > 1) the loop joins a process group (gloo on
+  CPU, nccl on CUDA) and wraps the model in ``DistributedDataParallel``; rank 0 logs and saves.
+* Outputs in the run folder: ``config.json``, ``log.csv``, ``tb/`` (TensorBoard),
+  ``checkpoints/step_XXXXXXXX.pt`` (every ``checkpoint_every`` steps, at the end, and on Ctrl-C),
+  ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import random
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+
+from abm.data.keyframes import EpisodeSource, KeyframeDataset, StepSampler, collate, worker_init
+from abm.policy.config import PolicyConfig, check_compatible
+from abm.policy.heads import policy_loss, translation_targets
+from abm.policy.language import make_language_encoder
+from abm.policy.mvt import MultiViewTransformer
+from abm.render import OrthographicRenderer
+from abm.train.checkpoint import (
+    checkpoint_path,
+    list_checkpoints,
+    load_checkpoint,
+    prune_checkpoints,
+    save_checkpoint,
+)
+from abm.types import Episode
+
+LOG_FIELDS = ("step", "lr", "total", "translation", "rotation", "gripper", "collision", "samples_per_s",
+              "elapsed_s")
+
+
+@dataclass
+class TrainConfig:
+    """Options of one training run (the ``abm train`` flags).
+
+    Attributes:
+        method: policy variant (``abm``, ``rvt``, ``ifd``, ``stack``, ``concat-rerendered``, ``concat-full``).
+        preset: size preset (``small``, ``paper``).
+        out: run folder.
+        data: episode store folder (``None`` when episodes are passed in memory).
+        tasks / splits: episode selection in the store.
+        steps: total optimiser steps.
+        batch: samples per step *per process*.
+        lr: peak learning rate (default ``1e-4 * batch * world_size``; the paper used 0.003 at batch 30).
+        warmup: linear warm-up steps (default ``min(2000, steps // 20)``).
+        min_lr_ratio: the cosine decays to ``lr * min_lr_ratio``.
+        weight_decay: LAMB weight decay.
+        grad_clip: max global gradient norm (0 = off).
+        checkpoint_every: steps between checkpoints (also one at the end).
+        keep_checkpoints: periodic checkpoints kept (0 = all).
+        log_every: steps between log lines.
+        workers: DataLoader worker processes.
+        device: ``cpu``, ``cuda`` or ``cuda:N`` (under torchrun CUDA uses ``cuda:LOCAL_RANK``).
+        grounder: grounder spec kind (``oracle`` or ``clip``); options in ``grounder_options``.
+        language: language encoder kind (``hash`` or ``clip``; default: ``clip`` with the clip grounder).
+        seed: seed of model init and the data stream.
+        resume: continue from the latest checkpoint in ``out``.
+        augment: SE(3) augmentation.
+        policy_overrides: :class:`PolicyConfig` field overrides (e.g. ``{"resolution": 64}``).
+        cache_dir: grounding / CLIP feature cache (default ``out/cache``).
+        camera_names: cameras to fuse (default all).
+        progress: show a tqdm bar.
+    """
+
+    method: str = "abm"
+    preset: str = "small"
+    out: Path = Path("runs/policy")
+    data: Path | None = None
+    tasks: list[str] | None = None
+    splits: list[str] | None = field(default_factory=lambda: ["seen"])
+    steps: int = 1000
+    batch: int = 8
+    lr: float | None = None
+    warmup: int | None = None
+    min_lr_ratio: float = 0.0
+    weight_decay: float = 1e-4
+    grad_clip: float = 1.0
+    checkpoint_every: int = 1000
+    keep_checkpoints: int = 3
+    log_every: int = 10
+    workers: int = 0
+    device: str = "cpu"
+    grounder: str = "oracle"
+    grounder_options: dict[str, Any] = field(default_factory=dict)
+    language: str | None = None
+    seed: int = 0
+    resume: bool = False
+    augment: bool = True
+    policy_overrides: dict[str, Any] = field(default_factory=dict)
+    cache_dir: Path | None = None
+    camera_names: list[str] | None = None
+    progress: bool = True
+
+    def to_dict(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self), default=str))
+
+
+@dataclass
+class DistInfo:
+    world_size: int = 1
+    rank: int = 0
+    local_rank: int = 0
+
+    @property
+    def enabled(self) -> bool:
+        return self.world_size > 1
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+
+def _setup_distributed(device: str) -> DistInfo:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return DistInfo()
+    info = DistInfo(world, int(os.environ.get("RANK", "0")), int(os.environ.get("LOCAL_RANK", "0")))
+    if not dist.is_initialized():
+        backend = "nccl" if device.startswith("cuda") else "gloo"
+        dist.init_process_group(backend=backend)
+    return info
+
+
+def _lr_lambda(warmup: int, total: int, min_ratio: float) -> Callable[[int], float]:
+    def f(step: int) -> float:
+        if warmup > 0 and step < warmup:
+            return (step + 1) / warmup
+        progress = min(max(step - warmup, 0) / max(total - warmup, 1), 1.0)
+        return min_ratio + (1.0 - min_ratio) * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+    return f
+
+
+def _rng_state() -> dict[str, Any]:
+    state = {
+        "torch": torch.get_rng_state(),
+        "numpy": np.random.get_state(),  # noqa: NPY002
+        "python": random.getstate(),
+    }
+    if torch.cuda.is_available():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def _set_rng_state(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    np.random.set_state(state["numpy"])  # noqa: NPY002
+    random.setstate(state["python"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+
+
+def parameter_digest(model: torch.nn.Module) -> str:
+    """SHA-1 of all parameters (bytes), to compare models across ranks or runs."""
+    h = hashlib.sha1()
+    for _, p in sorted(model.state_dict().items()):
+        h.update(p.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def build_policy_config(cfg: TrainConfig, lang_dim: int, ifd_dim: int | None) -> PolicyConfig:
+    """The run's :class:`PolicyConfig`: preset + variant, language width from the encoder, overrides."""
+    overrides = dict(cfg.policy_overrides)
+    overrides.setdefault("lang_dim", lang_dim)
+    if ifd_dim is not None:
+        overrides.setdefault("ifd_feature_dim", ifd_dim)
+    return PolicyConfig.from_preset(cfg.preset, cfg.method, **overrides)
+
+
+def language_spec(cfg: TrainConfig, lang_dim: int) -> dict[str, Any]:
+    kind = cfg.language or ("clip" if cfg.grounder == "clip" else "hash")
+    if kind == "hash":
+        return {"kind": "hash", "dim": lang_dim, "tokens": 77, "seed": 0}
+    if kind == "clip":
+        return {"kind": "clip", **cfg.grounder_options}
+    raise ValueError(f"unknown language encoder {kind!r}; use 'hash' or 'clip'")
+
+
+def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None) -> EpisodeSource:
+    if episodes is not None:
+        return EpisodeSource(list(episodes))
+    if cfg.data is None:
+        raise ValueError("no training data: give --data DIR (an episode store) or --synthetic N")
+    from abm.data.episode_store import EpisodeStore  # owned by the data package
+
+    store = EpisodeStore(cfg.data)
+    indices = store.select(tasks=cfg.tasks, splits=cfg.splits)
+    if not indices:
+        raise ValueError(f"no episodes in {cfg.data} for tasks {cfg.tasks} and splits {cfg.splits}")
+    return EpisodeSource(store, indices)
+
+
+class _Logger:
+    """CSV + TensorBoard logging on rank 0; truncates rows past the resume step."""
+
+    def __init__(self, run: Path, start_step: int, enabled: bool) -> None:
+        self.enabled = enabled
+        self.tb = None
+        if not enabled:
+            return
+        self.path = run / "log.csv"
+        rows = []
+        if self.path.exists() and start_step > 0:
+            with self.path.open() as f:
+                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= start_step]
+        with self.path.open("w", newline="") as f:
+            w = csv.DictWriter(f, LOG_FIELDS)
+            w.writeheader()
+            w.writerows(rows)
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self.tb = SummaryWriter(str(run / "tb"), purge_step=start_step + 1 if start_step else None)
+        except ImportError:  # tensorboard is optional
+            self.tb = None
+
+    def log(self, row: dict[str, float]) -> None:
+        if not self.enabled:
+            return
+        with self.path.open("a", newline="") as f:
+            csv.DictWriter(f, LOG_FIELDS).writerow({k: row.get(k, "") for k in LOG_FIELDS})
+        if self.tb is not None:
+            step = int(row["step"])
+            for k in ("total", "translation", "rotation", "gripper", "collision"):
+                self.tb.add_scalar(f"loss/{k}", row[k], step)
+            self.tb.add_scalar("lr", row["lr"], step)
+            self.tb.add_scalar("samples_per_s", row["samples_per_s"], step)
+
+    def close(self) -> None:
+        if self.tb is not None:
+            self.tb.close()
+
+
+def train(
+    cfg: TrainConfig,
+    episodes: Sequence[Episode] | None = None,
+    on_step: Callable[[int, dict[str, float]], None] | None = None,
+) -> dict[str, Any]:
+    """Train (or resume) a policy; returns the run summary (also written to ``out/summary.json``).
+
+    Args:
+        cfg: run options.
+        episodes: in-memory episodes (instead of ``cfg.data``).
+        on_step: called after every optimiser step with ``(step, losses)`` (rank-averaged losses).
+
+    Raises:
+        ValueError: bad options, a checkpoint of another variant/preset, or an empty selection.
+    """
+    from torch_optimizer import Lamb
+    from tqdm import tqdm
+
+    dinfo = _setup_distributed(cfg.device)
+    device = torch.device(cfg.device)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError("--device cuda requested but CUDA is not available")
+        if dinfo.enabled:
+            device = torch.device("cuda", dinfo.local_rank)
+        torch.cuda.set_device(device)
+    run = Path(cfg.out)
+    run.mkdir(parents=True, exist_ok=True)
+
+    # ---- resume state
+    ckpt = None
+    if cfg.resume:
+        if list_checkpoints(run):
+            ckpt = load_checkpoint(run)
+        elif dinfo.main:
+            print(f"abm train: no checkpoint in {run}; starting from scratch")
+
+    # ---- conditioning, data and model config
+    torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed)  # noqa: NPY002 - global RNG of third-party code
+    random.seed(cfg.seed)
+    base_lang = int(cfg.policy_overrides.get("lang_dim", 512))
+    lspec = ckpt["language"] if ckpt is not None else language_spec(cfg, base_lang)
+    encoder = make_language_encoder(lspec)
+    gspec = {"kind": "oracle"} if cfg.grounder == "oracle" else {"kind": cfg.grounder, **cfg.grounder_options}
+    ifd_dim = None
+    if cfg.method == "ifd":
+        if cfg.grounder != "clip":
+            raise ValueError("method 'ifd' re-renders CLIP features: use --grounder clip")
+        from abm.policy.conditioning import make_grounder_from_spec
+
+        g = make_grounder_from_spec(gspec)
+        ifd_dim = getattr(g, "feature_dim", None) or getattr(getattr(g, "backbone", None), "embed_dim", None)
+    pconfig = build_policy_config(cfg, encoder.dim, ifd_dim)
+    if ckpt is not None:
+        stored = PolicyConfig.from_dict(ckpt["policy_config"])
+        check_compatible(stored, pconfig)
+    source = _episode_source(cfg, episodes)
+    cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else run / "cache"
+
+    def make_dataset(progress: bool) -> KeyframeDataset:
+        return KeyframeDataset(source, pconfig, encoder, gspec, augment=cfg.augment, cache_dir=cache,
+                               seed=cfg.seed, camera_names=cfg.camera_names, show_progress=progress)
+
+    if dinfo.enabled and not dinfo.main:
+        dist.barrier()  # rank 0 fills the grounding cache first
+    dataset = make_dataset(dinfo.main and cfg.progress)
+    if dinfo.enabled and dinfo.main:
+        dist.barrier()
+
+    model = MultiViewTransformer(pconfig).to(device)
+    world = dinfo.world_size
+    lr = cfg.lr if cfg.lr is not None else 1e-4 * cfg.batch * world
+    warmup = cfg.warmup if cfg.warmup is not None else min(2000, cfg.steps // 20)
+    optimizer = Lamb(model.parameters(), lr=lr, weight_decay=cfg.weight_decay)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, _lr_lambda(warmup, cfg.steps, cfg.min_lr_ratio))
+    start = 0
+    if ckpt is not None:
+        model.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        scheduler.load_state_dict(ckpt["scheduler"])
+        _set_rng_state(ckpt["rng"])
+        start = int(ckpt["step"])
+        if dinfo.main:
+            print(f"abm train: resumed from {ckpt['path']} at step {start}")
+    train_model: torch.nn.Module = model
+    if dinfo.enabled:
+        from torch.nn.parallel import DistributedDataParallel
+
+        train_model = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+
+    if dinfo.main:
+        (run / "config.json").write_text(json.dumps(
+            {"train": cfg.to_dict(), "policy": pconfig.to_dict(), "language": lspec, "grounder": gspec,
+             "world_size": world, "lr": lr, "warmup": warmup}, indent=2))
+
+    sampler = StepSampler(len(dataset), cfg.batch, cfg.steps, start, world, dinfo.rank, cfg.seed)
+    loader = torch.utils.data.DataLoader(
+        dataset, batch_size=cfg.batch, sampler=sampler, num_workers=cfg.workers, collate_fn=collate,
+        worker_init_fn=worker_init, pin_memory=device.type == "cuda",
+    )
+    renderer = OrthographicRenderer(dataset.workspace, pconfig.resolution, pconfig.views, device=device)
+    logger = _Logger(run, start, dinfo.main)
+    use_amp = device.type == "cuda"
+
+    def payload(step: int) -> dict[str, Any]:
+        return {
+            "policy_config": pconfig.to_dict(), "variant": pconfig.variant, "preset": pconfig.preset,
+            "language": lspec, "grounder": gspec, "camera_names": cfg.camera_names,
+            "model": model.state_dict(), "optimizer": optimizer.state_dict(),
+            "scheduler": scheduler.state_dict(), "rng": _rng_state(), "step": step,
+            "train_config": cfg.to_dict(), "world_size": world,
+        }
+
+    def save(step: int) -> None:
+        if dinfo.main:
+            save_checkpoint(checkpoint_path(run, step), payload(step))
+            prune_checkpoints(run, cfg.keep_checkpoints)
+
+    step = start
+    last: dict[str, float] = {}
+    t0 = time.perf_counter()
+    tick, tick_step = t0, start
+    bar = tqdm(total=cfg.steps, initial=start, desc=f"train {cfg.method}/{cfg.preset}",
+               disable=not (dinfo.main and cfg.progress), dynamic_ncols=True)
+    try:
+        train_model.train()
+        for batch in loader:
+            batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+            with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
+                out = train_model(batch["images"], batch["proprio"], batch["lang"], mask=batch.get("mask"),
+                                  ifd_features=batch.get("ifd_features"), ifd_index=batch.get("ifd_index"))
+            target = translation_targets(renderer, batch["position"])
+            terms = policy_loss(out, target, batch["rotation_bins"], batch["gripper"], batch["collision"])
+            optimizer.zero_grad(set_to_none=True)
+            terms.total.backward()
+            if cfg.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+            optimizer.step()
+            scheduler.step()
+            step += 1
+            vals = torch.stack([terms.total, terms.translation, terms.rotation, terms.gripper,
+                                terms.collision]).detach().float()
+            if dinfo.enabled:
+                dist.all_reduce(vals)
+                vals /= world
+            last = dict(zip(("total", "translation", "rotation", "gripper", "collision"), vals.tolist(),
+                            strict=True))
+            bar.update(1)
+            bar.set_postfix(loss=f"{last['total']:.3f}")
+            if step % cfg.log_every == 0 or step == cfg.steps:
+                now = time.perf_counter()
+                sps = (step - tick_step) * cfg.batch * world / max(now - tick, 1e-9)
+                tick, tick_step = now, step
+                logger.log({"step": step, "lr": scheduler.get_last_lr()[0], **last, "samples_per_s": sps,
+                            "elapsed_s": now - t0})
+            if on_step is not None:
+                on_step(step, last)
+            if step % cfg.checkpoint_every == 0 and step != cfg.steps:
+                save(step)
+    except KeyboardInterrupt:
+        save(step)
+        if dinfo.main:
+            print(f"abm train: interrupted; checkpoint saved at step {step} (continue with --resume)")
+        raise
+    finally:
+        bar.close()
+        logger.close()
+    if step > start or not list_checkpoints(run):
+        save(step)
+    digest = parameter_digest(model)
+    digests = [digest]
+    if dinfo.enabled:
+        gathered: list[Any] = [None] * world
+        dist.all_gather_object(gathered, digest)
+        digests = list(gathered)
+    summary = {
+        "method": cfg.method, "preset": pconfig.preset, "steps": step, "final_loss": last,
+        "parameters": model.num_parameters(), "world_size": world, "parameter_digests": digests,
+        "ranks_in_sync": len(set(digests)) == 1, "seconds": time.perf_counter() - t0,
+        "checkpoint": str(checkpoint_path(run, step)),
+    }
+    if dinfo.main:
+        (run / "summary.json").write_text(json.dumps(summary, indent=2))
+    if dinfo.enabled:
+        dist.barrier()
+        dist.destroy_process_group()
+    return summary

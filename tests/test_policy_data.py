@@ -1,0 +1,149 @@
+"""Keyframe dataset: sample contents per variant, determinism, workers, sampler sharding/resume."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+import abm.data.keyframes as keyframes
+from abm.data.keyframes import KeyframeDataset, StepSampler, collate
+from abm.policy import PolicyConfig
+from abm.policy.language import HashLanguageEncoder
+from abm.train.synthetic import synthetic_episodes
+
+LANG = 32
+
+
+@pytest.fixture(scope="module")
+def episodes():
+    return synthetic_episodes(3, camera_resolution=48)
+
+
+def _dataset(episodes, variant: str, **kw) -> KeyframeDataset:
+    cfg = PolicyConfig.from_preset("small", variant, resolution=48, lang_dim=LANG, ifd_feature_dim=8)
+    return KeyframeDataset(episodes, cfg, HashLanguageEncoder(LANG), **kw)
+
+
+@pytest.mark.parametrize("variant", ["abm", "rvt", "stack", "concat-rerendered", "concat-full"])
+def test_sample_contents(episodes, variant: str) -> None:
+    ds = _dataset(episodes, variant)
+    assert len(ds) == 6
+    s = ds[(1, 7)]
+    assert s["images"].shape == (5, 10, 48, 48)
+    assert s["lang"].shape == (77, LANG) and s["proprio"].shape == (4,)
+    assert s["rotation_bins"].shape == (3,) and s["position"].shape == (3,)
+    if variant == "rvt":
+        assert "mask" not in s
+        assert "block" in ds.texts[0]  # full instruction
+    else:
+        assert s["mask"].shape == (5, 1, 48, 48)
+        assert ds.texts[0] == "put X on the target"  # skill text only
+        per_view = s["mask"].sum((1, 2, 3))
+        if variant == "abm":
+            assert torch.all(per_view <= 1) and per_view.sum() >= 3  # one centre pixel per view
+        else:
+            assert per_view.sum() > 5
+
+
+def test_center_pixel_is_on_target_and_action_moves_with_augmentation(episodes) -> None:
+    ds = _dataset(episodes, "abm")
+    a = ds[(0, 1)]
+    b = ds[(0, 1)]
+    c = ds[(0, 2)]
+    for k in a:
+        torch.testing.assert_close(a[k], b[k])  # same key -> same sample
+    assert not torch.allclose(a["position"], c["position"])  # another seed -> another augmentation
+    plain = _dataset(episodes, "abm", augment=False)[(0, 1)]
+    grasp = episodes[0].steps[0][1].position
+    np.testing.assert_allclose(plain["position"].numpy(), grasp, atol=1e-5)
+    # the centre pixel of the top view is near the grasp point's projection (target block top)
+    uv, _ = _dataset(episodes, "abm", augment=False).renderer.project(torch.tensor(grasp, dtype=torch.float32))
+    row, col = plain["mask"][4, 0].nonzero()[0].tolist()
+    assert abs(col - uv[4, 0]) < 4 and abs(row - uv[4, 1]) < 4
+
+
+def test_ifd_features_through_index_map(episodes, monkeypatch, tmp_path) -> None:
+    class FakeClip:
+        def point_features(self, observation, cloud):
+            return np.tile(cloud.rgb, (1, 3))[:, :8].astype(np.float32)  # (N, 8)
+
+        def ground(self, *a):  # pragma: no cover - not used by ifd
+            raise AssertionError
+
+    monkeypatch.setattr(keyframes, "make_grounder_from_spec", lambda spec: FakeClip())
+    ds = _dataset(episodes, "ifd", grounder={"kind": "clip"}, cache_dir=tmp_path, show_progress=False)
+    assert len(list(tmp_path.glob("*.npz"))) == 6
+    s = ds[(0, 0)]
+    idx, feats = s["ifd_index"], s["ifd_features"]
+    assert idx.shape == (5, 48, 48) and feats.shape[1] == 8
+    assert idx.max() == feats.shape[0] - 1 and (idx >= 0).sum() > 100
+    # the gathered feature of a visible pixel equals its rendered colour (fp16 cache tolerance)
+    v, r, c = (idx >= 0).nonzero()[0].tolist()
+    torch.testing.assert_close(feats[idx[v, r, c], :3], s["images"][v, :3, r, c], atol=2e-3, rtol=0)
+    batch = collate([ds[(0, 0)], ds[(1, 1)]])
+    assert batch["ifd_features"].shape[0] == 2 and batch["ifd_index"].shape == (2, 5, 48, 48)
+
+
+def test_workers_give_the_same_batches(episodes) -> None:
+    ds = _dataset(episodes, "abm")
+    pickle.dumps(ds)  # nothing unpicklable
+    batches = []
+    for workers in (0, 2):
+        sampler = StepSampler(len(ds), 2, steps=2, seed=3)
+        loader = torch.utils.data.DataLoader(ds, batch_size=2, sampler=sampler, num_workers=workers,
+                                             collate_fn=collate, worker_init_fn=keyframes.worker_init)
+        batches.append(list(loader))
+    for b0, b2 in zip(*batches, strict=True):
+        for k in b0:
+            torch.testing.assert_close(b0[k], b2[k])
+
+
+def test_step_sampler_sharding_and_resume() -> None:
+    full = list(StepSampler(10, 3, steps=8, seed=1))
+    resumed = list(StepSampler(10, 3, steps=8, start_step=5, seed=1))
+    assert resumed == full[15:]
+    ranks = [list(StepSampler(10, 2, steps=5, world_size=2, rank=r, seed=1)) for r in range(2)]
+    seeds = [s for r in ranks for _, s in r]
+    assert len(set(seeds)) == 20  # every global position used exactly once across ranks
+    epoch0 = sorted(i for r in ranks for i, s in r if s < 10)
+    assert epoch0 == list(range(10))  # each epoch is a permutation
+    with pytest.raises(ValueError, match="empty"):
+        StepSampler(0, 2, steps=1)
+
+
+class _FakeStore:
+    """The EpisodeStore API the dataset relies on (index without images, lazy per-step loading)."""
+
+    def __init__(self, episodes) -> None:
+        from types import SimpleNamespace
+
+        self._eps = episodes
+        self.episodes = [SimpleNamespace(path=f"ep{i}.h5", task=e.task, split=e.split, instruction=e.instruction,
+                                         num_keyframes=len(e), variation=0, success=True, seed=i)
+                         for i, e in enumerate(episodes)]
+        self.loaded_steps: list[tuple[int, int]] = []
+
+    def load(self, i):
+        return self._eps[i]
+
+    def load_step(self, i, k):
+        self.loaded_steps.append((i, k))
+        return self._eps[i].steps[k]
+
+    def select(self, tasks=None, splits=None):
+        return [i for i, e in enumerate(self.episodes) if (not tasks or e.task in tasks)
+                and (not splits or e.split in splits)]
+
+
+def test_dataset_over_an_episode_store(episodes) -> None:
+    store = _FakeStore(episodes)
+    source = keyframes.EpisodeSource(store, store.select(tasks=["pick_block"]))
+    cfg = PolicyConfig.from_preset("small", "abm", resolution=32, lang_dim=LANG)
+    ds = KeyframeDataset(source, cfg, HashLanguageEncoder(LANG))
+    assert len(ds) == 6 and ds.source.meta[1].key == "ep1.h5"
+    s = ds[(3, 0)]
+    assert s["mask"].sum() >= 3 and store.loaded_steps[-1] == (1, 1)
+    pickle.dumps(ds)

@@ -1,0 +1,110 @@
+"""Shapes and input checks of the multi-view transformer for every variant and preset."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from abm.policy import VARIANTS, MultiViewTransformer, PolicyConfig, check_compatible
+
+LANG = 32
+FEAT = 16
+
+
+def _inputs(cfg: PolicyConfig, b: int) -> tuple[tuple, dict]:
+    r, v = cfg.resolution, cfg.num_views
+    args = (torch.randn(b, v, 10, r, r), torch.rand(b, 4), torch.randn(b, cfg.lang_tokens, cfg.lang_dim))
+    kw: dict = {}
+    if cfg.spec.uses_mask:
+        kw["mask"] = torch.zeros(b, v, 1, r, r)
+        kw["mask"][:, :, 0, r // 2, r // 2] = 1.0
+    if cfg.spec.clip_features:
+        kw["ifd_features"] = torch.randn(b, 50, cfg.ifd_feature_dim)
+        kw["ifd_index"] = torch.randint(-1, 50, (b, v, r, r))
+    return args, kw
+
+
+def _check_out(out, cfg: PolicyConfig, b: int) -> None:
+    r = cfg.resolution
+    assert out.heatmap.shape == (b, cfg.num_views, r, r)
+    assert out.rotation.shape == (b, 3, cfg.rotation_bins)
+    assert out.gripper.shape == (b, 2)
+    assert out.collision.shape == (b, 2)
+    for t in (out.heatmap, out.rotation, out.gripper, out.collision):
+        assert torch.isfinite(t).all()
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_small_preset_shapes(variant: str) -> None:
+    cfg = PolicyConfig.from_preset("small", variant, lang_dim=LANG, ifd_feature_dim=FEAT)
+    assert (cfg.resolution, cfg.patch_size, cfg.width, cfg.grid) == (96, 8, 128, 12)
+    model = MultiViewTransformer(cfg)
+    args, kw = _inputs(cfg, 2)
+    out = model(*args, **kw)
+    _check_out(out, cfg, 2)
+    out.heatmap.sum().backward()  # every input path is differentiable
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_paper_preset_shapes_reduced_depth(variant: str) -> None:
+    # paper view/patch/token geometry (5 x 220^2, 20 x 20 tokens), fewer/narrower layers to stay fast
+    cfg = PolicyConfig.from_preset("paper", variant, layers_within=1, layers_joint=1, width=64, heads=4,
+                                   stem_channels=8, lang_dim=LANG, ifd_feature_dim=FEAT)
+    assert cfg.grid == 20 and cfg.preset == "paper+custom"
+    model = MultiViewTransformer(cfg).eval()
+    args, kw = _inputs(cfg, 1)
+    with torch.no_grad():
+        _check_out(model(*args, **kw), cfg, 1)
+
+
+def test_paper_preset_full_size_forward() -> None:
+    cfg = PolicyConfig.from_preset("paper", "abm")
+    assert (cfg.resolution, cfg.patch_size, cfg.grid, cfg.width) == (220, 11, 20, 512)
+    assert (cfg.layers_within, cfg.layers_joint, cfg.lang_tokens) == (4, 4, 77)
+    model = MultiViewTransformer(cfg).eval()
+    assert 25e6 < model.num_parameters() < 40e6
+    args, kw = _inputs(cfg, 1)
+    with torch.no_grad():
+        _check_out(model(*args, **kw), cfg, 1)
+
+
+def test_abm_without_mask_is_a_clear_error() -> None:
+    cfg = PolicyConfig.from_preset("small", "abm", resolution=32, lang_dim=LANG)
+    model = MultiViewTransformer(cfg)
+    args, _ = _inputs(cfg, 1)
+    with pytest.raises(ValueError, match="variant 'abm' needs a mask input"):
+        model(*args)
+    with pytest.raises(ValueError, match="mask must be"):
+        model(*args, mask=torch.zeros(1, 5, 2, 32, 32))
+
+
+def test_rvt_rejects_mask_and_bad_language() -> None:
+    cfg = PolicyConfig.from_preset("small", "rvt", resolution=32, lang_dim=LANG)
+    model = MultiViewTransformer(cfg)
+    args, _ = _inputs(cfg, 1)
+    with pytest.raises(ValueError, match="takes no mask"):
+        model(*args, mask=torch.zeros(1, 5, 1, 32, 32))
+    with pytest.raises(ValueError, match="language token embeddings"):
+        model(args[0], args[1], torch.zeros(1, 10, LANG))
+
+
+def test_ifd_needs_features() -> None:
+    cfg = PolicyConfig.from_preset("small", "ifd", resolution=32, lang_dim=LANG, ifd_feature_dim=FEAT)
+    args, _ = _inputs(cfg, 1)
+    with pytest.raises(ValueError, match="needs ifd_features"):
+        MultiViewTransformer(cfg)(*args)
+
+
+def test_config_errors_and_compatibility() -> None:
+    with pytest.raises(ValueError, match="unknown policy variant"):
+        PolicyConfig.from_preset("small", "peract")
+    with pytest.raises(ValueError, match="unknown preset"):
+        PolicyConfig.from_preset("huge", "abm")
+    with pytest.raises(ValueError, match="must divide"):
+        PolicyConfig.from_preset("small", "abm", patch_size=7)
+    small = PolicyConfig.from_preset("small", "abm")
+    assert PolicyConfig.from_dict(small.to_dict()) == small
+    with pytest.raises(ValueError, match="variant 'abm' but the model is 'rvt'"):
+        check_compatible(small, PolicyConfig.from_preset("small", "rvt"))
+    with pytest.raises(ValueError, match="preset 'small' does not match the model preset 'paper'"):
+        check_compatible(small, PolicyConfig.from_preset("paper", "abm"))

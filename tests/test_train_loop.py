@@ -1,0 +1,132 @@
+"""Training: overfitting a tiny batch, exact resume after an interruption, CLI errors, Policy.load."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from abm.cli import main as cli_main
+from abm.data.keyframes import KeyframeDataset, collate
+from abm.policy import MultiViewTransformer, Policy, PolicyConfig, policy_loss, translation_targets
+from abm.policy.language import HashLanguageEncoder
+from abm.train import TrainConfig, list_checkpoints, train
+from abm.train.synthetic import synthetic_episodes
+from abm.types import KeyframeAction
+
+TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
+        "decoder_channels": 4, "lang_dim": 16}
+
+
+@pytest.fixture(scope="module")
+def episodes():
+    return synthetic_episodes(3, camera_resolution=40)
+
+
+def test_small_model_overfits_a_fixed_batch(episodes) -> None:
+    torch.manual_seed(0)
+    # the small preset's depth (2 + 2 layers) at 32^2 views and width 64, so it takes ~50 steps / ~2 s
+    cfg = PolicyConfig.from_preset("small", "abm", resolution=32, width=64, stem_channels=16, decoder_channels=8,
+                                   lang_dim=32)
+    ds = KeyframeDataset(episodes[:1], cfg, HashLanguageEncoder(32), augment=False)
+    batch = collate([ds[0], ds[1]])
+    target = translation_targets(ds.renderer, batch["position"])
+    model = MultiViewTransformer(cfg)
+    opt = torch.optim.Adam(model.parameters(), lr=2e-3)
+    losses = []
+    for _ in range(150):
+        out = model(batch["images"], batch["proprio"], batch["lang"], mask=batch["mask"])
+        loss = policy_loss(out, target, batch["rotation_bins"], batch["gripper"], batch["collision"]).total
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+        if losses[-1] < 0.1 * losses[0]:
+            break
+    assert losses[-1] < 0.1 * losses[0], (losses[0], losses[-1], len(losses))
+
+
+def _cfg(tmp_path, **kw) -> TrainConfig:
+    base = dict(method="abm", preset="small", out=tmp_path, steps=6, batch=2, checkpoint_every=2, log_every=1,
+                policy_overrides=dict(TINY), progress=False, warmup=2, lr=3e-3)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def test_resume_after_interruption_reproduces_the_loss_curve(episodes, tmp_path) -> None:
+    ref: dict[int, float] = {}
+    train(_cfg(tmp_path / "ref"), episodes, on_step=lambda s, losses: ref.__setitem__(s, losses["total"]))
+
+    class Crash(Exception):
+        pass
+
+    def crash_at_5(step: int, losses: dict) -> None:
+        if step == 5:
+            raise Crash
+
+    with pytest.raises(Crash):
+        train(_cfg(tmp_path / "run"), episodes, on_step=crash_at_5)
+    assert [s for s, _ in list_checkpoints(tmp_path / "run")] == [2, 4]
+    resumed: dict[int, float] = {}
+    summary = train(_cfg(tmp_path / "run", resume=True), episodes,
+                    on_step=lambda s, losses: resumed.__setitem__(s, losses["total"]))
+    assert sorted(resumed) == [5, 6]
+    for s in (5, 6):
+        assert resumed[s] == pytest.approx(ref[s], rel=1e-5, abs=1e-5)
+    assert summary["steps"] == 6
+    ref_ckpt = torch.load(tmp_path / "ref/checkpoints/step_00000006.pt", weights_only=False)
+    run_ckpt = torch.load(tmp_path / "run/checkpoints/step_00000006.pt", weights_only=False)
+    for k, v in ref_ckpt["model"].items():
+        torch.testing.assert_close(run_ckpt["model"][k], v, rtol=1e-4, atol=1e-5)
+    rows = (tmp_path / "run/log.csv").read_text().strip().splitlines()
+    assert [int(r.split(",")[0]) for r in rows[1:]] == [1, 2, 3, 4, 5, 6]  # no duplicated steps
+    assert (tmp_path / "run/tb").is_dir() and json.loads((tmp_path / "run/summary.json").read_text())
+
+
+def test_resume_into_another_variant_is_a_clear_error(episodes, tmp_path) -> None:
+    train(_cfg(tmp_path, steps=1), episodes)
+    with pytest.raises(ValueError, match="variant 'abm' but the model is 'rvt'"):
+        train(_cfg(tmp_path, method="rvt", steps=2, resume=True), episodes)
+    with pytest.raises(ValueError, match="expected 'rvt'"):
+        Policy.load(tmp_path, expect_variant="rvt")
+
+
+def test_policy_load_and_act(episodes, tmp_path) -> None:
+    train(_cfg(tmp_path, steps=2), episodes)
+    policy = Policy.load(tmp_path)
+    obs, _ = episodes[0].steps[0]
+    action = policy.act(obs, episodes[0].instruction, episodes[0].object_names)
+    assert isinstance(action, KeyframeAction)
+    assert policy.renderer.workspace.contains(action.position)
+    assert set(policy.last_timings) >= {"fuse_s", "render_s", "model_s", "decode_s"}
+    with pytest.raises(ValueError, match="object_names"):
+        policy.act(obs, episodes[0].instruction)
+
+
+def test_cli_errors(tmp_path, capsys) -> None:
+    assert cli_main(["train", "--method", "abm", "--steps", "1", "--out", str(tmp_path)]) == 2
+    assert "--data" in capsys.readouterr().err
+    args = ["train", "--method", "abm", "--synthetic", "2", "--camera-resolution", "32", "--steps", "1",
+            "--batch", "1", "--out", str(tmp_path), "--no-progress"]
+    for key, value in TINY.items():
+        args += ["--set", f"{key}={value}"]
+    assert cli_main(args) == 0
+    bad = [a if a != "abm" else "concat-full" for a in args] + ["--resume"]
+    assert cli_main(bad) == 2
+    assert "variant 'abm' but the model is 'concat-full'" in capsys.readouterr().err
+
+
+def test_train_from_an_episode_store(episodes, tmp_path) -> None:
+    from abm.data.episode_store import save_episode
+
+    for i, ep in enumerate(episodes[:2]):
+        save_episode(ep, tmp_path / "data" / f"ep{i}.h5")
+    args = ["train", "--method", "concat-full", "--data", str(tmp_path / "data"), "--tasks", "pick_block",
+            "--steps", "1", "--batch", "2", "--out", str(tmp_path / "run"), "--no-progress"]
+    for key, value in TINY.items():
+        args += ["--set", f"{key}={value}"]
+    assert cli_main(args) == 0
+    assert json.loads((tmp_path / "run/summary.json").read_text())["steps"] == 1
+    other = [("close_jar" if a == "pick_block" else a) for a in args]
+    assert cli_main(other) == 2  # no episode of that task: a clear error, not a crash
