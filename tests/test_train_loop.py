@@ -84,6 +84,17 @@ def test_resume_after_interruption_reproduces_the_loss_curve(episodes, tmp_path)
     assert (tmp_path / "run/tb").is_dir() and json.loads((tmp_path / "run/summary.json").read_text())
 
 
+def test_adamw_optimizer_trains_and_resumes_and_unknown_optimizer_fails(episodes, tmp_path) -> None:
+    summary = train(_cfg(tmp_path / "adamw", optimizer="adamw", steps=2, checkpoint_every=1), episodes)
+    assert summary["steps"] == 2
+    ckpt = torch.load(tmp_path / "adamw/checkpoints/step_00000002.pt", weights_only=False)
+    assert "amsgrad" in ckpt["optimizer"]["param_groups"][0]  # AdamW's state, not LAMB's
+    summary = train(_cfg(tmp_path / "adamw", optimizer="adamw", steps=3, resume=True), episodes)
+    assert summary["steps"] == 3
+    with pytest.raises(ValueError, match="unknown optimizer 'sgd'"):
+        train(_cfg(tmp_path / "sgd", optimizer="sgd"), episodes)
+
+
 def test_resume_into_another_variant_is_a_clear_error(episodes, tmp_path) -> None:
     train(_cfg(tmp_path, steps=1), episodes)
     with pytest.raises(ValueError, match="variant 'abm' but the model is 'rvt'"):

@@ -218,7 +218,7 @@ class MultiViewTransformer(nn.Module):
         p = cfg.patch_size
         up = self.up(tok).transpose(1, 2).reshape(b * v, -1, g, g)
         up = F.pixel_shuffle(up, p)  # (B*V, dc, H, W)
-        heat = self.decode(up + self.skip(stem)).view(b, v, h, w)
+        heat = self.decode(up + self.skip(feat)).view(b, v, h, w)
 
         # global feature: max-pooled tokens + tokens pooled by the (detached) heatmap per view
         prob = torch.softmax(heat.detach().float().flatten(2), -1).view(b * v, 1, h, w)

@@ -56,6 +56,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="language encoder (default: clip with --grounder clip, else hash)")
     p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     p.add_argument("--lr", type=float, help="peak learning rate (default 1e-4 x global batch)")
+    p.add_argument("--optimizer", choices=("lamb", "adamw"), default="lamb",
+                   help="LAMB (paper) or AdamW (faster convergence in short CPU runs)")
     p.add_argument("--warmup", type=int, help="warm-up steps (default min(2000, steps/20))")
     p.add_argument("--weight-decay", type=float, default=1e-4)
     p.add_argument("--grad-clip", type=float, default=1.0, help="max gradient norm (0 = off)")
@@ -91,8 +93,9 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--data {args.data} is not a folder")
     cfg = TrainConfig(
         method=args.method, preset=args.preset, out=args.out, data=args.data, tasks=args.tasks,
-        splits=args.splits, steps=args.steps, batch=args.batch, lr=args.lr, warmup=args.warmup,
-        weight_decay=args.weight_decay, grad_clip=args.grad_clip, checkpoint_every=args.checkpoint_every,
+        splits=args.splits, steps=args.steps, batch=args.batch, lr=args.lr, optimizer=args.optimizer,
+        warmup=args.warmup, weight_decay=args.weight_decay, grad_clip=args.grad_clip,
+        checkpoint_every=args.checkpoint_every,
         keep_checkpoints=args.keep_checkpoints, log_every=args.log_every, workers=args.workers,
         device=args.device, grounder=args.grounder, language=args.language, seed=args.seed,
         resume=args.resume, augment=not args.no_augment, policy_overrides=dict(args.overrides),

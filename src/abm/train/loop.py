@@ -62,6 +62,9 @@ class TrainConfig:
         tasks / splits: episode selection in the store.
         steps: total optimiser steps.
         batch: samples per step *per process*.
+        optimizer: ``lamb`` (the paper's choice, ``torch_optimizer.Lamb``) or ``adamw`` (converges much
+            faster in short CPU runs: LAMB's per-layer trust ratio makes updates of small-norm layers,
+            such as the heatmap decoder's output, tiny at first).
         lr: peak learning rate (default ``1e-4 * batch * world_size``; the paper used 0.003 at batch 30).
         warmup: linear warm-up steps (default ``min(2000, steps // 20)``).
         min_lr_ratio: the cosine decays to ``lr * min_lr_ratio``.
@@ -92,6 +95,7 @@ class TrainConfig:
     steps: int = 1000
     batch: int = 8
     lr: float | None = None
+    optimizer: str = "lamb"
     warmup: int | None = None
     min_lr_ratio: float = 0.0
     weight_decay: float = 1e-4
@@ -326,7 +330,12 @@ def train(
     world = dinfo.world_size
     lr = cfg.lr if cfg.lr is not None else 1e-4 * cfg.batch * world
     warmup = cfg.warmup if cfg.warmup is not None else min(2000, cfg.steps // 20)
-    optimizer = Lamb(model.parameters(), lr=lr, weight_decay=cfg.weight_decay)
+    if cfg.optimizer == "lamb":
+        optimizer = Lamb(model.parameters(), lr=lr, weight_decay=cfg.weight_decay)
+    elif cfg.optimizer == "adamw":
+        optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=cfg.weight_decay)
+    else:
+        raise ValueError(f"unknown optimizer {cfg.optimizer!r}; choose 'lamb' or 'adamw'")
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, _lr_lambda(warmup, cfg.steps, cfg.min_lr_ratio))
     start = 0
     if ckpt is not None:
