@@ -15,9 +15,10 @@ Data flow for a batch of ``B`` samples with ``V`` virtual views of ``H x W`` pix
    ``layers_joint`` blocks over all views' tokens together with the ``L`` projected language tokens.
    Attention uses :func:`torch.nn.functional.scaled_dot_product_attention`.
 5. **Heads**: tokens are up-sampled by pixel shuffle back to ``H x W``, added to a 1x1 projection of
-   the stem features (skip connection) and decoded by two small convs into one translation logit per
-   pixel and view. A global feature per view (max-pooled tokens and tokens pooled with the predicted
-   heatmap) goes through an MLP to the rotation logits (3 axes x ``rotation_bins``), gripper-open and
+   the fused stem features (skip connection; after conditioning, so a mask pixel can reach the heatmap
+   at full resolution without passing through the patch tokens) and decoded by two small convs into
+   one translation logit per pixel and view. A global feature per view (max-pooled tokens and tokens
+   pooled with the predicted heatmap) goes through an MLP to the rotation logits (3 axes x ``rotation_bins``), gripper-open and
    ignore-collision logits (2 each).
 """
 
@@ -214,7 +215,7 @@ class MultiViewTransformer(nn.Module):
             seq = blk(seq)
         tok = self.norm(seq[:, : v * g * g]).reshape(b * v, g * g, d)
 
-        # translation heatmap: pixel-shuffle tokens to full resolution, skip-connect the stem
+        # translation heatmap: pixel-shuffle tokens to full resolution, skip-connect the fused stem features
         p = cfg.patch_size
         up = self.up(tok).transpose(1, 2).reshape(b * v, -1, g, g)
         up = F.pixel_shuffle(up, p)  # (B*V, dc, H, W)
