@@ -18,8 +18,8 @@ Data flow for a batch of ``B`` samples with ``V`` virtual views of ``H x W`` pix
    the fused stem features (skip connection; after conditioning, so a mask pixel can reach the heatmap
    at full resolution without passing through the patch tokens) and decoded by two small convs into
    one translation logit per pixel and view. A global feature per view (max-pooled tokens and tokens
-   pooled with the predicted heatmap) goes through an MLP to the rotation logits (3 axes x ``rotation_bins``), gripper-open and
-   ignore-collision logits (2 each).
+   pooled with the predicted heatmap) goes through an MLP to the rotation logits (3 axes x
+   ``rotation_bins``), gripper-open and ignore-collision logits (2 each).
 """
 
 from __future__ import annotations
