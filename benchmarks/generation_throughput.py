@@ -38,11 +38,10 @@ def save_montage(task: str, out_dir: Path, resolution: int) -> Path:
 
 
 def main() -> None:
-    from abm.data.generate import generate
-    from abm.sim.tasks import TASKS
+    from abm.data.generate import generate, trainable_tasks
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--tasks", nargs="+", default=sorted(TASKS))
+    parser.add_argument("--tasks", nargs="+", default=trainable_tasks())
     parser.add_argument("--episodes", type=int, default=6)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--resolution", type=int, default=128)

@@ -14,8 +14,6 @@ markdown table of median seconds.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import statistics
 import time
 
@@ -23,18 +21,9 @@ import torch
 
 from abm.geometry import Workspace, fuse_cameras
 from abm.grounding import ClipGrounder, GroundingCache, mask_views, random_clip
+from abm.machine import describe_machine
 from abm.render import OrthographicRenderer
 from abm.render.synthetic import synthetic_scene
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__}, {torch.get_num_threads()} threads"
 
 
 def _sync(device: str) -> None:
@@ -67,7 +56,7 @@ def main() -> None:
     obs, names = synthetic_scene(seed=0, resolution=args.resolution)
     cloud = fuse_cameras(obs, Workspace())
     renderer = OrthographicRenderer(Workspace(), 220, device=args.device)
-    name = torch.cuda.get_device_name() if args.device.startswith("cuda") else machine()
+    name = torch.cuda.get_device_name() if args.device.startswith("cuda") else describe_machine()
     print(f"device: {args.device} ({name}); {len(obs.cameras)} cameras at {args.resolution}x{args.resolution}, "
           f"{len(cloud)} points")
     print("| model | input | dtype | image encoder, 4 images (s) | text, 5 prompts (s) | mask field, total (s) "

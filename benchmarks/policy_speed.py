@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import statistics
 import time
 
 import torch
 
+from abm.machine import describe_machine
 from abm.policy import MultiViewTransformer, Policy, PolicyConfig
 from abm.policy.language import HashLanguageEncoder
 from abm.train.synthetic import synthetic_episode
@@ -40,7 +40,7 @@ def measure(preset: str, method: str, device: str, repeats: int, camera_resoluti
         "amp": "bf16" if device.startswith("cuda") else "fp32", "median_s": med, "fps": 1.0 / med,
         "stages_median_s": {k: statistics.median(s[k] for s in stages) for k in stages[0]},
         "parameters": policy.model.num_parameters(), "threads": torch.get_num_threads(),
-        "machine": platform.processor() or platform.machine(),
+        "machine": describe_machine(),
         "gpu": torch.cuda.get_device_name() if device.startswith("cuda") else None,
     }
 

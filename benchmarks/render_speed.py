@@ -9,25 +9,14 @@ rendered on top. Prints the machine and a markdown table (median milliseconds pe
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import statistics
 import time
 
 import torch
 
 from abm.geometry import Workspace
+from abm.machine import describe_machine
 from abm.render import OrthographicRenderer
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__}, {torch.get_num_threads()} threads"
 
 
 def time_render(renderer: OrthographicRenderer, batch: int, points: int, repeats: int, device: str) -> float:
@@ -55,7 +44,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=10)
     args = parser.parse_args()
     renderer = OrthographicRenderer(Workspace(), resolution=220, device=args.device)
-    name = torch.cuda.get_device_name() if args.device == "cuda" else machine()
+    name = torch.cuda.get_device_name() if args.device == "cuda" else describe_machine()
     print(f"device: {args.device} ({name})")
     print("| points | batch | ms / call | ms / sample |")
     print("|---|---|---|---|")

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import time
 
 import torch
 
 from abm.data.keyframes import KeyframeDataset, StepSampler, collate, worker_init
+from abm.machine import describe_machine
 from abm.policy import MultiViewTransformer, PolicyConfig, policy_loss, translation_targets
 from abm.policy.language import HashLanguageEncoder
 from abm.render import OrthographicRenderer
@@ -79,7 +79,7 @@ def main() -> None:
         "steps": args.steps, "workers": args.workers, "threads": torch.get_num_threads(),
         "parameters": model.num_parameters(), "samples_per_s": n / (data_s + step_s),
         "s_per_step": (data_s + step_s) / args.steps, "data_share": data_s / (data_s + step_s),
-        "machine": f"{platform.processor() or platform.machine()}, {torch.get_num_threads()} threads",
+        "machine": describe_machine(),
         "gpu": torch.cuda.get_device_name() if device.type == "cuda" else None,
     }
     print(json.dumps(result))

@@ -18,6 +18,7 @@ import abm
 COMMAND_MODULES: tuple[str, ...] = (
     "abm.render.commands",
     "abm.data.commands",
+    "abm.sim.commands",
     "abm.grounding.commands",
     "abm.train.commands",
     "abm.evaluation.commands",

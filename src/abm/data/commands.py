@@ -12,7 +12,9 @@ def register(subparsers) -> None:
     sub = data.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
 
     gen = sub.add_parser("generate", help="run the scripted expert and save demonstrations (resumable)")
-    gen.add_argument("--task", required=True, help="task name, e.g. place_food")
+    gen.add_argument("--task", required=True,
+                     help="task name (e.g. place_food), a comma-separated list, or 'all' (every trainable "
+                          "task; the evaluation-only compositional tasks are never generated)")
     gen.add_argument("--split", required=True, help="object split: seen or unseen")
     gen.add_argument("--episodes", type=int, required=True, help="number of successful demonstrations")
     gen.add_argument("--out", required=True, type=Path, help="output directory")
@@ -30,27 +32,31 @@ def register(subparsers) -> None:
 
 def _generate(args: argparse.Namespace) -> int:
     from abm.cli import CommandError
-    from abm.data.generate import generate
+    from abm.data.generate import EvaluationOnlyTaskError, expand_tasks, generate
     from abm.sim.assets import AssetNotFoundError
     from abm.sim.splits import SplitFileError
-    from abm.sim.tasks import TASKS
 
-    if args.task not in TASKS:
-        raise CommandError(f"unknown task {args.task!r}; known tasks: {', '.join(sorted(TASKS))}")
+    try:
+        tasks = expand_tasks(args.task)
+    except KeyError as err:
+        raise CommandError(str(err.args[0])) from None
+    except EvaluationOnlyTaskError as err:
+        raise CommandError(str(err)) from None
     if args.episodes < 1:
         raise CommandError(f"--episodes must be at least 1, got {args.episodes}")
     if args.workers < 1:
         raise CommandError(f"--workers must be at least 1, got {args.workers}")
     if not 16 <= args.resolution <= 1024:
         raise CommandError(f"--resolution must be between 16 and 1024, got {args.resolution}")
-    try:
-        report = generate(args.task, args.split, args.episodes, args.out, workers=args.workers,
-                          seed=args.seed, resolution=args.resolution, splits_path=args.splits)
-    except (SplitFileError, AssetNotFoundError) as err:
-        raise CommandError(str(err)) from None
-    print(f"{args.task}/{args.split}: {report.created} new, {report.skipped} already present, "
-          f"{len(report.failed_seeds)} expert failures, {report.seconds:.0f} s "
-          f"({report.episodes_per_minute:.1f} episodes/min) -> {args.out}")
+    for task in tasks:
+        try:
+            report = generate(task, args.split, args.episodes, args.out, workers=args.workers,
+                              seed=args.seed, resolution=args.resolution, splits_path=args.splits)
+        except (SplitFileError, AssetNotFoundError) as err:
+            raise CommandError(str(err)) from None
+        print(f"{task}/{args.split}: {report.created} new, {report.skipped} already present, "
+              f"{len(report.failed_seeds)} expert failures, {report.seconds:.0f} s "
+              f"({report.episodes_per_minute:.1f} episodes/min) -> {args.out}")
     return 0
 
 

@@ -14,6 +14,45 @@ from dataclasses import dataclass
 from pathlib import Path
 
 MAX_SEED_FACTOR = 3  # give up after trying this many seeds per requested episode
+ALL_TASKS = "all"
+
+
+class EvaluationOnlyTaskError(ValueError):
+    """Demonstrations were requested for an evaluation-only (compositional) task."""
+
+
+def trainable_tasks() -> list[str]:
+    """Names of the tasks demonstrations can be generated for (not the evaluation-only ones), sorted."""
+    from abm.sim.tasks import TASKS
+
+    return sorted(name for name, cls in TASKS.items() if not cls.evaluation_only)
+
+
+def expand_tasks(spec: str) -> list[str]:
+    """``"all"`` -> every trainable task; ``"a,b"`` -> ``["a", "b"]``. Raises ``KeyError`` for unknown
+    names and :class:`EvaluationOnlyTaskError` for evaluation-only tasks."""
+    from abm.sim.tasks import TASKS
+
+    if spec.strip() == ALL_TASKS:
+        return trainable_tasks()
+    names = [n.strip() for n in spec.split(",") if n.strip()]
+    unknown = [n for n in names if n not in TASKS]
+    if unknown or not names:
+        raise KeyError(f"unknown task(s) {unknown or [spec]}; known tasks: {', '.join(sorted(TASKS))} "
+                       f"(or '{ALL_TASKS}')")
+    for name in names:
+        check_trainable(name)
+    return names
+
+
+def check_trainable(task: str) -> None:
+    """Raise :class:`EvaluationOnlyTaskError` if ``task`` is evaluation-only."""
+    from abm.sim.tasks import TASKS
+
+    if TASKS[task].evaluation_only:
+        raise EvaluationOnlyTaskError(
+            f"task {task!r} is evaluation-only (compositional: a trained skill on another task's objects); "
+            f"no demonstrations are generated for it. Trainable tasks: {', '.join(trainable_tasks())}")
 
 
 @dataclass
@@ -70,7 +109,10 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     from tqdm import tqdm
 
     from abm.sim.env import make_env
+    from abm.sim.tasks import get_task
 
+    get_task(task)  # unknown task -> KeyError
+    check_trainable(task)
     make_env(task, split, seed, resolution=resolution, splits_path=splits_path)  # validates early
     out = Path(out)
     start = time.perf_counter()

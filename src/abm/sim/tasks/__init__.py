@@ -1,6 +1,16 @@
 """ABM-Bench tasks: importing this package registers every built-in task in :data:`TASKS`."""
 
-from abm.sim.tasks import pick_block, place_food, place_wine  # noqa: F401  (registration)
+from abm.sim.tasks import (  # noqa: F401  (registration)
+    close_jar,
+    compositional,
+    insert_peg,
+    pick_block,
+    place_food,
+    place_wine,
+    put_in_shelf,
+    take_off_pan,
+    water_plants,
+)
 from abm.sim.tasks.base import TASKS, Task, TaskInstance, register_task
 
 

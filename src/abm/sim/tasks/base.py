@@ -73,6 +73,8 @@ class Task(ABC):
     name: ClassVar[str]
     templates: ClassVar[tuple[str, ...]]
     categories: ClassVar[tuple[str, ...]]
+    #: Evaluation-only tasks (the compositional ones) are never offered for demonstration generation.
+    evaluation_only: ClassVar[bool] = False
 
     def __init__(self, splits=None) -> None:
         from abm.sim.splits import load_splits
@@ -115,22 +117,27 @@ class Task(ABC):
 
 # --- layout ----------------------------------------------------------------------------------------
 def sample_layout(rng: np.random.Generator, names: list[str], fixed_yaw: dict[str, tuple[float, float]]
-                  | None = None, max_tries: int = 500) -> list[PlacedObject]:
+                  | None = None, max_tries: int = 500, obstacles: list[tuple[float, float, float]] | None = None,
+                  region: tuple[tuple[float, float], tuple[float, float]] = (TABLE_X, TABLE_Y)
+                  ) -> list[PlacedObject]:
     """Place objects at random non-overlapping table poses (first names first).
 
     Args:
         names: canonical names in placement order.
         fixed_yaw: optional name -> (low, high) yaw range in radians (default: any yaw).
+        obstacles: ``(x, y, radius)`` circles (m) already occupied, e.g. by a large fixed object.
+        region: ``((x_low, x_high), (y_low, y_high))`` table region for object centres (m).
     """
     fixed_yaw = fixed_yaw or {}
+    (x_lo, x_hi), (y_lo, y_hi) = region
     for _ in range(50):
-        placed: list[PlacedObject] = []
-        radii: list[float] = []
+        placed: list[PlacedObject] = [PlacedObject("", x, y) for x, y, _ in obstacles or []]
+        radii: list[float] = [r for _, _, r in obstacles or []]
         for name in names:
             radius = object_geometry(name).footprint_radius
             for _ in range(max_tries):
-                x = rng.uniform(TABLE_X[0] + 0.5 * radius, TABLE_X[1] - 0.3 * radius)
-                y = rng.uniform(TABLE_Y[0] + 0.3 * radius, TABLE_Y[1] - 0.3 * radius)
+                x = rng.uniform(x_lo + 0.5 * radius, x_hi - 0.3 * radius)
+                y = rng.uniform(y_lo + 0.3 * radius, y_hi - 0.3 * radius)
                 if all(np.hypot(x - p.x, y - p.y) > radius + r + OBJECT_GAP
                        for p, r in zip(placed, radii, strict=True)):
                     lo, hi = fixed_yaw.get(name, (-np.pi, np.pi))
@@ -139,6 +146,7 @@ def sample_layout(rng: np.random.Generator, names: list[str], fixed_yaw: dict[st
                     break
             else:
                 break
+        placed = placed[len(obstacles or []):]
         if len(placed) == len(names):
             return placed
     raise RuntimeError(f"could not place {names} on the table without overlap")
@@ -200,16 +208,21 @@ def grasp_pose(sim, index: int) -> np.ndarray:
 
 
 def pick_and_place(sim, index: int, place_xy: np.ndarray, surface_z: float,
-                   place_yaw: float | None = None) -> Iterator[KeyframeAction]:
+                   place_yaw: float | None = None, grasp: np.ndarray | None = None,
+                   align_origin: bool = False) -> Iterator[KeyframeAction]:
     """Six RLBench-style keyframes: approach, grasp, lift, move, place (release), retreat.
 
     Args:
         index: object to pick.
-        place_xy: ``(2,)`` where the object's grasp point should end up (m, world).
+        place_xy: ``(2,)`` where the object's grasp point should end up (m, world); with
+            ``align_origin``, where the object's body origin should end up instead.
         surface_z: height of the support surface at the place location (m).
         place_yaw: finger-axis yaw when placing (default: as grasped).
+        grasp: ``(4, 4)`` TCP grasp pose (default: :func:`grasp_pose`).
+        align_origin: compensate the horizontal offset between the TCP and the object's origin
+            (measured once the object is held), e.g. for an object grasped off-centre.
     """
-    grasp = grasp_pose(sim, index)
+    grasp = grasp_pose(sim, index) if grasp is None else grasp
     above = grasp.copy()
     above[2, 3] += APPROACH_HEIGHT
     yield action(above, True, False)                      # approach
@@ -225,6 +238,11 @@ def pick_and_place(sim, index: int, place_xy: np.ndarray, surface_z: float,
     bottom_below_tcp = float(np.clip(bottom_below_tcp, 0.0, 0.2))
     # Keep the grasped point's horizontal offset from the TCP so the object lands where asked.
     yaw = place_yaw if place_yaw is not None else float(np.arctan2(tcp[1, 1], tcp[0, 1]))
+    if align_origin:
+        # Offset of the origin from the TCP in the TCP's yaw frame, turned to the placing yaw.
+        grasp_yaw = float(np.arctan2(tcp[1, 1], tcp[0, 1]))
+        offset = _rot2(yaw - grasp_yaw) @ (obj[:2, 3] - tcp[:2, 3])
+        place_xy = np.asarray(place_xy, float) - offset
     place = top_down_pose(np.array([place_xy[0], place_xy[1], surface_z + bottom_below_tcp + DROP_HEIGHT]), yaw)
     move = place.copy()
     move[2, 3] = max(place[2, 3] + APPROACH_HEIGHT, lift[2, 3])
@@ -233,6 +251,11 @@ def pick_and_place(sim, index: int, place_xy: np.ndarray, surface_z: float,
     retreat = place.copy()
     retreat[2, 3] += APPROACH_HEIGHT
     yield action(retreat, True, True)                     # retreat
+
+
+def _rot2(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s], [s, c]])
 
 
 def resting_on(sim, index: int, max_bottom: float) -> bool:

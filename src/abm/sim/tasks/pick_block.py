@@ -19,9 +19,10 @@ class PickBlock(Task):
     name = "pick_block"
     templates = ("put the {target} on the target", "stack the {target} on the target")
     categories = ("block",)
+    seed_salt = 2  # the scene rng is seeded with [seed, seed_salt]
 
     def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, 2])
+        rng = np.random.default_rng([seed, self.seed_salt])
         target, variation, others = self.pick_target(rng, split)
         count = min(NUM_DISTRACTORS, len(others))
         distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]

@@ -20,9 +20,10 @@ class PlaceFood(Task):
     name = "place_food"
     templates = ("put the {target} in the plate", "place the {target} on the plate")
     categories = ("grocery",)
+    seed_salt = 1  # the scene rng is seeded with [seed, seed_salt]
 
     def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, 1])
+        rng = np.random.default_rng([seed, self.seed_salt])
         target, variation, others = self.pick_target(rng, split)
         count = min(NUM_DISTRACTORS, len(others))
         distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]

@@ -1,0 +1,41 @@
+"""``abm tasks``: list the ABM-Bench tasks with their instruction templates and object splits."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("tasks", help="list benchmark tasks, instruction templates and splits")
+    parser.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
+    parser.add_argument("--task", default=None, help="show only this task")
+    parser.set_defaults(func=_tasks)
+
+
+def _tasks(args: argparse.Namespace) -> int:
+    from abm.cli import CommandError
+    from abm.sim.splits import SplitFileError, load_splits
+    from abm.sim.tasks import TASKS
+
+    try:
+        splits = load_splits(args.splits)
+    except SplitFileError as err:
+        raise CommandError(str(err)) from None
+    names = sorted(TASKS)
+    if args.task is not None:
+        if args.task not in TASKS:
+            raise CommandError(f"unknown task {args.task!r}; known tasks: {', '.join(names)}")
+        names = [args.task]
+    print(f"object splits: {splits.path}")
+    for name in names:
+        cls = TASKS[name]
+        kind = "evaluation only (compositional)" if cls.evaluation_only else "trainable"
+        print(f"\n{name}  [{kind}]")
+        for template in cls.templates:
+            print(f"  template: {template.format(target='X')}")
+        for split, objects in splits.tasks.get(name, {}).items():
+            print(f"  {split + ':':<15}{', '.join(objects)}")
+        if name not in splits.tasks:
+            print("  (no objects in this split file)")
+    return 0

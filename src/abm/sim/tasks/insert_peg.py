@@ -1,0 +1,91 @@
+"""insert_peg: "put the ring on the X peg" (X a colour; the instruction's target is "X peg").
+
+Procedural coloured square pegs are fixed to the table; a square ring lies on the table. The expert
+grasps one side bar of the ring, carries the ring above the named peg, and drops it so that it slides
+down around the peg. Success = the ring is released, encircles the named peg (peg axis inside the hole)
+and has slid down below the peg's top.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from abm.sim.catalog import object_geometry
+from abm.sim.props import PEG_HALF, RING_BAR_HALF_WIDTH, RING_HALF_HEIGHT, RING_OUTER_HALF
+from abm.sim.scene import SceneSpec
+from abm.sim.tasks.base import (
+    FINGER_REACH,
+    Task,
+    TaskInstance,
+    pick_and_place,
+    register_task,
+    sample_layout,
+    top_down_pose,
+)
+from abm.types import KeyframeAction
+
+NUM_DISTRACTORS = 2          # other pegs of the split
+RING = "ring"
+DROP_ABOVE_PEG = 0.006       # m, ring bottom above the peg top when released
+
+
+def ring_grasp(sim, ring: int) -> np.ndarray:
+    """Top-down grasp across one of the ring's four bars: the one whose fingers stay clearest of others."""
+    pose = sim.object_pose(ring)
+    bar = RING_OUTER_HALF - RING_BAR_HALF_WIDTH
+    z = max(pose[2, 3], 0.013)
+    best = None
+    for axis_local in (np.array([1.0, 0, 0]), np.array([0, 1.0, 0])):
+        for sign in (1.0, -1.0):
+            axis = pose[:3, :3] @ axis_local
+            centre = pose[:3, 3] + sign * bar * axis
+            clearance = np.inf
+            for j, other in enumerate(sim.scene.objects):
+                if j == ring:
+                    continue
+                xy = sim.object_pose(j)[:2, 3]
+                radius = object_geometry(other.name).footprint_radius
+                for s in (-1.0, 1.0):
+                    finger = centre[:2] + s * FINGER_REACH * axis[:2]
+                    clearance = min(clearance, float(np.linalg.norm(finger - xy)) - radius)
+            # Prefer bars nearer the robot when clearances are similar (2 cm buckets).
+            key = (round(clearance / 0.02), -float(np.linalg.norm(centre[:2])))
+            if best is None or key > best[0]:
+                yaw = float(np.arctan2(axis[1], axis[0]))
+                best = (key, top_down_pose(np.array([centre[0], centre[1], z]), yaw))
+    return best[1]
+
+
+@register_task
+class InsertPeg(Task):
+    name = "insert_peg"
+    templates = ("put the ring on the {target}", "slide the ring onto the {target}")
+    categories = ("peg",)
+
+    def sample(self, seed: int, split: str) -> TaskInstance:
+        rng = np.random.default_rng([seed, 7])
+        target, variation, others = self.pick_target(rng, split)
+        count = min(NUM_DISTRACTORS, len(others))
+        distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]
+        objects = sample_layout(rng, [RING, target, *distractors])
+        return TaskInstance(self.name, split, seed, variation, self.instruction(target),
+                            SceneSpec(objects), [target], {"target": 1, "ring": 0})
+
+    def success(self, sim, instance: TaskInstance) -> bool:
+        ring_i, peg_i = instance.info["ring"], instance.info["target"]
+        if ring_i in sim.held_objects():
+            return False
+        ring, peg = sim.object_pose(ring_i), sim.object_pose(peg_i)
+        local = ring[:3, :3].T @ (peg[:3, 3] - ring[:3, 3])
+        hole = RING_OUTER_HALF - 2 * RING_BAR_HALF_WIDTH
+        around = bool(np.all(np.abs(local[:2]) < hole))
+        peg_top = peg[2, 3] + PEG_HALF[2]
+        return bool(around and ring[2, 3] - RING_HALF_HEIGHT < peg_top - 0.02)
+
+    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+        peg = sim.object_pose(instance.info["target"])
+        grasp = ring_grasp(sim, instance.info["ring"])
+        yield from pick_and_place(sim, instance.info["ring"], peg[:2, 3], peg[2, 3] + PEG_HALF[2] + DROP_ABOVE_PEG,
+                                  grasp=grasp, align_origin=True)
