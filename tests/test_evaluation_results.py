@@ -73,7 +73,9 @@ def test_log_round_trip_and_truncated_line(tmp_path):
         f.write('{"method": "abm", "task": "pla')  # killed mid-write
     read = log.read()
     assert len(read) == 3 and read[0] == outcomes()[0]
-    assert ("abm", "place_food", "seen", 0, 2) in log.done()
+    assert ("abm", "place_food", "seen", 0, 2, "", "") in log.done()
+    log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, False, error="RuntimeError: boom"))
+    assert ("abm", "pick_block", "seen", 0, 0, "", "") not in log.done()  # crashed episodes are retried
 
 
 def test_eval_seeds_are_shared_and_distinct():
@@ -94,7 +96,7 @@ def test_interrupted_evaluation_resumes_without_repeating(tmp_path):
             raise KeyboardInterrupt
         calls.append(job.key)
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
-                              success=job.episode % 2 == 0)
+                              success=job.episode % 2 == 0, checkpoint=job.checkpoint, settings=job.settings)
 
     kwargs = dict(runs=["runA"], tasks=["t1", "t2"], split="seen", out_dir=tmp_path, episodes=3, repeats=2,
                   progress=False, labels={"runA": "abm"}, runner=fake_runner)
@@ -106,6 +108,16 @@ def test_interrupted_evaluation_resumes_without_repeating(tmp_path):
     assert len(executed) == 12 and len(set(executed)) == 12  # every job exactly once over both runs
     assert [r.per_repeat for r in rates] == [[pytest.approx(200 / 3)] * 2] * 2
     assert (tmp_path / "results.md").read_text().startswith("**seen**")
+    # other evaluation settings (or another checkpoint) are new rollouts, and only they are reported
+    from abm.evaluation.runner import EvalSettings
+
+    calls.clear()
+    kwargs["runner"] = lambda job, settings: EpisodeOutcome(
+        job.method, job.task, job.split, job.repeat, job.episode, job.seed, True, checkpoint=job.checkpoint,
+        settings=job.settings)
+    rates = evaluate(**kwargs, settings=EvalSettings(max_steps=3))
+    assert [r.per_repeat for r in rates] == [[100.0, 100.0]] * 2
+    assert len(OutcomeLog(tmp_path / "outcomes.jsonl").read()) == 24
 
 
 def test_crashed_episode_is_a_recorded_failure(tmp_path, monkeypatch):

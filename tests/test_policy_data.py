@@ -147,3 +147,22 @@ def test_dataset_over_an_episode_store(episodes) -> None:
     s = ds[(3, 0)]
     assert s["mask"].sum() >= 3 and store.loaded_steps[-1] == (1, 1)
     pickle.dumps(ds)
+
+
+def test_margin_cube_holds_every_point_augmentation_can_move_into_view():
+    import numpy as np
+
+    from abm.data.keyframes import augmentation_margin_cube
+    from abm.geometry import Workspace, random_se3
+
+    ws = Workspace()
+    margin = augmentation_margin_cube(ws, 0.125, 45.0)
+    assert margin.size == pytest.approx(2 * (0.5 + 0.125) * np.sqrt(2))
+    assert augmentation_margin_cube(ws, 0.0, 0.0).size == pytest.approx(ws.size)
+    rng = np.random.default_rng(0)
+    inside = rng.uniform(ws.lower, ws.upper, (2000, 3))
+    inside[:8] = np.array(np.meshgrid(*zip(ws.lower, ws.upper, strict=True))).reshape(3, -1).T  # the corners
+    for _ in range(50):
+        t = random_se3(rng, ws, 0.125, 45.0)
+        source = (inside - t[:3, 3]) @ t[:3, :3]  # where the points that land inside came from
+        assert margin.contains(source).all()

@@ -21,7 +21,8 @@ def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys):
     for name in ("README.md", "results.md", "training_curves.png", "virtual_views.png"):
         assert (report / name).is_file(), name
     assert len(list(report.glob("*.gif"))) == 4  # 2 methods x 2 splits, one episode each
-    outcomes = [json.loads(line) for line in (tmp_path / "qs/eval/outcomes.jsonl").read_text().splitlines()]
+    logs = [tmp_path / "qs/eval" / split / "outcomes.jsonl" for split in ("seen", "unseen")]
+    outcomes = [json.loads(line) for log in logs for line in log.read_text().splitlines()]
     assert sorted((o["method"], o["split"]) for o in outcomes) == [
         ("abm", "seen"), ("abm", "unseen"), ("rvt", "seen"), ("rvt", "unseen")]
     assert all(o["error"] == "" for o in outcomes), [o["error"] for o in outcomes]
@@ -30,4 +31,4 @@ def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys):
     assert "| method | pick_block | avg |" in out.out
     # re-running resumes: nothing is generated, trained or evaluated again
     run_quickstart(cfg)
-    assert len((tmp_path / "qs/eval/outcomes.jsonl").read_text().splitlines()) == 4
+    assert sum(len(log.read_text().splitlines()) for log in logs) == 4

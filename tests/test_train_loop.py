@@ -115,6 +115,18 @@ def test_policy_load_and_act(episodes, tmp_path) -> None:
         policy.act(obs, episodes[0].instruction)
 
 
+def test_grounder_override_of_the_same_kind_keeps_trained_options(episodes, tmp_path) -> None:
+    train(_cfg(tmp_path, steps=1), episodes)
+    (_, path), = list_checkpoints(tmp_path)
+    ckpt = torch.load(path, weights_only=False)
+    ckpt["grounder"] = {"kind": "clip", "model": "tiny", "threshold": 0.7}  # as if trained with a CLIP grounder
+    torch.save(ckpt, path)
+    merged = Policy.load(tmp_path, grounder={"kind": "clip", "threshold": 0.5})
+    assert merged._grounder_spec == {"kind": "clip", "model": "tiny", "threshold": 0.5}
+    replaced = Policy.load(tmp_path, grounder={"kind": "oracle"})
+    assert replaced._grounder_spec == {"kind": "oracle"}
+
+
 def test_cli_errors(tmp_path, capsys) -> None:
     assert cli_main(["train", "--method", "abm", "--steps", "1", "--out", str(tmp_path)]) == 2
     assert "--data" in capsys.readouterr().err

@@ -68,7 +68,7 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
 
     from abm.data.generate import generate
     from abm.evaluation.results import markdown_table
-    from abm.evaluation.runner import EvalSettings, evaluate, write_reports
+    from abm.evaluation.runner import EvalSettings, evaluate, write_tables
     from abm.train.loop import TrainConfig, train
 
     start = time.perf_counter()
@@ -96,17 +96,16 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
 
     settings = EvalSettings(device=cfg.device, resolution=cfg.resolution, max_steps=cfg.max_steps)
     eval_dir = out / "eval"
+    rates = []
     for split in ("seen", "unseen"):
         print(f"[3/4] evaluating {', '.join(cfg.methods)} on {split} objects ({cfg.eval_episodes} episodes per task)")
-        evaluate(list(runs.values()), cfg.tasks, split, eval_dir, episodes=cfg.eval_episodes, repeats=1,
-                 workers=cfg.workers, settings=settings, gifs=1)
+        rates += evaluate(list(runs.values()), cfg.tasks, split, eval_dir / split, episodes=cfg.eval_episodes,
+                          repeats=1, workers=cfg.workers, settings=settings, gifs=1)
 
     print(f"[4/4] report -> {report}")
-    from abm.evaluation.results import OutcomeLog
-
-    rates = write_reports(OutcomeLog(eval_dir / "outcomes.jsonl").read(), eval_dir)
-    write_report(report, runs, eval_dir, data, cfg, grounder)
     table = markdown_table(rates, splits=["seen", "unseen"])
+    write_tables(rates, report)
+    write_report(report, runs, eval_dir, data, cfg, grounder)
     print(table)
     print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
     return report
@@ -120,7 +119,6 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
     from abm.policy.inference import Policy
 
     report.mkdir(parents=True, exist_ok=True)
-    shutil.copy(eval_dir / "results.md", report / "results.md")
     plot_training_curves({m: r for m, r in runs.items()}, report / "training_curves.png")
     figures = []
     if "abm" in runs:
@@ -134,7 +132,7 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
         views_figure(inputs["images"][0].numpy(), mask, list(policy.config.views), report / "virtual_views.png")
         figures.append(f"![virtual views]({'virtual_views.png'})\n\n*{episode.instruction}*: the five virtual "
                        "views (top) and the target's centre-pixel mask in magenta (bottom).")
-    gifs = sorted((eval_dir / "gifs").glob("*.gif"))
+    gifs = sorted(eval_dir.glob("*/gifs/*.gif"))
     for gif in gifs:
         shutil.copy(gif, report / gif.name)
     lines = [

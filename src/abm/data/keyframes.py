@@ -2,7 +2,9 @@
 
 Per sample (episode ``e``, keyframe ``k``):
 
-1. fuse the cameras into a workspace-cropped point cloud (:func:`abm.geometry.fuse_cameras`);
+1. fuse the cameras into a point cloud (:func:`abm.geometry.fuse_cameras`), cropped to the workspace
+   cube grown by what augmentation can bring into view (so shifted / rotated samples have no empty
+   bands; the renderer does the final crop to the cube after augmentation);
 2. conditioning *before* augmentation, per point: the mask field of the target object (mask
    variants; from the grounder, cached on disk for non-oracle grounders) and the CLIP point features
    (``ifd``; cached on disk); the language goal is looked up in a per-text cache built once;
@@ -234,6 +236,8 @@ class KeyframeDataset(Dataset):
         self.camera_names = list(camera_names) if camera_names is not None else None
         self.max_translation, self.max_yaw_deg = max_translation, max_yaw_deg
         self.workspace = Workspace(config.workspace_center, config.workspace_size)
+        self.fuse_workspace = augmentation_margin_cube(self.workspace, max_translation, max_yaw_deg) \
+            if augment else self.workspace
         self.items = [(j, k) for j, m in enumerate(self.source.meta) for k in range(m.num_steps)]
         if not self.items:
             raise ValueError("the dataset is empty: the selected episodes have no keyframes")
@@ -273,7 +277,7 @@ class KeyframeDataset(Dataset):
         assert self.cache_dir is not None
         meta = self.source.meta[j]
         what = {"grounder": self.grounder_spec, "target": self.targets[j], "key": meta.key,
-                "cameras": self.camera_names, "ws": [self.config.workspace_center, self.config.workspace_size]}
+                "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}
         digest = hashlib.sha1(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
         return self.cache_dir / f"{digest}_k{k:03d}.npz"
 
@@ -312,7 +316,7 @@ class KeyframeDataset(Dataset):
         return len(self.items)
 
     def _cloud(self, obs: Observation) -> PointCloud:
-        return fuse_cameras(obs, self.workspace, self.camera_names)
+        return fuse_cameras(obs, self.fuse_workspace, self.camera_names)
 
     @property
     def renderer(self) -> OrthographicRenderer:
@@ -364,6 +368,18 @@ class KeyframeDataset(Dataset):
             collision=torch.tensor(enc.collision, dtype=torch.int64),
         )
         return sample
+
+
+def augmentation_margin_cube(workspace: Workspace, max_translation: float, max_yaw_deg: float) -> Workspace:
+    """The cube around ``workspace`` holding every point that augmentation can move into it.
+
+    A source point is the inverse transform of a point in the cube: undo the shift (``max_translation`` per
+    axis), then the yaw about the vertical through the centre, which sweeps a square of half-side ``a`` out
+    to ``a * sqrt(2) * cos(45 deg - |yaw|)``.
+    """
+    yaw = np.radians(min(abs(max_yaw_deg), 45.0))
+    reach = (workspace.half + max_translation) * np.sqrt(2.0) * np.cos(np.pi / 4 - yaw)
+    return Workspace(workspace.center, 2.0 * reach)
 
 
 def index_seed(index: int) -> int:

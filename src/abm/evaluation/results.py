@@ -41,6 +41,8 @@ class EpisodeOutcome:
         steps: keyframes the policy predicted.
         seconds: wall-clock time of the rollout.
         error: the exception text when the rollout crashed (counted as a failure), else ``""``.
+        checkpoint: the checkpoint file that was evaluated.
+        settings: the evaluation settings (grounder, resolution, step limit, ...) as compact JSON.
     """
 
     method: str
@@ -53,10 +55,13 @@ class EpisodeOutcome:
     steps: int = 0
     seconds: float = 0.0
     error: str = ""
+    checkpoint: str = ""
+    settings: str = ""
 
     @property
-    def key(self) -> tuple[str, str, str, int, int]:
-        return (self.method, self.task, self.split, self.repeat, self.episode)
+    def key(self) -> tuple[str, str, str, int, int, str, str]:
+        """Identity of the rollout: protocol position plus the checkpoint and evaluation settings used."""
+        return (self.method, self.task, self.split, self.repeat, self.episode, self.checkpoint, self.settings)
 
 
 class OutcomeLog:
@@ -81,9 +86,9 @@ class OutcomeLog:
             outcomes.append(EpisodeOutcome(**{k: v for k, v in record.items() if k in names}))
         return outcomes
 
-    def done(self) -> set[tuple[str, str, str, int, int]]:
-        """Keys of the episodes already recorded."""
-        return {o.key for o in self.read()}
+    def done(self) -> set[tuple]:
+        """Keys of the episodes already recorded without an error (crashed ones are run again)."""
+        return {o.key for o in self.read() if not o.error}
 
     def append(self, outcome: EpisodeOutcome) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)

@@ -8,12 +8,13 @@ rollout that raises is recorded as a failure with its error instead of stopping 
 
 from __future__ import annotations
 
+import json
 import os
 import time
 import traceback
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -44,10 +45,12 @@ class EvalJob:
     episode: int
     seed: int
     gif_path: str = ""
+    checkpoint: str = ""
+    settings: str = ""
 
     @property
-    def key(self) -> tuple[str, str, str, int, int]:
-        return (self.method, self.task, self.split, self.repeat, self.episode)
+    def key(self) -> tuple[str, str, str, int, int, str, str]:
+        return (self.method, self.task, self.split, self.repeat, self.episode, self.checkpoint, self.settings)
 
 
 @dataclass(frozen=True)
@@ -59,6 +62,10 @@ class EvalSettings:
     resolution: int = 128
     max_steps: int = 10
     splits_path: str | None = None
+
+    def signature(self) -> str:
+        """Compact JSON of the settings that change outcomes (recorded with every outcome)."""
+        return json.dumps({k: v for k, v in asdict(self).items() if k != "device"}, sort_keys=True)
 
 
 _POLICIES: dict[tuple[str, str | None, str], Any] = {}  # per-process cache of loaded policies
@@ -81,7 +88,7 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
     start = time.perf_counter()
     steps = 0
     try:
-        policy = _load_policy(job.run, settings)
+        policy = _load_policy(job.checkpoint or job.run, settings)
         with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
                       splits_path=settings.splits_path) as env:
             episode = run_policy(env, lambda obs: policy.act(obs, env.instruction, env.object_names))
@@ -89,12 +96,14 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
             if job.gif_path:
                 save_rollout_gif(episode, job.gif_path)
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
-                              bool(episode.success), steps, time.perf_counter() - start)
+                              bool(episode.success), steps, time.perf_counter() - start,
+                              checkpoint=job.checkpoint, settings=job.settings)
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
         text = f"{type(err).__name__}: {err}"
         tb = traceback.format_exc(limit=3).strip().splitlines()
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, False,
-                              steps, time.perf_counter() - start, error=f"{text} | {tb[-3] if len(tb) > 2 else ''}")
+                              steps, time.perf_counter() - start, error=f"{text} | {tb[-3] if len(tb) > 2 else ''}",
+                              checkpoint=job.checkpoint, settings=job.settings)
 
 
 def _worker_init() -> None:
@@ -165,7 +174,8 @@ def evaluate(
         runner: the function that rolls out one job (replaceable for tests).
 
     Returns:
-        success rates of every (method, task) on ``split`` for all outcomes in the log.
+        success rates of every (method, task) on ``split``, from the outcomes of exactly the planned
+        rollouts (same checkpoints, same settings); older lines of the log are kept but not reported.
     """
     from tqdm import tqdm
 
@@ -174,7 +184,10 @@ def evaluate(
     out.mkdir(parents=True, exist_ok=True)
     log = OutcomeLog(out / "outcomes.jsonl")
     done = log.done()
-    jobs = [j for j in plan_jobs(runs, tasks, split, episodes, repeats, out, gifs, labels) if j.key not in done]
+    checkpoints = {str(r): checkpoint_of(r) for r in runs}
+    plan = [replace(j, checkpoint=checkpoints[j.run], settings=settings.signature())
+            for j in plan_jobs(runs, tasks, split, episodes, repeats, out, gifs, labels)]
+    jobs = [j for j in plan if j.key not in done]
     bar = tqdm(total=len(jobs), desc=f"eval {split}", unit="ep", disable=not progress)
     successes = 0
     if workers <= 1:
@@ -194,16 +207,34 @@ def evaluate(
                 bar.update(1)
                 bar.set_postfix(success=f"{successes}/{bar.n}")
     bar.close()
-    return write_reports(log.read(), out)
+    planned = {j.key for j in plan}
+    latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
+    return write_reports(list(latest.values()), out)
+
+
+def checkpoint_of(run: str | Path) -> str:
+    """The checkpoint file a run folder (or checkpoint path) resolves to; ``str(run)`` if none exists."""
+    try:
+        from abm.train.checkpoint import resolve_checkpoint
+
+        return str(resolve_checkpoint(run).resolve())
+    except (FileNotFoundError, ValueError):
+        return str(run)
 
 
 def write_reports(outcomes: Sequence[EpisodeOutcome], out_dir: Path) -> list[SuccessRate]:
-    """Aggregate all outcomes in a folder's log into results.json / results.csv / results.md."""
+    """Aggregate outcomes into ``out_dir``/results.json, results.csv and results.md."""
     rates = aggregate(outcomes)
+    write_tables(rates, out_dir)
+    return rates
+
+
+def write_tables(rates: Sequence[SuccessRate], out_dir: Path) -> None:
+    """Write success rates as ``out_dir``/results.json, results.csv and results.md."""
+    out_dir.mkdir(parents=True, exist_ok=True)
     write_json(rates, out_dir / "results.json")
     write_csv(rates, out_dir / "results.csv")
-    (out_dir / "results.md").write_text(markdown_table(rates) + "\n")
-    return rates
+    (out_dir / "results.md").write_text(markdown_table(rates, splits=["seen", "unseen", "compositional"]) + "\n")
 
 
 def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seconds_per_frame: float = 0.6) -> None:

@@ -83,7 +83,8 @@ class Policy:
         Args:
             run_or_ckpt: ``RUN/`` or ``RUN/checkpoints/step_XXXXXXXX.pt``.
             device: where to run.
-            grounder: override the grounder stored in the checkpoint (spec or object).
+            grounder: override the grounder stored in the checkpoint (spec or object); a spec of the
+                same kind only overrides the options it names.
             expect_variant: if given, a checkpoint of another variant raises ``ValueError``.
         """
         from abm.train.checkpoint import load_checkpoint
@@ -96,7 +97,10 @@ class Policy:
             )
         model = MultiViewTransformer(config)
         model.load_state_dict(ckpt["model"])
-        policy = cls(model, make_language_encoder(ckpt["language"]), grounder or ckpt.get("grounder"),
+        stored = ckpt.get("grounder")
+        if isinstance(grounder, Mapping) and isinstance(stored, Mapping) and grounder.get("kind") == stored.get("kind"):
+            grounder = {**stored, **grounder}  # same grounder: keep the trained options (e.g. the CLIP model)
+        policy = cls(model, make_language_encoder(ckpt["language"]), grounder or stored,
                      ckpt.get("camera_names"), device)
         policy.checkpoint_path = ckpt["path"]
         return policy
