@@ -193,16 +193,7 @@ def _scale_spec(spec, factor: float) -> None:
 
 
 def _box(body, size, pos, rgba, mass=None, collide=True):
-    import mujoco
-
-    geom = body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=list(size), pos=list(pos), rgba=list(rgba))
-    geom.friction = [1.0, 0.01, 0.001]
-    if mass is not None:
-        geom.mass = mass
-    if not collide:
-        geom.contype = 0
-        geom.conaffinity = 0
-    return geom
+    return props._geom(body, "box", size, pos, rgba, mass=mass, collide=collide)
 
 
 def _primitive_spec(entry: CatalogEntry):
