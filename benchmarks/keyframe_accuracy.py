@@ -1,29 +1,30 @@
-"""Offline keyframe accuracy: how close is each policy's first keyframe to the scripted expert's?
+"""Offline keyframe accuracy of trained policies, per keyframe kind (the quick check before rollouts).
 
-For every evaluation scene (the same seeds as ``abm eval``), the policy predicts a keyframe from the
-first observation and is compared with the expert's first keyframe (the approach above the target
-object): position error in cm, rotation error in degrees, gripper state agreement. It isolates the
-question the paper asks — does the policy find the *target object*, for seen and for unseen objects —
-from the rest of the rollout, which short CPU training cannot yet complete.
+On evaluation scenes (the seeds of ``abm eval``) the expert is rolled out and each policy predicts at
+every expert keyframe; position error, symmetry-aware rotation error and gripper agreement are
+reported per kind (approach, grasp, lift, move, place, ...). See
+:mod:`abm.evaluation.keyframe_accuracy`.
+
+With ``--steps`` the listed checkpoints of each run are scored too, which gives the grasp-keyframe
+error against training time.
 
 Usage: python benchmarks/keyframe_accuracy.py --run RUN [--run RUN2 ...] --tasks pick_block place_food
-           [--splits seen unseen] [--episodes 10]
+           [--splits seen unseen] [--episodes 10] [--steps 500 1000 ...] [--kinds grasp place]
+           [--out errors.json]
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
+import json
+import time
 from pathlib import Path
 
-import numpy as np
-
-from abm.evaluation.results import eval_seed
+from abm.evaluation.keyframe_accuracy import as_records, keyframe_errors, markdown, summarise
 from abm.evaluation.runner import method_labels
-from abm.geometry import quat_angle_deg
 from abm.machine import describe_machine
 from abm.policy.inference import Policy
-from abm.sim.env import make_env
+from abm.train.checkpoint import checkpoint_path
 
 
 def main() -> None:
@@ -32,33 +33,41 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="+", required=True)
     parser.add_argument("--splits", nargs="+", default=["seen", "unseen"])
     parser.add_argument("--episodes", type=int, default=10)
-    parser.add_argument("--resolution", type=int, default=128)
+    parser.add_argument("--resolution", type=int, default=128, help="camera pixels (as in training)")
+    parser.add_argument("--steps", type=int, nargs="*", default=[],
+                        help="also score these checkpoint steps of every run (default: latest only)")
+    parser.add_argument("--kinds", nargs="*", default=None, help="only print these keyframe kinds")
+    parser.add_argument("--out", type=Path, default=None, help="write all errors and summaries as JSON")
     args = parser.parse_args()
 
     labels = method_labels(args.run)
-    policies = {labels[str(r)]: Policy.load(r) for r in args.run}
-    errors: dict[tuple[str, str, str], list[tuple[float, float, bool]]] = {}
+    policies = {}
+    for run in args.run:
+        name = labels[str(run)]
+        policies[name] = Policy.load(run)
+        for step in args.steps:
+            path = checkpoint_path(run, step)
+            if path.is_file():
+                policies[f"{name}@{step}"] = Policy.load(path)
+            else:
+                print(f"skipping {path}: no such checkpoint")
+    start = time.perf_counter()
+    errors = []
     for task in args.tasks:
         for split in args.splits:
-            for ep in range(args.episodes):
-                with make_env(task, split, eval_seed(0, ep), args.resolution) as env:
-                    obs = env.reset()
-                    expert = next(iter(env.expert_actions()))
-                    for name, policy in policies.items():
-                        act = policy.act(obs, env.instruction, env.object_names)
-                        pos = 100 * float(np.linalg.norm(act.position - expert.position))
-                        rot = float(quat_angle_deg(act.quaternion, expert.quaternion))
-                        errors.setdefault((name, task, split), []).append(
-                            (pos, rot, act.gripper_open == expert.gripper_open))
-    print(f"machine: {describe_machine()}; {args.episodes} scenes per task and split (seeds as abm eval)")
-    print("| method | task | split | position error cm (median) | within 5 cm | rotation error ° (median) "
-          "| gripper agrees |")
-    print("|---|---|---|---|---|---|---|")
-    for (name, task, split), rows in sorted(errors.items(), key=lambda kv: (kv[0][1], kv[0][2], kv[0][0])):
-        pos = [r[0] for r in rows]
-        print(f"| {name} | {task} | {split} | {statistics.median(pos):.1f} | "
-              f"{sum(p < 5 for p in pos)}/{len(pos)} | {statistics.median(r[1] for r in rows):.0f} | "
-              f"{sum(r[2] for r in rows)}/{len(rows)} |")
+            errors += keyframe_errors({k: p.act for k, p in policies.items()}, task, split, args.episodes,
+                                      args.resolution)
+    rows = summarise(errors)
+    print(f"machine: {describe_machine()}; {args.episodes} scenes per task and split (seeds as abm eval); "
+          f"{time.perf_counter() - start:.0f} s")
+    print(markdown(rows, args.kinds))
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({
+            "machine": describe_machine(), "episodes": args.episodes,
+            "checkpoints": {k: str(p.checkpoint_path) for k, p in policies.items()},
+            "summary": rows, "errors": as_records(errors)}, indent=1))
+        print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

@@ -1,10 +1,12 @@
-"""Training throughput of a policy preset (samples/s), data pipeline included.
+"""Training throughput of a policy preset (samples/s), data pipeline included, and where the time goes.
 
 Trains on built-in synthetic episodes (4 cameras, 128^2 by default) with the real data pipeline
-(fusion, oracle grounding, SE(3) augmentation, rendering) and the real optimiser (LAMB), and reports
-samples/s over the timed steps plus the share of time spent waiting for data.
+(fusion, oracle grounding, SE(3) augmentation, rendering) and the real optimiser, and reports
+samples/s over the timed steps plus the seconds per step spent in each stage: data (fuse, ground,
+augment, render), forward (model + loss), backward and optimiser.
 
     python benchmarks/train_speed.py --preset small --method abm --batch 8 --steps 10
+    OMP_NUM_THREADS=1 python benchmarks/train_speed.py --threads 1 --set resolution=64 --set patch_size=8
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections import defaultdict
 
 import torch
 
@@ -20,6 +23,8 @@ from abm.machine import describe_machine
 from abm.policy import MultiViewTransformer, PolicyConfig, policy_loss, translation_targets
 from abm.policy.language import HashLanguageEncoder
 from abm.render import OrthographicRenderer
+from abm.train.commands import parse_override
+from abm.train.loop import make_optimizer
 from abm.train.synthetic import synthetic_episodes
 
 
@@ -35,50 +40,63 @@ def main() -> None:
     p.add_argument("--camera-resolution", type=int, default=128)
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    p.add_argument("--optimizer", default="lamb", choices=["lamb", "adamw"])
+    p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
+                   help="override a policy config field, e.g. --set resolution=64 (repeatable)")
     args = p.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    from torch_optimizer import Lamb
-
     device = torch.device(args.device)
     torch.manual_seed(0)
-    cfg = PolicyConfig.from_preset(args.preset, args.method)
+    cfg = PolicyConfig.from_preset(args.preset, args.method, **dict(args.overrides))
     episodes = synthetic_episodes(args.episodes, args.camera_resolution)
     ds = KeyframeDataset(episodes, cfg, HashLanguageEncoder(cfg.lang_dim))
     total = args.warmup + args.steps
     loader = torch.utils.data.DataLoader(ds, batch_size=args.batch, sampler=StepSampler(len(ds), args.batch, total),
                                          num_workers=args.workers, collate_fn=collate, worker_init_fn=worker_init)
     model = MultiViewTransformer(cfg).to(device).train()
-    opt = Lamb(model.parameters(), lr=1e-3)
+    opt = make_optimizer(args.optimizer, model.parameters(), lr=1e-3, weight_decay=0.0)
     renderer = OrthographicRenderer(ds.workspace, cfg.resolution, cfg.views, device=device)
     amp = device.type == "cuda"
-    data_s = step_s = 0.0
+    stage: dict[str, float] = defaultdict(float)
+
+    def sync() -> float:
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        return time.perf_counter()
+
     t_prev = time.perf_counter()
     for i, batch in enumerate(loader):
         t_data = time.perf_counter()
         batch = {k: v.to(device) for k, v in batch.items()}
+        target = translation_targets(renderer, batch["position"])
         with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=amp):
             out = model(batch["images"], batch["proprio"], batch["lang"], mask=batch.get("mask"),
-                        ifd_features=batch.get("ifd_features"), ifd_index=batch.get("ifd_index"))
-        loss = policy_loss(out, translation_targets(renderer, batch["position"]), batch["rotation_bins"],
-                           batch["gripper"], batch["collision"]).total
+                        ifd_features=batch.get("ifd_features"), ifd_index=batch.get("ifd_index"),
+                        pool_weights=target)
+        loss = policy_loss(out, target, batch["rotation_bins"], batch["gripper"], batch["collision"]).total
+        t_fwd = sync()
         opt.zero_grad()
         loss.backward()
+        t_bwd = sync()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
         opt.step()
-        if device.type == "cuda":
-            torch.cuda.synchronize()
-        t_end = time.perf_counter()
+        t_end = sync()
         if i >= args.warmup:
-            data_s += t_data - t_prev
-            step_s += t_end - t_data
+            for name, dt in (("data", t_data - t_prev), ("forward", t_fwd - t_data), ("backward", t_bwd - t_fwd),
+                             ("optimizer", t_end - t_bwd)):
+                stage[name] += dt
         t_prev = t_end
+    total_s = sum(stage.values())
+    data_s = stage["data"]
     n = args.steps * args.batch
     result = {
         "preset": cfg.preset, "method": args.method, "device": str(device), "batch": args.batch,
         "steps": args.steps, "workers": args.workers, "threads": torch.get_num_threads(),
-        "parameters": model.num_parameters(), "samples_per_s": n / (data_s + step_s),
-        "s_per_step": (data_s + step_s) / args.steps, "data_share": data_s / (data_s + step_s),
+        "parameters": model.num_parameters(), "samples_per_s": n / total_s,
+        "s_per_step": total_s / args.steps, "data_share": data_s / total_s,
+        "stage_s_per_step": {k: round(v / args.steps, 4) for k, v in stage.items()},
+        "resolution": cfg.resolution, "patch_size": cfg.patch_size, "optimizer": args.optimizer,
         "machine": describe_machine(),
         "gpu": torch.cuda.get_device_name() if device.type == "cuda" else None,
     }

@@ -8,6 +8,7 @@ from abm.geometry import (
     Workspace,
     augment_scene,
     bins_to_quat,
+    canonical_gripper_quat,
     depth_to_points,
     euler_to_quat,
     fuse_cameras,
@@ -17,6 +18,7 @@ from abm.geometry import (
     quat_to_bins,
     quat_to_euler,
     quat_to_matrix,
+    symmetric_angle_deg,
     transform_action,
 )
 from abm.render.synthetic import look_at, pinhole_intrinsics, synthetic_scene
@@ -143,4 +145,6 @@ def test_transform_action_identity():
     a = KeyframeAction([0.4, 0.1, 0.2], [0, 1, 0, 0], True)
     b = transform_action(np.eye(4), a)
     np.testing.assert_allclose(b.position, a.position)
-    assert quat_angle_deg(a.quaternion, b.quaternion) < 1e-6
+    # the same keyframe up to the gripper's 180-degree symmetry, returned in its canonical form
+    assert symmetric_angle_deg(a.quaternion, b.quaternion, 2) < 1e-6
+    assert quat_angle_deg(b.quaternion, canonical_gripper_quat(b.quaternion, 2)) < 1e-6

@@ -143,12 +143,20 @@ class KeyframeAction:
         quaternion: ``(4,)`` target orientation, ``(x, y, z, w)``; normalised on construction.
         gripper_open: whether the gripper should be open at the keyframe.
         ignore_collision: whether the motion may move in a straight line ignoring collisions.
+        kind: what the keyframe does in a demonstration (``"approach"``, ``"grasp"``, ``"lift"``,
+            ``"move"``, ``"place"``, ``"retreat"``, ``"pour"``, ...); empty for policy outputs.
+        symmetry: how many turns about the gripper (TCP z) axis give the same keyframe: 2 for the
+            parallel gripper alone (180 degrees), 4 for a square object handled from above, 0 for a
+            round one (any turn). Demonstration labels are stored in the canonical member of this class
+            (:func:`abm.geometry.canonical_gripper_quat`).
     """
 
     position: np.ndarray
     quaternion: np.ndarray
     gripper_open: bool
     ignore_collision: bool = False
+    kind: str = ""
+    symmetry: int = 2
 
     def __post_init__(self) -> None:
         self.position = np.asarray(self.position, np.float64)
@@ -163,6 +171,10 @@ class KeyframeAction:
         self.quaternion = self.quaternion / norm
         self.gripper_open = bool(self.gripper_open)
         self.ignore_collision = bool(self.ignore_collision)
+        self.kind = str(self.kind)
+        self.symmetry = int(self.symmetry)
+        if self.symmetry < 0:
+            raise ValueError(f"KeyframeAction.symmetry must be >= 0 (0 = any turn), got {self.symmetry}")
 
     @property
     def matrix(self) -> np.ndarray:

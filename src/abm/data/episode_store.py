@@ -1,6 +1,6 @@
 """On-disk episodes: one HDF5 file per :class:`abm.types.Episode`.
 
-File layout (``FORMAT_VERSION`` 1); ``K`` keyframes, per camera ``H x W`` pixels::
+File layout (``FORMAT_VERSION`` 2); ``K`` keyframes, per camera ``H x W`` pixels::
 
     /                       attrs: format_version, task, split, variation, instruction, success, seed,
                                    num_keyframes, object_names (JSON {id: name}), target_names (JSON),
@@ -17,6 +17,12 @@ File layout (``FORMAT_VERSION`` 1); ``K`` keyframes, per camera ``H x W`` pixels
     /actions/quaternion        (K, 4) float64  (x, y, z, w)
     /actions/gripper_open      (K,)   bool
     /actions/ignore_collision  (K,)   bool
+    /actions/kind              (K,)   str    keyframe kind ("approach", "grasp", ...)
+    /actions/symmetry          (K,)   int64  equivalent turns about the gripper axis (0 = any)
+
+Version 2 (labels are the orientation the arm reached, in the canonical member of their symmetry
+class; see docs/benchmark.md) replaced version 1, whose grasp yaw labels could be the 180-degree flip
+of what was executed. Version 1 files are refused with a message that says to regenerate them.
 
 Writes are atomic (temporary file in the same folder, then :func:`os.replace`), so an interrupted run
 never leaves a complete-looking partial file. Any unreadable, incomplete or wrong-version file raises
@@ -36,7 +42,7 @@ import numpy as np
 
 from abm.types import CameraFrame, Episode, KeyframeAction, Observation
 
-FORMAT_VERSION: int = 1
+FORMAT_VERSION: int = 2
 EPISODE_SUFFIX = ".h5"
 _COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
 
@@ -119,6 +125,8 @@ def save_episode(episode: Episode, path: str | os.PathLike) -> None:
             act["quaternion"] = np.array([a.quaternion for _, a in steps], np.float64).reshape(-1, 4)
             act["gripper_open"] = np.array([a.gripper_open for _, a in steps], bool)
             act["ignore_collision"] = np.array([a.ignore_collision for _, a in steps], bool)
+            act.create_dataset("kind", data=[a.kind for _, a in steps], dtype=h5py.string_dtype())
+            act["symmetry"] = np.array([a.symmetry for _, a in steps], np.int64)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
@@ -140,8 +148,11 @@ def _open(path: Path):
         raise EpisodeFormatError(f"{path}: missing 'format_version' attribute (not an abm episode file)")
     if int(version) != FORMAT_VERSION:
         f.close()
+        hint = (" Version 1 demonstrations have inconsistent gripper-yaw labels; regenerate them with "
+                "`abm data generate` (same arguments, into a new folder)." if int(version) < FORMAT_VERSION
+                else " Upgrade abm to read it.")
         raise EpisodeFormatError(f"{path}: episode format version {int(version)} is not supported "
-                                 f"(this abm reads version {FORMAT_VERSION})")
+                                 f"(this abm reads version {FORMAT_VERSION}).{hint}")
     return f
 
 
@@ -182,7 +193,8 @@ def _read_step(f, path: Path, k: int, camera_names: list[str]) -> tuple[Observat
                           gripper_pose=obs_g["gripper_pose"][k], step=int(obs_g["step"][k]))
         action = KeyframeAction(position=act["position"][k], quaternion=act["quaternion"][k],
                                 gripper_open=bool(act["gripper_open"][k]),
-                                ignore_collision=bool(act["ignore_collision"][k]))
+                                ignore_collision=bool(act["ignore_collision"][k]),
+                                kind=act["kind"].asstr()[k], symmetry=int(act["symmetry"][k]))
     except (KeyError, OSError, ValueError, IndexError) as err:
         raise EpisodeFormatError(f"{path}: keyframe {k} cannot be read ({err})") from None
     return obs, action

@@ -10,8 +10,13 @@ from abm.geometry.pointcloud import (
 )
 from abm.geometry.rotations import (
     DEFAULT_ROTATION_BINS,
+    GRIPPER_REFERENCE_YAW_DEG,
+    GRIPPER_SYMMETRY,
+    ROUND_SYMMETRY,
     bins_to_euler,
     bins_to_quat,
+    canonical_gripper_matrix,
+    canonical_gripper_quat,
     euler_to_bins,
     euler_to_quat,
     matrix_to_quat,
@@ -21,11 +26,14 @@ from abm.geometry.rotations import (
     quat_to_bins,
     quat_to_euler,
     quat_to_matrix,
+    symmetric_angle_deg,
 )
 from abm.geometry.workspace import Workspace
 
 __all__ = [
-    "DEFAULT_ROTATION_BINS", "PointCloud", "Workspace", "augment_scene", "bins_to_euler", "bins_to_quat",
+    "DEFAULT_ROTATION_BINS", "GRIPPER_REFERENCE_YAW_DEG", "GRIPPER_SYMMETRY", "ROUND_SYMMETRY",
+    "canonical_gripper_matrix", "canonical_gripper_quat", "symmetric_angle_deg", "PointCloud", "Workspace",
+    "augment_scene", "bins_to_euler", "bins_to_quat",
     "depth_to_points", "euler_to_bins", "euler_to_quat", "fuse_cameras", "matrix_to_quat",
     "normalize_quaternion", "pose_matrix", "project_to_camera", "quat_angle_deg", "quat_to_bins",
     "quat_to_euler", "quat_to_matrix", "random_se3", "transform_action", "transform_points",

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from abm.geometry.rotations import matrix_to_quat, quat_to_matrix
+from abm.geometry.rotations import canonical_gripper_matrix, matrix_to_quat, quat_to_matrix
 from abm.geometry.workspace import Workspace
 from abm.types import KeyframeAction
 
@@ -40,10 +40,16 @@ def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def transform_action(transform: np.ndarray, action: KeyframeAction) -> KeyframeAction:
-    """Apply a ``(4, 4)`` world transform to a keyframe (position and orientation)."""
+    """Apply a ``(4, 4)`` world transform to a keyframe (position and orientation).
+
+    The turned orientation is put back into its canonical member (``action.symmetry``), so an
+    augmented label follows the same convention as the stored ones: a yaw of 45 degrees can move a
+    label across the canonical range's edge, and the equivalent orientation on the other side is used.
+    """
     pos = transform[:3, :3] @ action.position + transform[:3, 3]
-    quat = matrix_to_quat(transform[:3, :3] @ quat_to_matrix(action.quaternion))
-    return KeyframeAction(pos, quat, action.gripper_open, action.ignore_collision)
+    rot = canonical_gripper_matrix(transform[:3, :3] @ quat_to_matrix(action.quaternion), action.symmetry)
+    return KeyframeAction(pos, matrix_to_quat(rot), action.gripper_open, action.ignore_collision,
+                          action.kind, action.symmetry)
 
 
 def augment_scene(

@@ -93,3 +93,86 @@ def quat_to_bins(quat: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.
 def bins_to_quat(bins: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.ndarray:
     """Euler bins ``(..., 3)`` -> quaternion(s) ``(..., 4)`` at the bin centres."""
     return euler_to_quat(bins_to_euler(bins, num_bins), degrees=True)
+
+
+# --- gripper symmetry and canonical labels ----------------------------------------------------------
+#: World yaw (degrees) of the finger axis (the TCP's y axis) that canonical gripper orientations lie
+#: closest to. -45 degrees keeps the Panda's last wrist joint near mid-range for top-down grasps over
+#: the table, so every canonical top-down orientation is reachable without a wrist wind-up.
+GRIPPER_REFERENCE_YAW_DEG = -45.0
+#: Symmetry order of a parallel gripper alone: turning it by 180 degrees about its axis is the same grasp.
+GRIPPER_SYMMETRY = 2
+#: Symmetry order meaning "any turn about the gripper axis" (a round object grasped from above).
+ROUND_SYMMETRY = 0
+_ROUND_SAMPLES = 360
+
+
+def _reference_axis(z_axis: np.ndarray, reference_yaw_deg: float) -> np.ndarray:
+    """Unit reference direction for the finger axis, projected onto the plane normal to ``z_axis``."""
+    yaw = np.radians(reference_yaw_deg)
+    for ref in (np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.array([0.0, 0.0, 1.0])):
+        proj = ref - z_axis * float(ref @ z_axis)
+        norm = float(np.linalg.norm(proj))
+        if norm > 1e-6:
+            return proj / norm
+    raise AssertionError("unreachable: two orthogonal references cannot both be parallel to z")
+
+
+def _turn_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def canonical_gripper_matrix(rotation: np.ndarray, symmetry: int = GRIPPER_SYMMETRY,
+                             reference_yaw_deg: float = GRIPPER_REFERENCE_YAW_DEG) -> np.ndarray:
+    """The canonical member of a gripper orientation's equivalence class.
+
+    Orientations ``R @ Rz(360° k / symmetry)`` (turns about the gripper's own z axis) are the same grasp:
+    ``symmetry`` 2 for the parallel gripper alone, 4 for a square object grasped from above, 1 for none,
+    and :data:`ROUND_SYMMETRY` (0) for any turn. The canonical member is the one whose finger axis
+    (TCP y) is closest to the reference direction (world yaw ``reference_yaw_deg``, projected onto the
+    plane normal to the gripper axis). For a top-down grasp this puts the finger yaw within
+    ``±180° / symmetry`` of the reference (a round object gets exactly the reference yaw).
+
+    Args:
+        rotation: ``(3, 3)`` TCP-to-world rotation.
+        symmetry: number of equivalent turns (see above).
+
+    Returns:
+        ``(3, 3)`` rotation with the same gripper axis.
+    """
+    rot = np.asarray(rotation, np.float64)
+    if symmetry < 0:
+        raise ValueError(f"symmetry must be >= 0 (0 = any turn), got {symmetry}")
+    z = rot[:, 2]
+    ref = _reference_axis(z, reference_yaw_deg)
+    if symmetry == ROUND_SYMMETRY:
+        # Turn about z so the finger axis equals the reference: angle from the current y to ref.
+        angle = np.arctan2(float(np.cross(rot[:, 1], ref) @ z), float(rot[:, 1] @ ref))
+        return rot @ _turn_z(angle)
+    candidates = [rot @ _turn_z(2 * np.pi * k / symmetry) for k in range(max(symmetry, 1))]
+    # Ties (exactly 180° / symmetry away) go to the smallest turn, so the choice is deterministic.
+    scores = [round(float(c[:, 1] @ ref), 9) for c in candidates]
+    return candidates[int(np.argmax(scores))]
+
+
+def canonical_gripper_quat(quat: np.ndarray, symmetry: int = GRIPPER_SYMMETRY) -> np.ndarray:
+    """Quaternion ``(4,)`` (x, y, z, w) version of :func:`canonical_gripper_matrix`."""
+    return matrix_to_quat(canonical_gripper_matrix(quat_to_matrix(quat), symmetry))
+
+
+def symmetric_angle_deg(q1: np.ndarray, q2: np.ndarray, symmetry: int = GRIPPER_SYMMETRY) -> float:
+    """Smallest rotation angle (degrees) between ``q1`` and any orientation equivalent to ``q2``.
+
+    Equivalent orientations are turns about ``q2``'s gripper axis by ``360° / symmetry`` (see
+    :func:`canonical_gripper_matrix`; 0 = any turn, sampled every degree).
+    """
+    r1 = quat_to_matrix(q1)
+    r2 = quat_to_matrix(q2)
+    if symmetry == ROUND_SYMMETRY:
+        angles = np.linspace(0.0, 2 * np.pi, _ROUND_SAMPLES, endpoint=False)
+    else:
+        angles = 2 * np.pi * np.arange(max(symmetry, 1)) / max(symmetry, 1)
+    others = np.stack([r2 @ _turn_z(a) for a in angles])
+    rel = Rotation.from_matrix(np.einsum("ji,njk->nik", r1, others))
+    return float(np.degrees(rel.magnitude().min()))

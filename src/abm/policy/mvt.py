@@ -18,8 +18,9 @@ Data flow for a batch of ``B`` samples with ``V`` virtual views of ``H x W`` pix
    the fused stem features (skip connection; after conditioning, so a mask pixel can reach the heatmap
    at full resolution without passing through the patch tokens) and decoded by two small convs into
    one translation logit per pixel and view. A global feature per view (max-pooled tokens and tokens
-   pooled with the predicted heatmap) goes through an MLP to the rotation logits (3 axes x
-   ``rotation_bins``), gripper-open and ignore-collision logits (2 each).
+   pooled with the heatmap: the ground-truth one in training, the predicted one at inference) goes
+   through an MLP to the rotation logits (3 axes x ``rotation_bins``), gripper-open and
+   ignore-collision logits (2 each).
 """
 
 from __future__ import annotations
@@ -177,6 +178,7 @@ class MultiViewTransformer(nn.Module):
         mask: torch.Tensor | None = None,
         ifd_features: torch.Tensor | None = None,
         ifd_index: torch.Tensor | None = None,
+        pool_weights: torch.Tensor | None = None,
     ) -> PolicyOutput:
         """Predict a keyframe.
 
@@ -188,6 +190,10 @@ class MultiViewTransformer(nn.Module):
             ifd_features: ``(B, N, ifd_feature_dim)`` per-point CLIP features (``ifd`` only).
             ifd_index: ``(B, V, H, W)`` int64 index of the point visible in each pixel, -1 where empty
                 (``ifd`` only).
+            pool_weights: ``(B, V, H, W)`` per-view distributions (each summing to 1) at which the
+                rotation/gripper head pools tokens. Training passes the ground-truth heatmap (as
+                RVT-2 does), so the head learns from the right location while the heatmap is still
+                wrong; ``None`` (inference) pools at the predicted heatmap.
         """
         self._check(images, proprio, lang, mask, ifd_features, ifd_index)
         cfg, spec = self.config, self.config.spec
@@ -222,7 +228,11 @@ class MultiViewTransformer(nn.Module):
         heat = self.decode(up + self.skip(feat)).view(b, v, h, w)
 
         # global feature: max-pooled tokens + tokens pooled by the (detached) heatmap per view
-        prob = torch.softmax(heat.detach().float().flatten(2), -1).view(b * v, 1, h, w)
+        # (ground truth in training, prediction at inference)
+        if pool_weights is None:
+            prob = torch.softmax(heat.detach().float().flatten(2), -1).view(b * v, 1, h, w)
+        else:
+            prob = pool_weights.detach().float().reshape(b * v, 1, h, w)
         weights = F.avg_pool2d(prob, p).flatten(1) * (p * p)  # (B*V, g*g), sums to 1
         pooled = torch.einsum("nt,ntd->nd", weights.to(tok.dtype), tok)
         glob = torch.cat([tok.amax(1), pooled], dim=-1).reshape(b, v * 2 * d)

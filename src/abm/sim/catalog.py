@@ -37,6 +37,9 @@ class CatalogEntry:
         grasp_height: TCP height above the table for a top grasp (m); ``None`` = derived from the box.
         movable: whether the object gets a free joint (containers, targets and racks are fixed).
         scale: uniform scale applied to a LIBERO object (meshes, geoms, bodies, sites).
+        yaw_symmetry: turns about the vertical that leave the object's top-down grasp the same,
+            combined with the gripper's own 180 degrees: 2 = only the gripper's (default), 4 = a square
+            footprint, 0 = round (any yaw). Demonstration grasp labels use it to pick one canonical yaw.
     """
 
     name: str
@@ -48,6 +51,7 @@ class CatalogEntry:
     grasp_height: float | None = None
     movable: bool = True
     scale: float = 1.0
+    yaw_symmetry: int = 2
 
     @property
     def uses_libero(self) -> bool:
@@ -84,13 +88,13 @@ _ENTRIES: list[CatalogEntry] = [
     _grocery("chocolate pudding", "chocolate_pudding"),
     CatalogEntry("plate", "container", "libero", "stable_scanned_objects/plate/plate.xml", movable=False),
     CatalogEntry("wine bottle", "bottle", "libero", "turbosquid_objects/wine_bottle/wine_bottle.xml",
-                 grasp_height=0.118),
+                 grasp_height=0.118, yaw_symmetry=0),
     CatalogEntry("white bottle", "bottle", "libero", "turbosquid_objects/white_bottle/white_bottle.xml",
-                 grasp_height=0.118),
+                 grasp_height=0.118, yaw_symmetry=0),
     CatalogEntry("blue bottle", "bottle", "primitive", rgba=(0.15, 0.3, 0.85, 1.0), size=(0.02, 0.02, 0.08),
-                 grasp_height=0.118),
+                 grasp_height=0.118, yaw_symmetry=0),
     CatalogEntry("brown bottle", "bottle", "primitive", rgba=(0.45, 0.25, 0.08, 1.0),
-                 size=(0.02, 0.02, 0.08), grasp_height=0.118),
+                 size=(0.02, 0.02, 0.08), grasp_height=0.118, yaw_symmetry=0),
     CatalogEntry("target", "target", "primitive", rgba=(0.9, 0.9, 0.9, 1.0), size=(0.05, 0.05, 0.002),
                  movable=False),
     CatalogEntry("wine rack", "rack", "primitive", rgba=(0.55, 0.35, 0.18, 1.0), size=(0.05, 0.135, 0.025),
@@ -106,13 +110,13 @@ _ENTRIES: list[CatalogEntry] = [
     CatalogEntry("moka pot", "mug", "libero", "turbosquid_objects/moka_pot/moka_pot.xml", scale=0.6,
                  grasp_height=0.062),
     CatalogEntry("plant", "plant", "primitive", rgba=props.TERRACOTTA, movable=False),
-    CatalogEntry("jar lid", "lid", "primitive", rgba=props.LID_GREY, grasp_height=0.024),
+    CatalogEntry("jar lid", "lid", "primitive", rgba=props.LID_GREY, grasp_height=0.024, yaw_symmetry=4),
     CatalogEntry("ring", "ring", "primitive", rgba=props.RING_GREY),
     CatalogEntry("frypan", "frypan", "libero",
                  "stable_scanned_objects/chefmate_8_frypan/chefmate_8_frypan.xml", movable=False),
 ] + [
     CatalogEntry(f"{colour} {kind}", kind, "primitive", rgba=rgba, size=(0.02, 0.02, 0.02),
-                 movable=kind == "block")
+                 movable=kind == "block", yaw_symmetry=4)
     for kind in ("block", "jar", "peg") for colour, rgba in BLOCK_COLOURS.items()
 ]
 

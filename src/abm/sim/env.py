@@ -12,6 +12,7 @@ Example::
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -19,6 +20,8 @@ from typing import Any
 
 import mujoco
 
+from abm.geometry.rotations import matrix_to_quat
+from abm.sim.robot import FLIP_Z
 from abm.sim.scene import CAMERA_NAMES
 from abm.sim.simulation import Simulation
 from abm.sim.splits import load_splits
@@ -129,6 +132,14 @@ def _episode(env: TaskEnv, steps, success: bool, extra: dict[str, Any]) -> Episo
                    metadata={"resolution": env.resolution, "mujoco": mujoco.__version__, **extra})
 
 
+def executed_action(action: KeyframeAction, flipped: bool) -> KeyframeAction:
+    """The keyframe the arm actually executed: ``action`` turned 180 degrees about the gripper axis
+    when the controller had to fall back to the flipped grasp (see :meth:`PandaIK.solve_either`)."""
+    if not flipped:
+        return action
+    return dataclasses.replace(action, quaternion=matrix_to_quat(action.matrix[:3, :3] @ FLIP_Z))
+
+
 def run_expert(env: TaskEnv, record: bool = True) -> Episode:
     """Roll out the scripted expert; returns the episode of (observation, keyframe) pairs."""
     start = time.perf_counter()
@@ -141,7 +152,7 @@ def run_expert(env: TaskEnv, record: bool = True) -> Episode:
         motion = sim.execute(action)
         motions.append(motion.status)
         if record:
-            steps.append((obs, action))
+            steps.append((obs, executed_action(action, motion.flipped)))
         if motion.status == "unreachable":
             break
     success = env.success()

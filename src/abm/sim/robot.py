@@ -119,10 +119,13 @@ class PandaIK:
         return None
 
     def solve_either(self, target: np.ndarray, q_init: np.ndarray) -> tuple[np.ndarray | None, bool]:
-        """Solve for ``target`` or its 180-degree flip about the gripper axis; prefer the nearer one.
+        """Solve for ``target``; fall back to its 180-degree flip about the gripper axis.
 
-        The local solver starts from ``q_init``; if neither pose solves from there (e.g. a large turn
-        about the gripper axis runs into a joint limit), both are retried from :data:`HOME_QPOS`.
+        The commanded orientation is preferred so that the pose the arm reaches is the pose that
+        was asked for (demonstration labels are canonical, see
+        :func:`abm.geometry.canonical_gripper_matrix`). The local solver starts from ``q_init`` and
+        then from :data:`HOME_QPOS`; only when the commanded pose fails from both is the flipped
+        pose tried, so a policy's non-canonical prediction still executes.
 
         Returns:
             ``(q, flipped)``; ``q`` is ``None`` when neither pose is reachable.
@@ -130,19 +133,12 @@ class PandaIK:
         target = np.asarray(target, np.float64)
         flipped = target.copy()
         flipped[:3, :3] = target[:3, :3] @ FLIP_Z
-        best: tuple[np.ndarray | None, bool] = (None, False)
-        best_cost = np.inf
-        for start in (np.asarray(q_init, np.float64), np.asarray(HOME_QPOS)):
-            for pose, is_flipped in ((target, False), (flipped, True)):
+        for pose, is_flipped in ((target, False), (flipped, True)):
+            for start in (np.asarray(q_init, np.float64), np.asarray(HOME_QPOS)):
                 q = self.solve(pose, start)
-                if q is None:
-                    continue
-                cost = float(np.abs(q - q_init).max())
-                if cost < best_cost:
-                    best, best_cost = (q, is_flipped), cost
-            if best[0] is not None:
-                break
-        return best
+                if q is not None:
+                    return q, is_flipped
+        return None, False
 
 
 def pose_error(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:

@@ -20,7 +20,7 @@ from typing import Any
 from abm.policy.variants import VARIANTS
 
 
-def _override(text: str) -> tuple[str, Any]:
+def parse_override(text: str) -> tuple[str, Any]:
     if "=" not in text:
         raise argparse.ArgumentTypeError(f"--set expects KEY=VALUE, got {text!r}")
     key, value = text.split("=", 1)
@@ -68,7 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--resume", action="store_true", help="continue from the latest checkpoint in --out")
     p.add_argument("--no-augment", action="store_true", help="disable SE(3) augmentation")
-    p.add_argument("--set", dest="overrides", type=_override, action="append", default=[], metavar="KEY=VALUE",
+    p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
                    help="override a policy config field, e.g. --set resolution=64 (repeatable)")
     p.add_argument("--cameras", nargs="+", help="cameras to fuse (default: all)")
     p.add_argument("--camera-resolution", type=int, default=64, help="camera side for --synthetic episodes")

@@ -22,7 +22,7 @@ import math
 import os
 import random
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -144,6 +144,18 @@ def _setup_distributed(device: str) -> DistInfo:
         backend = "nccl" if device.startswith("cuda") else "gloo"
         dist.init_process_group(backend=backend)
     return info
+
+
+def make_optimizer(name: str, params: Iterable[torch.nn.Parameter], lr: float, weight_decay: float
+                   ) -> torch.optim.Optimizer:
+    """``lamb`` (``torch_optimizer.Lamb``, the paper's) or ``adamw``."""
+    if name == "lamb":
+        from torch_optimizer import Lamb
+
+        return Lamb(params, lr=lr, weight_decay=weight_decay)
+    if name == "adamw":
+        return torch.optim.AdamW(params, lr=lr, weight_decay=weight_decay)
+    raise ValueError(f"unknown optimizer {name!r}; choose 'lamb' or 'adamw'")
 
 
 def _lr_lambda(warmup: int, total: int, min_ratio: float) -> Callable[[int], float]:
@@ -271,7 +283,6 @@ def train(
     Raises:
         ValueError: bad options, a checkpoint of another variant/preset, or an empty selection.
     """
-    from torch_optimizer import Lamb
     from tqdm import tqdm
 
     dinfo = _setup_distributed(cfg.device)
@@ -330,12 +341,7 @@ def train(
     world = dinfo.world_size
     lr = cfg.lr if cfg.lr is not None else 1e-4 * cfg.batch * world
     warmup = cfg.warmup if cfg.warmup is not None else min(2000, cfg.steps // 20)
-    if cfg.optimizer == "lamb":
-        optimizer = Lamb(model.parameters(), lr=lr, weight_decay=cfg.weight_decay)
-    elif cfg.optimizer == "adamw":
-        optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=cfg.weight_decay)
-    else:
-        raise ValueError(f"unknown optimizer {cfg.optimizer!r}; choose 'lamb' or 'adamw'")
+    optimizer = make_optimizer(cfg.optimizer, model.parameters(), lr, cfg.weight_decay)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, _lr_lambda(warmup, cfg.steps, cfg.min_lr_ratio))
     start = 0
     if ckpt is not None:
@@ -390,10 +396,11 @@ def train(
         train_model.train()
         for batch in loader:
             batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+            target = translation_targets(renderer, batch["position"])
             with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
                 out = train_model(batch["images"], batch["proprio"], batch["lang"], mask=batch.get("mask"),
-                                  ifd_features=batch.get("ifd_features"), ifd_index=batch.get("ifd_index"))
-            target = translation_targets(renderer, batch["position"])
+                                  ifd_features=batch.get("ifd_features"), ifd_index=batch.get("ifd_index"),
+                                  pool_weights=target)
             terms = policy_loss(out, target, batch["rotation_bins"], batch["gripper"], batch["collision"])
             optimizer.zero_grad(set_to_none=True)
             terms.total.backward()

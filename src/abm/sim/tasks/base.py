@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from abm.geometry.rotations import matrix_to_quat
+from abm.geometry.rotations import GRIPPER_SYMMETRY, canonical_gripper_matrix, matrix_to_quat
 from abm.sim.catalog import catalog_entry, object_geometry
 from abm.sim.scene import PlacedObject, SceneSpec
 from abm.types import KeyframeAction
@@ -153,23 +153,48 @@ def sample_layout(rng: np.random.Generator, names: list[str], fixed_yaw: dict[st
 
 
 # --- grasping --------------------------------------------------------------------------------------
-def top_down_pose(position: np.ndarray, finger_axis_yaw: float) -> np.ndarray:
-    """``(4, 4)`` TCP pose pointing straight down with the fingers closing along ``finger_axis_yaw``."""
+def top_down_pose(position: np.ndarray, finger_axis_yaw: float, symmetry: int = GRIPPER_SYMMETRY
+                  ) -> np.ndarray:
+    """``(4, 4)`` TCP pose pointing straight down with the fingers closing along ``finger_axis_yaw``.
+
+    The orientation is the canonical member of its symmetry class (see
+    :func:`abm.geometry.canonical_gripper_matrix`): with the default ``symmetry`` 2 the finger yaw is
+    turned by 180 degrees if needed to lie within ±90 degrees of the reference yaw; 4 reduces it to
+    ±45 degrees (square objects); 0 sets it to the reference (round objects).
+    """
     axis = np.array([np.cos(finger_axis_yaw), np.sin(finger_axis_yaw), 0.0])
     z = np.array([0.0, 0.0, -1.0])
     x = np.cross(axis, z)
     pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, axis, z], axis=1)
+    pose[:3, :3] = canonical_gripper_matrix(np.stack([x, axis, z], axis=1), symmetry)
     pose[:3, 3] = position
     return pose
 
 
-def action(pose: np.ndarray, gripper_open: bool, ignore_collision: bool) -> KeyframeAction:
-    return KeyframeAction(pose[:3, 3].copy(), matrix_to_quat(pose[:3, :3]), gripper_open, ignore_collision)
+def finger_yaw(pose: np.ndarray) -> float:
+    """World yaw (rad) of a TCP pose's finger axis (its y axis)."""
+    return float(np.arctan2(pose[1, 1], pose[0, 1]))
+
+
+def action(pose: np.ndarray, gripper_open: bool, ignore_collision: bool, kind: str = "",
+           symmetry: int = GRIPPER_SYMMETRY) -> KeyframeAction:
+    """A keyframe at ``pose`` (4x4); ``kind`` and ``symmetry`` label it (see :class:`KeyframeAction`)."""
+    return KeyframeAction(pose[:3, 3].copy(), matrix_to_quat(pose[:3, :3]), gripper_open, ignore_collision,
+                          kind, symmetry)
+
+
+def grasp_symmetry(name: str) -> int:
+    """Symmetry order of a top-down grasp of object ``name`` (see :attr:`CatalogEntry.yaw_symmetry`)."""
+    return catalog_entry(name).yaw_symmetry
 
 
 def grasp_pose(sim, index: int) -> np.ndarray:
-    """Top-down grasp of object ``index`` across its narrower horizontal side, at its grasp height."""
+    """Top-down grasp of object ``index`` at its grasp height, in the canonical yaw of its symmetry.
+
+    Fingers close across the narrower horizontal side. A square footprint (symmetry 4) is grasped
+    across whichever side puts the finger yaw within ±45 degrees of the reference, a round one
+    (symmetry 0) at the reference yaw; so every demonstration of an object labels its grasp the same way.
+    """
     name = sim.scene.objects[index].name
     geo = object_geometry(name)
     entry = catalog_entry(name)
@@ -177,26 +202,7 @@ def grasp_pose(sim, index: int) -> np.ndarray:
     center_local = geo.center
     ex, ey = geo.upper[0] - geo.lower[0], geo.upper[1] - geo.lower[1]
     center = pose[:3, :3] @ center_local + pose[:3, 3]
-    # Fingers close across the narrower side; for near-square footprints take the side whose open
-    # fingers stay farthest from the neighbouring objects.
-    if abs(ex - ey) < 0.015:
-        candidates = [pose[:3, 0], pose[:3, 1]]
-    else:
-        candidates = [pose[:3, 0] if ex < ey else pose[:3, 1]]
-
-    def clearance(axis: np.ndarray) -> float:
-        best = np.inf
-        for j, other in enumerate(sim.scene.objects):
-            if j == index:
-                continue
-            xy = sim.object_pose(j)[:2, 3]
-            radius = object_geometry(other.name).footprint_radius
-            for sign in (-1.0, 1.0):
-                finger = center[:2] + sign * FINGER_REACH * axis[:2]
-                best = min(best, float(np.linalg.norm(finger - xy)) - radius)
-        return best
-
-    local_axis = max(candidates, key=clearance)
+    local_axis = pose[:3, 0] if ex < ey else pose[:3, 1]
     yaw = float(np.arctan2(local_axis[1], local_axis[0]))
     bottom = pose[2, 3] + geo.lower[2]
     if entry.grasp_height is not None:
@@ -204,7 +210,7 @@ def grasp_pose(sim, index: int) -> np.ndarray:
     else:
         z = max(bottom + geo.height - 0.02, bottom + 0.5 * geo.height)
     z = max(z, 0.013)
-    return top_down_pose(np.array([center[0], center[1], z]), yaw)
+    return top_down_pose(np.array([center[0], center[1], z]), yaw, grasp_symmetry(name))
 
 
 def pick_and_place(sim, index: int, place_xy: np.ndarray, surface_z: float,
@@ -217,40 +223,43 @@ def pick_and_place(sim, index: int, place_xy: np.ndarray, surface_z: float,
         place_xy: ``(2,)`` where the object's grasp point should end up (m, world); with
             ``align_origin``, where the object's body origin should end up instead.
         surface_z: height of the support surface at the place location (m).
-        place_yaw: finger-axis yaw when placing (default: as grasped).
+        place_yaw: finger-axis yaw when placing (default: as grasped); the place keyframes then carry
+            only the gripper's own symmetry, since the task fixes the yaw.
         grasp: ``(4, 4)`` TCP grasp pose (default: :func:`grasp_pose`).
         align_origin: compensate the horizontal offset between the TCP and the object's origin
             (measured once the object is held), e.g. for an object grasped off-centre.
     """
+    name = sim.scene.objects[index].name
+    sym = grasp_symmetry(name) if grasp is None else GRIPPER_SYMMETRY
     grasp = grasp_pose(sim, index) if grasp is None else grasp
     above = grasp.copy()
     above[2, 3] += APPROACH_HEIGHT
-    yield action(above, True, False)                      # approach
-    yield action(grasp, False, True)                      # grasp
+    yield action(above, True, False, "approach", sym)
+    yield action(grasp, False, True, "grasp", sym)
     lift = grasp.copy()
     lift[2, 3] += LIFT_HEIGHT
-    yield action(lift, False, True)                       # lift
+    yield action(lift, False, True, "lift", sym)
     # Height of the object's bottom below the TCP, measured now that it is held.
-    name = sim.scene.objects[index].name
     obj = sim.object_pose(index)
     tcp = sim.robot.tcp_pose()
     bottom_below_tcp = tcp[2, 3] - (obj[2, 3] + object_geometry(name).lower[2])
     bottom_below_tcp = float(np.clip(bottom_below_tcp, 0.0, 0.2))
-    # Keep the grasped point's horizontal offset from the TCP so the object lands where asked.
-    yaw = place_yaw if place_yaw is not None else float(np.arctan2(tcp[1, 1], tcp[0, 1]))
+    # The commanded grasp yaw (not the measured one, which may sit across the canonical range's edge).
+    place_sym = sym if place_yaw is None else GRIPPER_SYMMETRY
+    yaw = finger_yaw(grasp) if place_yaw is None else place_yaw
+    place = top_down_pose(np.zeros(3), yaw, place_sym)
     if align_origin:
         # Offset of the origin from the TCP in the TCP's yaw frame, turned to the placing yaw.
-        grasp_yaw = float(np.arctan2(tcp[1, 1], tcp[0, 1]))
-        offset = _rot2(yaw - grasp_yaw) @ (obj[:2, 3] - tcp[:2, 3])
+        offset = _rot2(finger_yaw(place) - finger_yaw(tcp)) @ (obj[:2, 3] - tcp[:2, 3])
         place_xy = np.asarray(place_xy, float) - offset
-    place = top_down_pose(np.array([place_xy[0], place_xy[1], surface_z + bottom_below_tcp + DROP_HEIGHT]), yaw)
+    place[:3, 3] = [place_xy[0], place_xy[1], surface_z + bottom_below_tcp + DROP_HEIGHT]
     move = place.copy()
     move[2, 3] = max(place[2, 3] + APPROACH_HEIGHT, lift[2, 3])
-    yield action(move, False, False)                      # move above the goal
-    yield action(place, True, True)                       # place and release
+    yield action(move, False, False, "move", place_sym)     # move above the goal
+    yield action(place, True, True, "place", place_sym)     # place and release
     retreat = place.copy()
     retreat[2, 3] += APPROACH_HEIGHT
-    yield action(retreat, True, True)                     # retreat
+    yield action(retreat, True, True, "retreat", place_sym)
 
 
 def _rot2(angle: float) -> np.ndarray:

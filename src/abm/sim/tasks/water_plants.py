@@ -91,11 +91,11 @@ class WaterPlants(Task):
         grasp = grasp_pose(sim, target)
         above = grasp.copy()
         above[2, 3] += APPROACH_HEIGHT
-        yield action(above, True, False)                                  # approach
-        yield action(grasp, False, True)                                  # grasp
+        yield action(above, True, False, "approach")
+        yield action(grasp, False, True, "grasp")
         lift = grasp.copy()
         lift[2, 3] += LIFT_HEIGHT
-        yield action(lift, False, True)                                   # lift
+        yield action(lift, False, True, "lift")
         # Opening in the TCP frame, measured now that the container is held.
         tcp = sim.robot.tcp_pose()
         local = tcp[:3, :3].T @ (opening_point(sim, target) - tcp[:3, 3])
@@ -115,5 +115,5 @@ class WaterPlants(Task):
                            sign * np.radians(tilt))
         carry = top_down_pose(pour[:3, 3].copy(), finger_yaw)
         carry[2, 3] = max(pour[2, 3] + 0.05, lift[2, 3])
-        yield action(carry, False, False)                                 # move above the plant
-        yield action(pour, False, True)                                   # tilt (pour)
+        yield action(carry, False, False, "move")  # move above the plant
+        yield action(pour, False, True, "pour")

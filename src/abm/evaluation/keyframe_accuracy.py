@@ -1,0 +1,120 @@
+"""Offline keyframe accuracy: a policy's keyframes against the scripted expert's, kind by kind.
+
+The expert is rolled out on an evaluation scene; at every expert keyframe the policy predicts from the
+same observation (teacher forcing: the rollout follows the expert, not the policy), and the prediction
+is scored against the expert's label:
+
+* position error (cm);
+* rotation error (degrees), the smallest over the label's symmetric equivalents — the parallel
+  gripper's 180-degree turn, and a square object's 90-degree or a round object's any turn (the label's
+  :attr:`abm.types.KeyframeAction.symmetry`) — so a grasp that is as good as the label scores 0;
+* whether the gripper open/close state agrees.
+
+Rows are grouped by keyframe kind (approach, grasp, lift, move, place, retreat, pour), so one can see
+which part of a task a checkpoint has learned. It is the quick check of a checkpoint before rollouts
+(``benchmarks/keyframe_accuracy.py``).
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from abm.evaluation.results import eval_seed
+from abm.geometry import symmetric_angle_deg
+from abm.sim.env import make_env, run_expert
+from abm.types import KeyframeAction, Observation
+
+ActFn = Callable[[Observation, str, Mapping[int, str]], KeyframeAction]
+"""``(observation, instruction, object_names) -> keyframe`` (e.g. :meth:`Policy.act`)."""
+
+GRASP_TOLERANCE_CM = 2.0
+"""Position error a grasp tolerates (measured on pick_block by perturbing expert keyframes)."""
+
+
+@dataclass(frozen=True)
+class KeyframeError:
+    """One prediction against one expert keyframe."""
+
+    method: str
+    task: str
+    split: str
+    seed: int
+    index: int
+    kind: str
+    position_cm: float
+    rotation_deg: float
+    gripper_agrees: bool
+
+
+def score_keyframe(pred: KeyframeAction, label: KeyframeAction) -> tuple[float, float, bool]:
+    """``(position error cm, symmetry-aware rotation error deg, gripper agrees)`` of ``pred``."""
+    pos = 100.0 * float(np.linalg.norm(pred.position - label.position))
+    rot = symmetric_angle_deg(pred.quaternion, label.quaternion, label.symmetry)
+    return pos, rot, pred.gripper_open == label.gripper_open
+
+
+def keyframe_errors(
+    policies: Mapping[str, ActFn],
+    task: str,
+    split: str,
+    episodes: int,
+    resolution: int = 128,
+) -> list[KeyframeError]:
+    """Score every policy at every expert keyframe of ``episodes`` evaluation scenes.
+
+    Scenes use the evaluation seeds of ``abm eval`` (repeat 0), so numbers line up with rollouts.
+    Scenes whose expert fails are skipped.
+    """
+    out: list[KeyframeError] = []
+    for ep in range(episodes):
+        seed = eval_seed(0, ep)
+        with make_env(task, split, seed, resolution) as env:
+            episode = run_expert(env)
+            if not episode.success:
+                continue
+            for index, (obs, label) in enumerate(episode.steps):
+                for name, act in policies.items():
+                    pos, rot, grip = score_keyframe(act(obs, env.instruction, env.object_names), label)
+                    out.append(KeyframeError(name, task, split, seed, index, label.kind, pos, rot, grip))
+    return out
+
+
+def summarise(errors: Iterable[KeyframeError]) -> list[dict[str, object]]:
+    """One row per (method, task, split, kind): medians, fraction within the grasp tolerance, counts."""
+    groups: dict[tuple[str, str, str, str], list[KeyframeError]] = {}
+    for e in errors:
+        groups.setdefault((e.method, e.task, e.split, e.kind), []).append(e)
+    rows = []
+    for (method, task, split, kind), es in groups.items():
+        pos = [e.position_cm for e in es]
+        rows.append({
+            "method": method, "task": task, "split": split, "kind": kind, "n": len(es),
+            "position_cm_median": statistics.median(pos),
+            "within_grasp_tolerance": sum(p <= GRASP_TOLERANCE_CM for p in pos) / len(es),
+            "rotation_deg_median": statistics.median(e.rotation_deg for e in es),
+            "gripper_agrees": sum(e.gripper_agrees for e in es) / len(es),
+        })
+    return rows
+
+
+def markdown(rows: Sequence[Mapping[str, object]], kinds: Sequence[str] | None = None) -> str:
+    """A markdown table of :func:`summarise` rows (optionally only some kinds)."""
+    lines = [f"| method | task | split | keyframe | n | position error cm (median) | within "
+             f"{GRASP_TOLERANCE_CM:g} cm | rotation error ° (median, symmetry-aware) | gripper agrees |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if kinds is not None and r["kind"] not in kinds:
+            continue
+        lines.append(f"| {r['method']} | {r['task']} | {r['split']} | {r['kind']} | {r['n']} | "
+                     f"{r['position_cm_median']:.1f} | {100 * r['within_grasp_tolerance']:.0f} % | "
+                     f"{r['rotation_deg_median']:.0f} | {100 * r['gripper_agrees']:.0f} % |")
+    return "\n".join(lines)
+
+
+def as_records(errors: Iterable[KeyframeError]) -> list[dict[str, object]]:
+    """Plain dicts (for JSON)."""
+    return [asdict(e) for e in errors]
