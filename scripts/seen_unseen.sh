@@ -33,11 +33,9 @@ stamp data_end
 stamp train_start
 pids=()
 for m in abm rvt; do
-  resume=()
-  [ -d "$OUT/$m/checkpoints" ] && resume=(--resume)
   OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 abm train --method "$m" --data "$OUT/data" --steps "$STEPS" --batch 8 \
     --optimizer adamw --lr 1e-3 --warmup 50 --set resolution=64 --set patch_size=8 --workers 0 \
-    --checkpoint-every 500 --keep-checkpoints 0 --no-progress --out "$OUT/$m" "${resume[@]}" \
+    --checkpoint-every 500 --keep-checkpoints 0 --no-progress --out "$OUT/$m" --resume \
     > "$OUT/train_$m.log" 2>&1 &
   pids+=($!)
 done

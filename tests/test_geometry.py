@@ -8,6 +8,7 @@ from abm.geometry import (
     Workspace,
     augment_scene,
     bins_to_quat,
+    canonical_gripper_matrix,
     canonical_gripper_quat,
     depth_to_points,
     euler_to_quat,
@@ -148,3 +149,41 @@ def test_transform_action_identity():
     # the same keyframe up to the gripper's 180-degree symmetry, returned in its canonical form
     assert symmetric_angle_deg(a.quaternion, b.quaternion, 2) < 1e-6
     assert quat_angle_deg(b.quaternion, canonical_gripper_quat(b.quaternion, 2)) < 1e-6
+
+
+def _top_down(yaw_deg: float) -> np.ndarray:
+    """TCP pointing down with the finger axis (TCP y) at world yaw ``yaw_deg``."""
+    yaw = np.radians(yaw_deg)
+    y = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    z = np.array([0.0, 0.0, -1.0])
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+@pytest.mark.parametrize(("yaw", "symmetry", "expected"), [
+    (100.0, 2, -80.0),    # 145° from the -45° reference -> its 180° turn
+    (30.0, 2, 30.0),      # within ±90° already
+    (-170.0, 2, 10.0),
+    (60.0, 4, -30.0),     # square: within ±45°
+    (-100.0, 4, -10.0),
+    (123.0, 0, -45.0),    # round: always the reference
+    (100.0, 1, 100.0),    # no symmetry: unchanged
+])
+def test_canonical_gripper_yaw(yaw, symmetry, expected):
+    out = canonical_gripper_matrix(_top_down(yaw), symmetry)
+    np.testing.assert_allclose(out[:, 2], [0.0, 0.0, -1.0], atol=1e-9)  # same gripper axis
+    got = np.degrees(np.arctan2(out[1, 1], out[0, 1]))
+    assert abs((got - expected + 180.0) % 360.0 - 180.0) < 1e-6, got
+    # idempotent, and every member of the class maps to the same matrix
+    np.testing.assert_allclose(canonical_gripper_matrix(out, symmetry), out, atol=1e-9)
+    if symmetry > 1:
+        turned = canonical_gripper_matrix(_top_down(yaw + 360.0 / symmetry), symmetry)
+        np.testing.assert_allclose(turned, out, atol=1e-9)
+
+
+def test_symmetric_angle_respects_symmetry():
+    label = matrix_to_quat(_top_down(-45.0))
+    for turn, sym, expected in ((180.0, 2, 0.0), (90.0, 2, 90.0), (90.0, 4, 0.0), (37.0, 0, 0.0), (30.0, 4, 30.0)):
+        pred = matrix_to_quat(_top_down(-45.0 + turn))
+        assert abs(symmetric_angle_deg(pred, label, sym) - expected) < 0.6, (turn, sym)
+    with pytest.raises(ValueError, match="symmetry"):
+        canonical_gripper_matrix(np.eye(3), -1)

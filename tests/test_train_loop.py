@@ -75,8 +75,8 @@ def test_resume_after_interruption_reproduces_the_loss_curve(episodes, tmp_path)
     for s in (5, 6):
         assert resumed[s] == pytest.approx(ref[s], rel=1e-5, abs=1e-5)
     assert summary["steps"] == 6
-    ref_ckpt = torch.load(tmp_path / "ref/checkpoints/step_00000006.pt", weights_only=False)
-    run_ckpt = torch.load(tmp_path / "run/checkpoints/step_00000006.pt", weights_only=False)
+    ref_ckpt = torch.load(tmp_path / "ref/checkpoints/step_00000006.pt", weights_only=True)
+    run_ckpt = torch.load(tmp_path / "run/checkpoints/step_00000006.pt", weights_only=True)
     for k, v in ref_ckpt["model"].items():
         torch.testing.assert_close(run_ckpt["model"][k], v, rtol=1e-4, atol=1e-5)
     rows = (tmp_path / "run/log.csv").read_text().strip().splitlines()
@@ -87,7 +87,7 @@ def test_resume_after_interruption_reproduces_the_loss_curve(episodes, tmp_path)
 def test_adamw_optimizer_trains_and_resumes_and_unknown_optimizer_fails(episodes, tmp_path) -> None:
     summary = train(_cfg(tmp_path / "adamw", optimizer="adamw", steps=2, checkpoint_every=1), episodes)
     assert summary["steps"] == 2
-    ckpt = torch.load(tmp_path / "adamw/checkpoints/step_00000002.pt", weights_only=False)
+    ckpt = torch.load(tmp_path / "adamw/checkpoints/step_00000002.pt", weights_only=True)
     assert "amsgrad" in ckpt["optimizer"]["param_groups"][0]  # AdamW's state, not LAMB's
     summary = train(_cfg(tmp_path / "adamw", optimizer="adamw", steps=3, resume=True), episodes)
     assert summary["steps"] == 3
@@ -118,7 +118,7 @@ def test_policy_load_and_act(episodes, tmp_path) -> None:
 def test_grounder_override_of_the_same_kind_keeps_trained_options(episodes, tmp_path) -> None:
     train(_cfg(tmp_path, steps=1), episodes)
     (_, path), = list_checkpoints(tmp_path)
-    ckpt = torch.load(path, weights_only=False)
+    ckpt = torch.load(path, weights_only=True)
     ckpt["grounder"] = {"kind": "clip", "model": "tiny", "threshold": 0.7}  # as if trained with a CLIP grounder
     torch.save(ckpt, path)
     merged = Policy.load(tmp_path, grounder={"kind": "clip", "threshold": 0.5})
@@ -151,5 +151,52 @@ def test_train_from_an_episode_store(episodes, tmp_path) -> None:
         args += ["--set", f"{key}={value}"]
     assert cli_main(args) == 0
     assert json.loads((tmp_path / "run/summary.json").read_text())["steps"] == 1
-    other = [("close_jar" if a == "pick_block" else a) for a in args]
+    other = [("close_jar" if a == "pick_block" else str(tmp_path / "run2") if a.endswith("run") else a)
+             for a in args]
     assert cli_main(other) == 2  # no episode of that task: a clear error, not a crash
+
+
+class _Payload:
+    """Unpickling this calls ``Path.touch`` on the marker: what a crafted checkpoint could do."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        import pathlib
+
+        return pathlib.Path.touch, (pathlib.Path(self.marker),)
+
+
+def test_crafted_checkpoint_is_refused_without_running_code(episodes, tmp_path) -> None:
+    from abm.train.checkpoint import load_checkpoint
+
+    train(_cfg(tmp_path / "run", steps=1, checkpoint_every=1), episodes)
+    good = load_checkpoint(tmp_path / "run")  # a real checkpoint loads with weights_only=True
+    assert good["step"] == 1
+    marker = tmp_path / "pwned"
+    bad = tmp_path / "evil.pt"
+    torch.save({"format": "abm-policy", "version": 1, "x": _Payload(str(marker))}, bad)
+    with pytest.raises(ValueError, match="refusing to load .*evil.pt.*crafted"):
+        load_checkpoint(bad)
+    assert not marker.exists()
+    rc = cli_main(["eval", "--run", str(bad), "--tasks", "pick_block", "--split", "seen", "--episodes", "1",
+                   "--repeats", "1", "--out", str(tmp_path / "ev")])
+    assert rc != 0 and not marker.exists()
+
+
+def test_an_existing_run_is_never_silently_replaced(episodes, tmp_path, capsys) -> None:
+    train(_cfg(tmp_path / "run", steps=4), episodes)
+    before = (tmp_path / "run/checkpoints/step_00000004.pt").read_bytes()
+    with pytest.raises(ValueError, match=r"already holds a training run \(checkpoint at step 4\).*--resume"):
+        train(_cfg(tmp_path / "run", method="rvt", steps=2), episodes)
+    assert (tmp_path / "run/checkpoints/step_00000004.pt").read_bytes() == before
+    assert json.loads((tmp_path / "run/config.json").read_text())["train"]["method"] == "abm"
+    # resuming past the requested length is an error, and the run is left as it was
+    with pytest.raises(ValueError, match="already at step 4, past --steps 2"):
+        train(_cfg(tmp_path / "run", steps=2, resume=True), episodes)
+    assert json.loads((tmp_path / "run/config.json").read_text())["train"]["steps"] == 4
+    # --overwrite replaces it: only the new run's checkpoints remain
+    train(_cfg(tmp_path / "run", method="rvt", steps=2, overwrite=True), episodes)
+    assert [s for s, _ in list_checkpoints(tmp_path / "run")] == [2]
+    assert Policy.load(tmp_path / "run").config.variant == "rvt"

@@ -9,17 +9,27 @@ A checkpoint is a ``torch.save`` dict::
     # training state (absent from exported inference checkpoints)
     optimizer, scheduler, rng: {torch, numpy, python, cuda}, train_config: dict
 
-Runs keep them as ``RUN/checkpoints/step_00001000.pt``.
+Runs keep them as ``RUN/checkpoints/step_00001000.pt``. Loading uses ``torch.load(weights_only=True)``:
+tensors and plain data only, so a crafted file is refused instead of running its code.
 """
 
 from __future__ import annotations
 
 import os
+import pickle
 import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
+
+try:
+    from numpy._core.multiarray import _reconstruct
+except ImportError:  # numpy < 2
+    from numpy.core.multiarray import _reconstruct
+
+_NUMPY_ARRAY_GLOBALS = [_reconstruct, np.ndarray, np.dtype, type(np.dtype(np.uint32))]
 
 FORMAT = "abm-policy"
 VERSION = 1
@@ -74,8 +84,16 @@ def load_checkpoint(run_or_ckpt: str | Path, map_location: str | torch.device = 
     """Load and sanity-check a checkpoint (file or run folder)."""
     path = resolve_checkpoint(run_or_ckpt)
     try:
-        data = torch.load(path, map_location=map_location, weights_only=False)
-    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
+        # weights_only: tensors and plain data only, so a crafted file cannot run code. Checkpoints
+        # written before the numpy RNG state was stored as a tensor also hold numpy arrays.
+        with torch.serialization.safe_globals(_NUMPY_ARRAY_GLOBALS):
+            data = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as err:
+        raise ValueError(
+            f"refusing to load {path}: it holds Python objects other than tensors and plain data, which an "
+            f"abm checkpoint never does (it may be crafted to run code). Details: {str(err).splitlines()[0]}"
+        ) from err
+    except Exception as err:  # noqa: BLE001 - any other reading failure means a corrupt file
         raise ValueError(f"cannot read checkpoint {path}: {err}") from err
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ValueError(f"{path} is not an abm policy checkpoint")

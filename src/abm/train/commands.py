@@ -67,6 +67,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--log-every", type=int, default=10, help="steps between log rows")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--resume", action="store_true", help="continue from the latest checkpoint in --out")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the run already in --out (default: refuse, so no run is lost)")
     p.add_argument("--no-augment", action="store_true", help="disable SE(3) augmentation")
     p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
                    help="override a policy config field, e.g. --set resolution=64 (repeatable)")
@@ -98,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
         checkpoint_every=args.checkpoint_every,
         keep_checkpoints=args.keep_checkpoints, log_every=args.log_every, workers=args.workers,
         device=args.device, grounder=args.grounder, language=args.language, seed=args.seed,
-        resume=args.resume, augment=not args.no_augment, policy_overrides=dict(args.overrides),
+        resume=args.resume, overwrite=args.overwrite, augment=not args.no_augment,
+        policy_overrides=dict(args.overrides),
         camera_names=args.cameras, progress=not args.no_progress,
         grounder_options={k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v},
     )

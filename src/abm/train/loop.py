@@ -21,6 +21,7 @@ import json
 import math
 import os
 import random
+import shutil
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -78,7 +79,9 @@ class TrainConfig:
         grounder: grounder spec kind (``oracle`` or ``clip``); options in ``grounder_options``.
         language: language encoder kind (``hash`` or ``clip``; default: ``clip`` with the clip grounder).
         seed: seed of model init and the data stream.
-        resume: continue from the latest checkpoint in ``out``.
+        resume: continue from the latest checkpoint in ``out`` (from scratch if it has none).
+        overwrite: replace a run already in ``out`` (without it, and without ``resume``, a folder that
+            holds a run is refused).
         augment: SE(3) augmentation.
         policy_overrides: :class:`PolicyConfig` field overrides (e.g. ``{"resolution": 64}``).
         cache_dir: grounding / CLIP feature cache (default ``out/cache``).
@@ -110,6 +113,7 @@ class TrainConfig:
     language: str | None = None
     seed: int = 0
     resume: bool = False
+    overwrite: bool = False
     augment: bool = True
     policy_overrides: dict[str, Any] = field(default_factory=dict)
     cache_dir: Path | None = None
@@ -171,7 +175,8 @@ def _lr_lambda(warmup: int, total: int, min_ratio: float) -> Callable[[int], flo
 def _rng_state() -> dict[str, Any]:
     state = {
         "torch": torch.get_rng_state(),
-        "numpy": np.random.get_state(),  # noqa: NPY002
+        # as (name, tensor, pos, has_gauss, cached) so checkpoints load with weights_only=True
+        "numpy": _numpy_state_plain(np.random.get_state()),  # noqa: NPY002
         "python": random.getstate(),
     }
     if torch.cuda.is_available():
@@ -179,9 +184,15 @@ def _rng_state() -> dict[str, Any]:
     return state
 
 
+def _numpy_state_plain(state: tuple) -> tuple:
+    name, keys, pos, has_gauss, cached = state
+    return str(name), torch.from_numpy(np.asarray(keys, np.int64)), int(pos), int(has_gauss), float(cached)
+
+
 def _set_rng_state(state: dict[str, Any]) -> None:
     torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])  # noqa: NPY002
+    name, keys, pos, has_gauss, cached = state["numpy"]
+    np.random.set_state((name, np.asarray(keys, np.uint32), int(pos), int(has_gauss), float(cached)))  # noqa: NPY002
     random.setstate(state["python"])
     if "cuda" in state and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(state["cuda"])
@@ -268,6 +279,29 @@ class _Logger:
             self.tb.close()
 
 
+_RUN_FILES = ("config.json", "log.csv", "summary.json")
+
+
+def _claim_run_folder(run: Path, cfg: TrainConfig, dinfo: DistInfo) -> None:
+    """Refuse to train into a folder that holds another run, unless resuming or told to overwrite."""
+    existing = list_checkpoints(run)
+    occupied = bool(existing) or any((run / name).exists() for name in _RUN_FILES)
+    if occupied and not cfg.resume:
+        if not cfg.overwrite:
+            at = f" (checkpoint at step {existing[-1][0]})" if existing else ""
+            raise ValueError(f"{run} already holds a training run{at}: continue it with --resume, train into a "
+                             "new --out folder, or pass --overwrite to replace it")
+        if dinfo.main:
+            for _, path in existing:
+                path.unlink(missing_ok=True)
+            for name in _RUN_FILES:
+                (run / name).unlink(missing_ok=True)
+            shutil.rmtree(run / "tb", ignore_errors=True)
+    if dinfo.enabled:
+        dist.barrier()  # every rank has checked before rank 0 writes the new run's files
+    run.mkdir(parents=True, exist_ok=True)
+
+
 def train(
     cfg: TrainConfig,
     episodes: Sequence[Episode] | None = None,
@@ -294,13 +328,16 @@ def train(
             device = torch.device("cuda", dinfo.local_rank)
         torch.cuda.set_device(device)
     run = Path(cfg.out)
-    run.mkdir(parents=True, exist_ok=True)
+    _claim_run_folder(run, cfg, dinfo)
 
     # ---- resume state
     ckpt = None
     if cfg.resume:
         if list_checkpoints(run):
             ckpt = load_checkpoint(run)
+            if int(ckpt["step"]) > cfg.steps:
+                raise ValueError(f"{run} is already at step {ckpt['step']}, past --steps {cfg.steps}: resume "
+                                 f"with --steps {ckpt['step']} or more")
         elif dinfo.main:
             print(f"abm train: no checkpoint in {run}; starting from scratch")
 
