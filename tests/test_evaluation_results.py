@@ -75,6 +75,7 @@ def test_log_round_trip_and_truncated_line(tmp_path):
     assert len(read) == 3 and read[0] == outcomes()[0]
     assert ("abm", "place_food", "seen", 0, 2, "", "") in log.done()
     log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, False, error="RuntimeError: boom"))
+    assert len(log.read()) == 4  # the record after the torn line is on a line of its own
     assert ("abm", "pick_block", "seen", 0, 0, "", "") not in log.done()  # crashed episodes are retried
 
 
@@ -130,3 +131,39 @@ def test_crashed_episode_is_a_recorded_failure(tmp_path, monkeypatch):
     job = runner.EvalJob("runA", "abm", "pick_block", "seen", 0, 0, eval_seed(0, 0))
     outcome = runner.run_job(job, runner.EvalSettings())
     assert outcome.success is False and "RuntimeError: no checkpoint here" in outcome.error
+
+
+def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch):
+    """Setup mistakes are one clear error and a non-zero exit, never a table of zeros."""
+    import torch
+
+    from abm.cli import main as cli_main
+    from abm.train import TrainConfig, train
+    from abm.train.synthetic import synthetic_episodes
+
+    tiny = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1,
+            "stem_channels": 8, "decoder_channels": 4, "lang_dim": 16}
+    run = tmp_path / "run"
+    train(TrainConfig(method="abm", out=run, steps=1, batch=1, checkpoint_every=1, progress=False,
+                      policy_overrides=tiny), synthetic_episodes(1, camera_resolution=32))
+    base = ["eval", "--run", str(run), "--episodes", "1", "--repeats", "1", "--out", str(tmp_path / "ev")]
+    assert cli_main(base + ["--split", "compositional", "--tasks", "pick_block"]) == 2
+    err = capsys.readouterr().err
+    assert "pick_block has no objects in the 'compositional' split (it defines: seen, unseen)" in err
+    if not torch.cuda.is_available():
+        assert cli_main(base + ["--split", "seen", "--tasks", "pick_block", "--device", "cuda"]) == 2
+        assert "CUDA is not available" in capsys.readouterr().err
+    (tmp_path / "file").write_text("x")
+    args = ["eval", "--run", str(run), "--split", "seen", "--tasks", "pick_block", "--out", str(tmp_path / "file")]
+    assert cli_main(args) == 2 and "is a file" in capsys.readouterr().err
+    assert not (tmp_path / "ev").exists()  # nothing was rolled out
+    # a run whose every episode crashes exits non-zero and shows the first error
+    from abm.evaluation import runner
+
+    def broken_policy(run, settings):
+        raise RuntimeError("policy exploded")
+
+    monkeypatch.setattr(runner, "_load_policy", broken_policy)
+    assert cli_main(base + ["--split", "seen", "--tasks", "pick_block"]) == 2
+    err = capsys.readouterr().err
+    assert "every episode crashed" in err and "RuntimeError: policy exploded" in err

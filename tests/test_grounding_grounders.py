@@ -166,6 +166,22 @@ def test_ground_command_writes_pngs(tmp_path):
     assert main(["ground", "--out", str(out), "--instruction", "sing a song"]) == 2
 
 
+def test_ground_command_bad_inputs_are_one_line_errors(tmp_path, capsys):
+    import torch
+
+    from abm.cli import main
+
+    assert main(["ground", "--out", str(tmp_path / "g"), "--instruction", "  "]) == 2
+    assert "--instruction is empty" in capsys.readouterr().err
+    (tmp_path / "file").write_text("x")
+    assert main(["ground", "--out", str(tmp_path / "file")]) == 2
+    assert "is a file" in capsys.readouterr().err
+    if not torch.cuda.is_available():
+        assert main(["ground", "--out", str(tmp_path / "g"), "--device", "cuda"]) == 2
+        assert "CUDA is not available" in capsys.readouterr().err
+    assert not (tmp_path / "g").exists()
+
+
 def test_ground_command_on_an_episode_file(tmp_path):
     try:
         from abm.data.episode_store import save_episode

@@ -116,3 +116,8 @@ def test_data_generate_info_and_resume(tmp_path, capsys):
     assert "pick_block" in out and "1 episodes" in out
     assert main(["data", "generate", "--task", "nope", "--split", "seen", "--episodes", "1",
                  "--out", str(tmp_path)]) == 2
+    (tmp_path / "file").write_text("x")
+    capsys.readouterr()
+    assert main(["data", "generate", "--task", "pick_block", "--split", "seen", "--episodes", "1",
+                 "--out", str(tmp_path / "file")]) == 2
+    assert "is a file" in capsys.readouterr().err

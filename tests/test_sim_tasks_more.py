@@ -142,6 +142,8 @@ def test_insert_peg_predicate_wants_the_named_peg():
         ("version: 1\ntasks:\n  insert_peg:\n    seen: [red jar]\n", "not of the categories"),
         ("version: 1\ntasks:\n  water_plants:\n    seen: [tea pot]\n", "unknown objects.*tea pot"),
         ("version: 1\ntasks:\n  take_off_pan:\n    seen: [red block]\n", "not of the categories"),
+        ("version: 1\ntasks:\n  close_jar:\n    seen: [red jar, blue jar]\n    unseen: [blue jar]\n",
+         r"close_jar: \['blue jar'\] listed as both seen and unseen"),
     ],
 )
 def test_split_file_with_unknown_or_wrong_objects_fails_clearly(tmp_path, content, match):

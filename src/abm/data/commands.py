@@ -48,6 +48,8 @@ def _generate(args: argparse.Namespace) -> int:
         raise CommandError(f"--workers must be at least 1, got {args.workers}")
     if not 16 <= args.resolution <= 1024:
         raise CommandError(f"--resolution must be between 16 and 1024, got {args.resolution}")
+    if args.out.exists() and not args.out.is_dir():
+        raise CommandError(f"--out {args.out} is a file; give a folder")
     for task in tasks:
         try:
             report = generate(task, args.split, args.episodes, args.out, workers=args.workers,

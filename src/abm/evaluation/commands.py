@@ -58,14 +58,45 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"unknown tasks {unknown}; known tasks: {sorted(TASKS)}")
     if not tasks:
         raise CommandError(f"no task defines objects for the {args.split!r} split")
+    _check_setup(args, tasks)
     out = args.out or (args.run[0] if args.run[0].is_dir() else args.run[0].parent) / f"eval_{args.split}"
+    if out.exists() and not out.is_dir():
+        raise CommandError(f"--out {out} is a file; give a folder")
     settings = EvalSettings(device=args.device, grounder=args.grounder, resolution=args.resolution,
                             max_steps=args.max_steps, splits_path=str(args.splits) if args.splits else None)
     rates = evaluate(args.run, tasks, args.split, out, args.episodes, args.repeats, args.workers, settings,
                      gifs=args.gifs)
     print(markdown_table([r for r in rates if r.split == args.split and r.task in tasks]))
     errors = sum(r.errors for r in rates)
+    print(f"results: {out / 'results.md'} (also .json, .csv; per-episode outcomes in outcomes.jsonl)")
     if errors:
         print(f"{errors} episode(s) crashed and count as failures; see {out / 'outcomes.jsonl'}")
-    print(f"results: {out / 'results.md'} (also .json, .csv; per-episode outcomes in outcomes.jsonl)")
+        if errors == sum(r.episodes for r in rates):
+            from abm.evaluation.results import OutcomeLog
+
+            first = next((o.error for o in OutcomeLog(out / "outcomes.jsonl").read() if o.error), "")
+            raise CommandError(f"every episode crashed, so the table measures nothing; first error: {first}")
     return 0
+
+
+def _check_setup(args: argparse.Namespace, tasks: list[str]) -> None:
+    """Fail before the first rollout on what would make every episode crash."""
+    import torch
+
+    from abm.cli import CommandError
+    from abm.sim.splits import load_splits
+    from abm.train.checkpoint import load_checkpoint
+
+    splits = load_splits(args.splits)
+    for task in tasks:
+        defined = sorted(splits.tasks.get(task, {}))
+        if args.split not in defined:
+            raise CommandError(f"task {task} has no objects in the {args.split!r} split "
+                               f"(it defines: {', '.join(defined) or 'none'})")
+    if str(args.device).startswith("cuda") and not torch.cuda.is_available():
+        raise CommandError(f"--device {args.device}: CUDA is not available on this machine (use --device cpu)")
+    for r in args.run:
+        try:
+            load_checkpoint(r)
+        except (ValueError, FileNotFoundError) as err:
+            raise CommandError(str(err)) from err

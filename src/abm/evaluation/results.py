@@ -92,8 +92,11 @@ class OutcomeLog:
 
     def append(self, outcome: EpisodeOutcome) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        with self.path.open("a") as f:
-            f.write(json.dumps(asdict(outcome)) + "\n")
+        with self.path.open("a+b") as f:
+            f.seek(0, 2)
+            torn = f.tell() > 0 and (f.seek(-1, 2), f.read(1))[1] != b"\n"
+            # after an interrupted write, start a new line so this record is not glued to the torn one
+            f.write((b"\n" if torn else b"") + (json.dumps(asdict(outcome)) + "\n").encode())
             f.flush()
 
 

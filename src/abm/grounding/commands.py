@@ -109,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from PIL import Image
 
+    from abm.cli import CommandError
     from abm.geometry import Workspace, fuse_cameras
     from abm.grounding.grounders import make_grounder
     from abm.grounding.instruction import decompose_instruction
@@ -116,6 +117,12 @@ def run(args: argparse.Namespace) -> int:
     from abm.grounding.visualize import gray, hstack, label, mark_pixels, to_uint8, upscale, vstack
     from abm.render import OrthographicRenderer
 
+    if args.instruction is not None and not args.instruction.strip():
+        raise CommandError("--instruction is empty; give the instruction to ground, or leave the option out")
+    if args.out.exists() and not args.out.is_dir():
+        raise CommandError(f"--out {args.out} is a file; give a folder")
+    if str(args.device).startswith("cuda") and not torch.cuda.is_available():
+        raise CommandError(f"--device {args.device}: CUDA is not available on this machine (use --device cpu)")
     obs, names, episode_instruction, where = _load_scene(args)
     instruction = args.instruction or episode_instruction or f"put the {next(iter(names.values()))} in the plate"
     target, skill = decompose_instruction(instruction)

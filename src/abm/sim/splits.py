@@ -90,4 +90,8 @@ def load_splits(path: str | Path | None = None) -> ObjectSplits:
             if problem:
                 raise SplitFileError(f"{path}: {task}/{split}: {problem}")
             out[task][split] = list(names)
+        both = sorted(set(out[task].get("seen", [])) & set(out[task].get("unseen", [])))
+        if both:
+            raise SplitFileError(f"{path}: {task}: {both} listed as both seen and unseen; an unseen object "
+                                 "must never appear in training")
     return ObjectSplits(out, path)
