@@ -85,6 +85,12 @@ def test_store_index_select_and_lazy_step(tmp_path):
     assert store.load(by_seed[3]).seed == 3
     with pytest.raises(IndexError):
         store.load_step(by_seed[2], 5)
+    assert store.episodes[by_seed[1]].cameras == "front,wrist@16x16"
+    store.check_consistent(store.select())
+    save_episode(make_episode("place_food", "seen", 4, res=24), tmp_path / "place_food" / "seen" / "e4.h5")
+    mixed = EpisodeStore(tmp_path)
+    with pytest.raises(EpisodeFormatError, match=r"mixes episodes recorded with different cameras.*24x24"):
+        mixed.check_consistent(mixed.select())
 
 
 def test_corrupt_file_gives_clear_error(tmp_path):
@@ -111,6 +117,10 @@ def test_wrong_version_and_missing_fields(tmp_path):
     with h5py.File(path, "a") as f:
         f.attrs["format_version"] = FORMAT_VERSION + 1
     with pytest.raises(EpisodeFormatError, match=r"old.h5.*version"):
+        load_episode(path)
+    with h5py.File(path, "a") as f:  # data from before the label fix is refused with what to do
+        f.attrs["format_version"] = FORMAT_VERSION - 1
+    with pytest.raises(EpisodeFormatError, match=r"old.h5.*regenerate.*abm data generate"):
         load_episode(path)
     other = tmp_path / "other.h5"
     with h5py.File(other, "w") as f:

@@ -121,3 +121,8 @@ def test_data_generate_info_and_resume(tmp_path, capsys):
     assert main(["data", "generate", "--task", "pick_block", "--split", "seen", "--episodes", "1",
                  "--out", str(tmp_path / "file")]) == 2
     assert "is a file" in capsys.readouterr().err
+    # resuming into the folder with another camera resolution is refused (nothing is simulated)
+    other = [a if a != "32" else "48" for a in args[:-2]] + ["--episodes", "2"]
+    assert main(other) == 2
+    assert "recorded at 32x32 pixels" in capsys.readouterr().err and len(EpisodeStore(tmp_path)) == 1
+    assert store.episodes[0].cameras.endswith("@32x32")

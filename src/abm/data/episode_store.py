@@ -63,6 +63,9 @@ class EpisodeInfo:
     num_keyframes: int
     success: bool
     seed: int
+    cameras: str = ""
+    """Camera signature, e.g. ``"front,left,right,wrist@128x128"``: episodes that differ here cannot
+    be mixed in one dataset."""
 
 
 def _json_default(value: Any) -> Any:
@@ -168,7 +171,17 @@ def _info(f, path: Path) -> EpisodeInfo:
                        variation=int(_attr(f, path, "variation")),
                        instruction=str(_attr(f, path, "instruction")),
                        num_keyframes=int(_attr(f, path, "num_keyframes")),
-                       success=bool(_attr(f, path, "success")), seed=int(_attr(f, path, "seed")))
+                       success=bool(_attr(f, path, "success")), seed=int(_attr(f, path, "seed")),
+                       cameras=_camera_signature(f, path))
+
+
+def _camera_signature(f, path: Path) -> str:
+    names = list(_json_attr(f, path, "camera_names"))
+    try:
+        shape = f["observations"]["cameras"][names[0]]["depth"].shape[1:] if names else ()
+    except KeyError as err:
+        raise EpisodeFormatError(f"{path}: camera data missing ({err})") from None
+    return ",".join(names) + "@" + "x".join(str(int(n)) for n in shape)
 
 
 def read_info(path: str | os.PathLike) -> EpisodeInfo:
@@ -271,3 +284,14 @@ class EpisodeStore:
         splits = set(splits) if splits is not None else None
         return [i for i, e in enumerate(self.episodes)
                 if (tasks is None or e.task in tasks) and (splits is None or e.split in splits)]
+
+    def check_consistent(self, indices: Iterable[int]) -> None:
+        """Raise :class:`EpisodeFormatError` if the episodes were recorded with different cameras."""
+        seen: dict[str, Path] = {}
+        for i in indices:
+            info = self._info(i)
+            seen.setdefault(info.cameras, info.path)
+        if len(seen) > 1:
+            listing = "; ".join(f"{sig} (e.g. {p})" for sig, p in seen.items())
+            raise EpisodeFormatError(f"{self.root} mixes episodes recorded with different cameras: {listing}. "
+                                     "Keep each camera setup in its own folder.")

@@ -102,6 +102,20 @@ def generate_one(task: str, split: str, seed: int, out: str, resolution: int,
     return seed, False, str(episode.metadata.get("motions"))
 
 
+def _check_resume_settings(folder: Path, resolution: int) -> None:
+    """Refuse to add episodes of another camera resolution to a folder (they could not be trained together)."""
+    from abm.data.episode_store import find_episode_files, read_info
+
+    existing = find_episode_files(folder) if folder.is_dir() else []
+    if not existing:
+        return
+    signature = read_info(existing[0]).cameras
+    size = signature.rsplit("@", 1)[-1]
+    if size != f"{resolution}x{resolution}":
+        raise ValueError(f"{folder} holds episodes recorded at {size} pixels ({existing[0].name}); this run asks for "
+                         f"--resolution {resolution}. Use the same resolution to resume, or a new --out folder.")
+
+
 def generate(task: str, split: str, episodes: int, out: str | Path, workers: int = 1, seed: int = 0,
              resolution: int = 128, splits_path: str | Path | None = None, progress: bool = True
              ) -> GenerationReport:
@@ -120,6 +134,7 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     pending_seeds: list[int] = []
     s = seed
     limit = seed + MAX_SEED_FACTOR * max(episodes, 1) + 10
+    _check_resume_settings(out / task / split, resolution)
     # Resume: count what exists, queue the rest.
     while done + len(pending_seeds) < episodes and s < limit:
         path = episode_path(out, task, split, s)

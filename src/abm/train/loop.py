@@ -235,6 +235,7 @@ def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None) -> Epi
     indices = store.select(tasks=cfg.tasks, splits=cfg.splits)
     if not indices:
         raise ValueError(f"no episodes in {cfg.data} for tasks {cfg.tasks} and splits {cfg.splits}")
+    store.check_consistent(indices)
     return EpisodeSource(store, indices)
 
 
