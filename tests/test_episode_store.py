@@ -102,6 +102,26 @@ def test_corrupt_file_gives_clear_error(tmp_path):
         EpisodeStore(tmp_path)
 
 
+def test_checksums_catch_bytes_overwritten_inside(tmp_path, capsys):
+    from abm.cli import main
+    from abm.data.episode_store import verify_episode
+
+    path = tmp_path / "ep.h5"
+    save_episode(make_episode(res=32), path)
+    assert verify_episode(path) is True
+    assert main(["data", "info", str(tmp_path)]) == 0
+    assert "checked against its checksum" in capsys.readouterr().out
+    data = bytearray(path.read_bytes())
+    middle = len(data) // 2
+    data[middle: middle + 4096] = np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes()
+    path.write_bytes(bytes(data))
+    with pytest.raises(EpisodeFormatError, match=r"ep.h5: dataset .* (checksum|cannot be read)"):
+        verify_episode(path)
+    assert main(["data", "info", str(tmp_path)]) == 2
+    assert "corrupt" in capsys.readouterr().err
+    assert main(["data", "info", "--quick", str(tmp_path)]) == 0
+
+
 def test_truncated_file_gives_clear_error(tmp_path):
     path = tmp_path / "ep.h5"
     save_episode(make_episode(), path)

@@ -26,6 +26,8 @@ def register(subparsers) -> None:
 
     info = sub.add_parser("info", help="summarise the episodes in a directory")
     info.add_argument("dir", type=Path)
+    info.add_argument("--quick", action="store_true",
+                      help="read metadata only (default: read every dataset and check its checksum)")
     info.set_defaults(func=_info)
     data.set_defaults(func=lambda args: data.print_help() or 1)
 
@@ -64,7 +66,7 @@ def _generate(args: argparse.Namespace) -> int:
 
 def _info(args: argparse.Namespace) -> int:
     from abm.cli import CommandError
-    from abm.data.episode_store import EpisodeFormatError, EpisodeStore
+    from abm.data.episode_store import EpisodeFormatError, EpisodeStore, verify_episode
 
     if not args.dir.is_dir():
         raise CommandError(f"not a directory: {args.dir}")
@@ -73,8 +75,14 @@ def _info(args: argparse.Namespace) -> int:
     except EpisodeFormatError as err:
         raise CommandError(str(err)) from None
     groups: dict[tuple[str, str], list] = defaultdict(list)
+    unchecked = 0
     for info in store.episodes:
         groups[(info.task, info.split)].append(info)
+        if not args.quick:
+            try:
+                unchecked += not verify_episode(info.path)
+            except EpisodeFormatError as err:
+                raise CommandError(str(err)) from None
     total_bytes = sum(info.path.stat().st_size for info in store.episodes)
     print(f"{args.dir}: {len(store)} episodes, {total_bytes / 1e6:.1f} MB")
     if not groups:
@@ -85,4 +93,9 @@ def _info(args: argparse.Namespace) -> int:
         keyframes = sum(i.num_keyframes for i in infos)
         ok = sum(i.success for i in infos)
         print(f"{task:<16}{split:<14}{len(infos):>9}{ok:>9}{keyframes:>11}{size:>9.1f}")
+    if args.quick:
+        print("metadata only (--quick): the image and action data were not checked")
+    else:
+        print("every dataset read back and checked against its checksum"
+              + (f" ({unchecked} episode(s) written without checksums were only read)" if unchecked else ""))
     return 0

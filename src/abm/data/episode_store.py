@@ -20,6 +20,9 @@ File layout (``FORMAT_VERSION`` 2); ``K`` keyframes, per camera ``H x W`` pixels
     /actions/kind              (K,)   str    keyframe kind ("approach", "grasp", ...)
     /actions/symmetry          (K,)   int64  equivalent turns about the gripper axis (0 = any)
 
+Every dataset carries a ``crc32`` attribute (CRC-32 of its values) that :func:`verify_episode` and
+``abm data info`` check.
+
 Version 2 (labels are the orientation the arm reached, in the canonical member of their symmetry
 class; see docs/benchmark.md) replaced version 1, whose grasp yaw labels could be the 180-degree flip
 of what was executed. Version 1 files are refused with a message that says to regenerate them.
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import json
 import os
+import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -130,10 +134,64 @@ def save_episode(episode: Episode, path: str | os.PathLike) -> None:
             act["ignore_collision"] = np.array([a.ignore_collision for _, a in steps], bool)
             act.create_dataset("kind", data=[a.kind for _, a in steps], dtype=h5py.string_dtype())
             act["symmetry"] = np.array([a.symmetry for _, a in steps], np.int64)
+            f.visititems(_store_checksum)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _dataset_crc32(dataset) -> int:
+    """CRC-32 of a dataset's values (strings joined with NUL bytes)."""
+    data = dataset[()]
+    if data.dtype.kind == "O":
+        payload = b"\0".join(x if isinstance(x, bytes) else str(x).encode() for x in data.ravel())
+    else:
+        payload = np.ascontiguousarray(data).tobytes()
+    return zlib.crc32(payload)
+
+
+def _store_checksum(name: str, obj) -> None:
+    import h5py
+
+    if isinstance(obj, h5py.Dataset):
+        obj.attrs["crc32"] = _dataset_crc32(obj)
+
+
+def verify_episode(path: str | os.PathLike) -> bool:
+    """Read every dataset of an episode file and compare it with the CRC-32 stored when it was written.
+
+    Returns:
+        ``True`` if every dataset was checked, ``False`` if the file has no checksums (written by an
+        older abm) but everything could be read.
+
+    Raises:
+        EpisodeFormatError: a dataset cannot be read or its checksum does not match.
+    """
+    import h5py
+
+    path = Path(path)
+    missing = 0
+    f = _open(path)
+    with f:
+        names: list[str] = []
+        name = "/"
+        try:
+            f.visititems(lambda n, obj: names.append(n) if isinstance(obj, h5py.Dataset) else None)
+            for name in names:
+                ds = f[name]
+                crc = _dataset_crc32(ds)
+                stored = ds.attrs.get("crc32")
+                if stored is None:
+                    missing += 1
+                elif int(stored) != crc:
+                    raise EpisodeFormatError(f"{path}: dataset {name} does not match its checksum; the file is "
+                                             "corrupt (delete it and run `abm data generate` again to replace it)")
+        except EpisodeFormatError:
+            raise
+        except Exception as err:  # noqa: BLE001 - h5py/zlib raise many types for damaged data
+            raise EpisodeFormatError(f"{path}: dataset {name} cannot be read ({err}); the file is corrupt") from None
+    return missing == 0
 
 
 def _open(path: Path):

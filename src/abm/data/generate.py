@@ -13,6 +13,8 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass
 from pathlib import Path
 
+from abm.workers import die_with_parent
+
 MAX_SEED_FACTOR = 3  # give up after trying this many seeds per requested episode
 ALL_TASKS = "all"
 
@@ -150,7 +152,7 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     ctx = multiprocessing.get_context("spawn")
     next_seed = s
     args = (str(out), int(resolution), str(splits_path) if splits_path else None)
-    with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx) as pool:
+    with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx, initializer=die_with_parent) as pool:
         running: set[Future] = set()
         queue = list(pending_seeds)
 

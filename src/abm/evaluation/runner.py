@@ -109,6 +109,9 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
 def _worker_init() -> None:
     import torch
 
+    from abm.workers import die_with_parent
+
+    die_with_parent()
     torch.set_num_threads(1)
 
 
