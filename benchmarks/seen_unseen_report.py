@@ -64,10 +64,11 @@ def success_table(rates: Sequence[Mapping]) -> str:
 
 def keyframe_tables(keyframes: Mapping) -> str:
     rows = keyframes["summary"]
-    final = [r for r in rows if r["method"] in METHODS and r["kind"] in ("grasp", "place")]
+    final = [r for r in rows if r["method"] in METHODS and r["kind"] in ("approach", "grasp", "move", "place")]
     out = ["| method | task | split | keyframe | position error cm (median) | within 2 cm "
            "| rotation error ° (median) |", "|---|---|---|---|---|---|---|"]
-    for r in sorted(final, key=lambda r: (r["task"], r["kind"], r["split"], r["method"])):
+    order = {"approach": 0, "grasp": 1, "move": 2, "place": 3}
+    for r in sorted(final, key=lambda r: (r["task"], order[r["kind"]], r["split"], r["method"])):
         out.append(f"| {r['method']} | {r['task']} | {r['split']} | {r['kind']} | {r['position_cm_median']:.1f} | "
                    f"{100 * r['within_grasp_tolerance']:.0f} % | {r['rotation_deg_median']:.0f} |")
     # grasp error against training steps (seen objects, all tasks pooled by median of medians)
@@ -153,8 +154,9 @@ def report(out: Path) -> str:
     kf = out / "keyframes.json"
     if kf.is_file():
         data = json.loads(kf.read_text())
-        lines += ["", f"Keyframe accuracy at the grasp and place keyframes ({data['episodes']} evaluation scenes "
-                  "per task and split, teacher-forced along the expert; `benchmarks/keyframe_accuracy.py`):",
+        lines += ["", "Keyframe accuracy at the approach, grasp, move and place keyframes "
+                  f"({data['episodes']} evaluation scenes per task and split, teacher-forced along the expert; "
+                  "`benchmarks/keyframe_accuracy.py`):",
                   "", keyframe_tables(data)]
     return "\n".join(lines) + "\n"
 

@@ -55,7 +55,7 @@ steps=()
 for ((k = 1000; k < STEPS; k += 1000)); do steps+=("$k"); done
 # shellcheck disable=SC2086
 python benchmarks/keyframe_accuracy.py --run "$OUT/abm" --run "$OUT/rvt" --tasks $TASKS \
-  --episodes "$KEYFRAME_EPISODES" --steps "${steps[@]}" --out "$OUT/keyframes.json" --kinds grasp place
+  --episodes "$KEYFRAME_EPISODES" --steps "${steps[@]}" --out "$OUT/keyframes.json" --kinds approach grasp move place
 stamp keyframes_end
 
 python benchmarks/seen_unseen_report.py "$OUT" --readme "$README"
