@@ -62,7 +62,9 @@ def success_table(rates: Sequence[Mapping]) -> str:
     return "\n".join(lines)
 
 
-def keyframe_tables(keyframes: Mapping) -> str:
+def keyframe_tables(keyframes: Mapping, minutes: Mapping[str, Mapping[int, float]] | None = None) -> str:
+    """Final-checkpoint accuracy per kind, and grasp error against training steps (with the training
+    minutes at each step from ``minutes[method][step]``)."""
     rows = keyframes["summary"]
     final = [r for r in rows if r["method"] in METHODS and r["kind"] in ("approach", "grasp", "move", "place")]
     out = ["| method | task | split | keyframe | position error cm (median) | within 2 cm "
@@ -80,15 +82,23 @@ def keyframe_tables(keyframes: Mapping) -> str:
         curve.setdefault(method, {}).setdefault(int(step) if step else -1, []).append(r["position_cm_median"])
     if any(len(v) > 1 for v in curve.values()):
         steps = sorted({s for v in curve.values() for s in v if s >= 0})
+        minutes = minutes or {}
         out += ["", "Grasp keyframe position error (cm, median over seen scenes, mean over tasks) against "
-                "training steps:", "", "| method | " + " | ".join(str(s) for s in steps) + " | final |",
-                "|---" * (len(steps) + 2) + "|"]
+                "training steps (training minutes in brackets):", "",
+                "| method | " + " | ".join(f"step {s}" for s in steps) + " | final |", "|---" * (len(steps) + 2) + "|"]
         for method, by_step in sorted(curve.items()):
-            cells = [f"{sum(by_step[s]) / len(by_step[s]):.1f}" if s in by_step else "–" for s in steps]
+            at = minutes.get(method, {})
+            cells = [(f"{sum(by_step[s]) / len(by_step[s]):.1f}" + (f" ({at[s]:.0f} min)" if s in at else ""))
+                     if s in by_step else "–" for s in steps]
             fin = by_step.get(-1)
             cells.append(f"{sum(fin) / len(fin):.1f}" if fin else "–")
             out.append(f"| {method} | " + " | ".join(cells) + " |")
     return "\n".join(out)
+
+
+def _minutes_at_steps(run: Path) -> dict[int, float]:
+    with (run / "log.csv").open() as f:
+        return {int(r["step"]): float(r["elapsed_s"]) / 60 for r in csv.DictReader(f)}
 
 
 def _training(run: Path) -> dict[str, float]:
@@ -157,7 +167,7 @@ def report(out: Path) -> str:
         lines += ["", "Keyframe accuracy at the approach, grasp, move and place keyframes "
                   f"({data['episodes']} evaluation scenes per task and split, teacher-forced along the expert; "
                   "`benchmarks/keyframe_accuracy.py`):",
-                  "", keyframe_tables(data)]
+                  "", keyframe_tables(data, {m: _minutes_at_steps(out / m) for m in METHODS})]
     return "\n".join(lines) + "\n"
 
 
