@@ -169,3 +169,87 @@ def test_rewriting_parser_uses_rewriter_only_when_needed():
     assert (parsed.target, parsed.skill) == ("tomato", "put X in the plate")
     assert parsed.instruction == "could the tomato end up on the dish"
     assert isinstance(parser, InstructionParser)
+
+
+PLATE, TARGET = "put X in the plate", "put X on the target"
+PARAPHRASES = [
+    ("pick up the red block and put it on the target", "red block", TARGET),
+    ("Pick up the red block and place it on top of the target.", "red block", TARGET),
+    ("grab the blue block and put it onto the target", "blue block", TARGET),
+    ("take the green block and set it on the target", "green block", TARGET),
+    ("pick the yellow block up and stack it on the target", "yellow block", TARGET),
+    ("could you move the red block to the target", "red block", TARGET),
+    ("bring the red block over to the target please", "red block", TARGET),
+    ("put red block on target", "red block", TARGET),
+    ("Please place a purple block onto the target, thanks", "purple block", TARGET),
+    ("lift the orange block and drop it on the target", "orange block", TARGET),
+    ("get the ketchup and carry it to the target", "ketchup", TARGET),
+    ("grab the ketchup and place it on the plate", "ketchup", PLATE),
+    ("pick up the milk and put it in the plate", "milk", PLATE),
+    ("pick up the cream cheese and put it into the plate please", "cream cheese", PLATE),
+    ("take the butter and drop it on the plate", "butter", PLATE),
+    ("could you put ketchup in plate", "ketchup", PLATE),
+    ("can you please move the milk to the plate", "milk", PLATE),
+    ("bring the orange juice to the plate", "orange juice", PLATE),
+    ("transfer the popcorn onto the plate", "popcorn", PLATE),
+    ("I want you to put the cookies on the plate", "cookies", PLATE),
+    ("put bbq sauce into plate please", "bbq sauce", PLATE),
+    ("move ketchup onto plate", "ketchup", PLATE),
+    ("drop the lemon block onto target", "lemon block", TARGET),
+    ("robot, set the tomato sauce on the plate", "tomato sauce", PLATE),
+    ("get the alphabet soup and bring it to the plate", "alphabet soup", PLATE),
+    ("Would you place the chocolate pudding into a plate?", "chocolate pudding", PLATE),
+    ("go ahead and put the salad dressing in the plate", "salad dressing", PLATE),
+    ("pick up the red block and leave it in the plate", "red block", PLATE),
+    ("grab the egg and put it on the top shelf", "egg", "put X on the top shelf"),
+    ("put the egg on the upper shelf", "egg", "put X on the top shelf"),
+    ("take the apple and place it in the bottom shelf", "apple", "put X on the bottom shelf"),
+    ("move the apple onto the lower shelf", "apple", "put X on the bottom shelf"),
+    ("place the egg in the shelf at the bottom", "egg", "put X on the bottom shelf"),
+    ("grab the red wine and put it in the wine rack", "red wine", "put X in the wine rack"),
+    ("rack the green bottle in the rack", "green bottle", "put X in the wine rack"),
+    ("store the wine bottle in the wine rack", "wine bottle", "put X in the wine rack"),
+    ("pick up the blue wine and stack it on the rack", "blue wine", "put X in the wine rack"),
+    ("grab the red kettle and water the plant with it", "red kettle", "water the plant with X"),
+    ("pick up the watering can and water the plants", "watering can", "water the plant with X"),
+    ("pour the teapot over the plant", "teapot", "water the plant with X"),
+    ("use the green kettle to water the plants", "green kettle", "water the plant with X"),
+    ("cover the red jar with the lid", "red jar", "close X"),
+    ("seal the blue jar", "blue jar", "close X"),
+    ("put the lid back on the green jar", "green jar", "close X"),
+    ("shut the yellow jar please", "yellow jar", "close X"),
+    ("grab the ring and slide it over the red peg", "red peg", "put the ring on X"),
+    ("take the hoop and drop it onto the blue peg", "blue peg", "put the ring on X"),
+    ("insert the ring around the green peg", "green peg", "put the ring on X"),
+    ("get the egg out of the frying pan", "egg", "take X off the frypan"),
+    ("grab the sausage from the pan", "sausage", "take X off the frypan"),
+    ("pick up the tomato off the frypan", "tomato", "take X off the frypan"),
+    ("empty the pan of the mushroom", "mushroom", "take X off the frypan"),
+    ("remove the egg off of the frying pan", "egg", "take X off the frypan"),
+]
+
+
+def test_paraphrase_set_is_large_enough():
+    assert len(PARAPHRASES) >= 50
+
+
+@pytest.mark.parametrize(("instruction", "target", "skill"), PARAPHRASES)
+def test_paraphrases(instruction, target, skill):
+    assert decompose_instruction(instruction) == (target, skill)
+
+
+@pytest.mark.parametrize(("instruction", "steps"), [
+    ("put the tomato in the plate and then close the jar", ["put tomato in the plate", "close jar"]),
+    ("put the tomato in the plate then take the egg off the pan", ["put tomato in the plate",
+                                                                   "take egg off the frypan"]),
+    ("close the red jar and put the ketchup on the target", ["close red jar", "put ketchup on the target"]),
+])
+def test_multi_step_requests_are_refused_with_their_steps(instruction, steps):
+    with pytest.raises(InstructionError, match=f"asks for {len(steps)} steps") as err:
+        decompose_instruction(instruction)
+    for step in steps:
+        assert repr(step) in str(err.value)
+
+
+def test_and_inside_an_object_name_is_not_a_second_step():
+    assert decompose_instruction("put the salt and pepper in the plate") == ("salt and pepper", PLATE)

@@ -244,6 +244,13 @@ class TemplateParser:
     def parse(self, instruction: str) -> ParsedInstruction:
         """Decompose ``instruction``; raises :class:`InstructionError` when no template matches."""
         normalized = self.normalize(instruction)
+        steps = self._steps(normalized)
+        if len(steps) > 1:
+            listed = "; ".join(f"{p.skill.replace(PLACEHOLDER, p.target)!r}" for p in steps)
+            raise InstructionError(
+                f"instruction {instruction!r} asks for {len(steps)} steps ({listed}); abm runs one skill per "
+                "instruction: give the steps one at a time"
+            )
         best: tuple[SkillTemplate, str, int] | None = None
         for template in self.templates.skills:
             m = template.match(normalized)
@@ -260,6 +267,19 @@ class TemplateParser:
         return ParsedInstruction(instruction, target, template.skill, template.tasks)
 
     __call__ = parse
+
+    def _steps(self, normalized: str) -> list[ParsedInstruction]:
+        """The skills of a multi-step request ("put X in the plate and then close Y"), if every part parses."""
+        parts = [p for p in re.split(r"\s+(?:and then|then|and|after that|afterwards)\s+", normalized) if p]
+        if len(parts) < 2:
+            return []
+        parsed = []
+        for part in parts:
+            try:
+                parsed.append(self.parse(part))
+            except InstructionError:
+                return []
+        return parsed
 
 
 class RewritingParser:
