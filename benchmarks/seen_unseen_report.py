@@ -73,7 +73,7 @@ def keyframe_tables(keyframes: Mapping, minutes: Mapping[str, Mapping[int, float
     for r in sorted(final, key=lambda r: (r["task"], order[r["kind"]], r["split"], r["method"])):
         out.append(f"| {r['method']} | {r['task']} | {r['split']} | {r['kind']} | {r['position_cm_median']:.1f} | "
                    f"{100 * r['within_grasp_tolerance']:.0f} % | {r['rotation_deg_median']:.0f} |")
-    # grasp error against training steps (seen objects, all tasks pooled by median of medians)
+    # grasp error against training steps (seen objects; per task the median, then the mean over tasks)
     curve: dict[str, dict[int, list[float]]] = {}
     for r in rows:
         if r["kind"] != "grasp" or r["split"] != "seen":
@@ -104,47 +104,71 @@ def _minutes_at_steps(run: Path) -> dict[int, float]:
 def _training(run: Path) -> dict[str, float]:
     with (run / "log.csv").open() as f:
         rows = list(csv.DictReader(f))
+    if not rows:
+        raise SystemExit(f"{run / 'log.csv'} has no rows yet: training has not logged a step")
     last = rows[-1]
-    sps = [float(r["samples_per_s"]) for r in rows[1:]]
+    sps = [float(r["samples_per_s"]) for r in rows[1:]] or [float(last["samples_per_s"])]
     return {"steps": int(last["step"]), "elapsed_min": float(last["elapsed_s"]) / 60,
             "samples_per_s": sum(sps) / max(len(sps), 1), "translation_loss": float(last["translation"]),
             "rotation_loss": float(last["rotation"])}
 
 
 def _stage_minutes(times: Path) -> dict[str, float]:
-    stamps: dict[str, int] = {}
+    """Minutes per stage, summed over every (start, end) pair: a resumed stage counts all its runs."""
+    total: dict[str, float] = {}
+    open_at: dict[str, int] = {}
     if times.is_file():
         for line in times.read_text().split("\n"):
-            if line.strip():
-                key, value = line.split()
-                stamps[key] = int(value)  # the last run of a stage wins
-    return {k[: -len("_start")]: (stamps[k[: -len("_start")] + "_end"] - v) / 60 for k, v in stamps.items()
-            if k.endswith("_start") and k[: -len("_start")] + "_end" in stamps}
+            if not line.strip():
+                continue
+            key, value = line.split()
+            stage, _, edge = key.rpartition("_")
+            if edge == "start":
+                open_at[stage] = int(value)
+            elif edge == "end" and stage in open_at:
+                total[stage] = total.get(stage, 0.0) + (int(value) - open_at.pop(stage)) / 60
+    return total
 
 
-def report(out: Path) -> str:
+def _eval_max_steps(out: Path) -> str:
+    """The keyframe budget of the evaluation, from the settings recorded with each outcome."""
+    log = out / "eval_seen" / "outcomes.jsonl"
+    for line in log.read_text().splitlines() if log.is_file() else []:
+        try:
+            settings = json.loads(json.loads(line).get("settings") or "{}")
+        except (json.JSONDecodeError, AttributeError):
+            continue
+        if isinstance(settings, dict) and "max_steps" in settings:
+            return str(settings["max_steps"])
+    return "?"
+
+
+def report(out: Path, command: str = "bash scripts/seen_unseen.sh") -> str:
     rates = _load(out / "eval_seen" / "results.json") + _load(out / "eval_unseen" / "results.json")
     config = json.loads((out / "abm" / "config.json").read_text())
     episodes = max(r["episodes"] for r in rates)
+    max_steps = _eval_max_steps(out)
     repeats = max(len(r["per_repeat"]) for r in rates)
     demos = {}
     for p in (out / "data").rglob("*.h5"):
         demos[p.parent.parent.name] = demos.get(p.parent.parent.name, 0) + 1
     train = {m: _training(out / m) for m in METHODS}
     stages = _stage_minutes(out / "times.txt")
-    env = {k: os.environ[k] for k in ("TASKS", "DEMOS", "STEPS", "EVAL_EPISODES", "REPEATS") if k in os.environ}
-    command = " ".join([*(f"{k}={shlex.quote(v)}" for k, v in env.items()), "bash scripts/seen_unseen.sh"])
+    knobs = ("TASKS", "DEMOS", "STEPS", "EVAL_EPISODES", "REPEATS", "EVAL_WORKERS", "KEYFRAME_EPISODES")
+    env = {k: os.environ[k] for k in knobs if k in os.environ}
+    command = " ".join([*(f"{k}={shlex.quote(v)}" for k, v in env.items()), command.strip()])
+    batch = config["train"]["batch"]
     lines = [
         f"Written by `benchmarks/seen_unseen_report.py` from the evaluation JSON of `{command}` "
         f"(kept in [docs/results/seen_unseen/](docs/results/seen_unseen/)).",
         "",
         f"Machine: {describe_machine()}. Training: {', '.join(f'{t} {n}' for t, n in sorted(demos.items()))} "
-        f"seen demonstrations, {train['abm']['steps']} steps of batch 8 at "
+        f"seen demonstrations, {train['abm']['steps']} steps of batch {batch} at "
         f"{config['policy']['resolution']}² views, both methods side by side with one thread each "
         f"(abm {train['abm']['elapsed_min']:.0f} min, rvt {train['rvt']['elapsed_min']:.0f} min; "
         f"{train['abm']['samples_per_s']:.1f} / {train['rvt']['samples_per_s']:.1f} samples/s). "
         f"Evaluation: {episodes // repeats} seeded episodes per task, split and repeat, {repeats} repeat(s), "
-        f"at most 8 keyframes" + ("; stage wall times (min): " + ", ".join(
+        f"at most {max_steps} keyframes" + ("; stage wall times (min): " + ", ".join(
             f"{k} {v:.0f}" for k, v in stages.items()) if stages else "") + ".",
         "",
         "Rollout success, % (successes / episodes):",
@@ -176,9 +200,10 @@ def main() -> None:
     parser.add_argument("out", type=Path, help="the folder given to scripts/seen_unseen.sh")
     parser.add_argument("--readme", default="README.md", help="README to update ('' = do not touch it)")
     parser.add_argument("--docs", type=Path, default=Path("docs/results"))
+    parser.add_argument("--command", default="bash scripts/seen_unseen.sh", help="the command to quote")
     args = parser.parse_args()
 
-    text = report(args.out)
+    text = report(args.out, args.command)
     store = args.docs / "seen_unseen"
     store.mkdir(parents=True, exist_ok=True)
     for split in ("seen", "unseen"):

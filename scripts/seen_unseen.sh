@@ -31,6 +31,8 @@ abm data generate --task "${TASKS// /,}" --split seen --episodes "$DEMOS" --out 
 stamp data_end
 
 stamp train_start
+# the two trainers run in the background: stop them with the script (Ctrl-C, an error, the end)
+trap 'kill $(jobs -p) 2>/dev/null || true' INT TERM EXIT
 pids=()
 for m in abm rvt; do
   OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 abm train --method "$m" --data "$OUT/data" --steps "$STEPS" --batch 8 \
@@ -39,7 +41,9 @@ for m in abm rvt; do
     > "$OUT/train_$m.log" 2>&1 &
   pids+=($!)
 done
-for p in "${pids[@]}"; do wait "$p"; done
+rc=0
+for p in "${pids[@]}"; do wait "$p" || rc=1; done
+if [ "$rc" != 0 ]; then echo "training failed: see $OUT/train_abm.log and $OUT/train_rvt.log" >&2; exit 1; fi
 stamp train_end
 
 stamp eval_start
@@ -58,4 +62,4 @@ python benchmarks/keyframe_accuracy.py --run "$OUT/abm" --run "$OUT/rvt" --tasks
   --episodes "$KEYFRAME_EPISODES" --steps "${steps[@]}" --out "$OUT/keyframes.json" --kinds approach grasp move place
 stamp keyframes_end
 
-python benchmarks/seen_unseen_report.py "$OUT" --readme "$README"
+python benchmarks/seen_unseen_report.py "$OUT" --readme "$README" --command "$0 $*"

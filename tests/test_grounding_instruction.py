@@ -174,6 +174,7 @@ def test_rewriting_parser_uses_rewriter_only_when_needed():
 PLATE, TARGET = "put X in the plate", "put X on the target"
 PARAPHRASES = [
     ("pick up the red block and put it on the target", "red block", TARGET),
+    ("pick up the red block and then put it on the target", "red block", TARGET),
     ("Pick up the red block and place it on top of the target.", "red block", TARGET),
     ("grab the blue block and put it onto the target", "blue block", TARGET),
     ("take the green block and set it on the target", "green block", TARGET),
@@ -253,3 +254,14 @@ def test_multi_step_requests_are_refused_with_their_steps(instruction, steps):
 
 def test_and_inside_an_object_name_is_not_a_second_step():
     assert decompose_instruction("put the salt and pepper in the plate") == ("salt and pepper", PLATE)
+
+
+def test_multi_step_requests_are_not_silently_shortened_by_the_policy_or_a_rewriter():
+    from abm.grounding.instruction import MultiStepInstructionError, RewritingParser
+    from abm.policy.conditioning import split_instruction
+
+    text = "put the ketchup in the plate and then close the jar"
+    with pytest.raises(MultiStepInstructionError):
+        split_instruction(text, {1: "ketchup", 2: "jar"})
+    with pytest.raises(MultiStepInstructionError):
+        RewritingParser(lambda s: "put the ketchup in the plate").parse(text)

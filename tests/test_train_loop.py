@@ -81,6 +81,8 @@ def test_resume_after_interruption_reproduces_the_loss_curve(episodes, tmp_path)
         torch.testing.assert_close(run_ckpt["model"][k], v, rtol=1e-4, atol=1e-5)
     rows = (tmp_path / "run/log.csv").read_text().strip().splitlines()
     assert [int(r.split(",")[0]) for r in rows[1:]] == [1, 2, 3, 4, 5, 6]  # no duplicated steps
+    elapsed = [float(r.split(",")[-1]) for r in rows[1:]]
+    assert elapsed == sorted(elapsed)  # training time continues across the resume
     assert (tmp_path / "run/tb").is_dir() and json.loads((tmp_path / "run/summary.json").read_text())
 
 

@@ -19,8 +19,11 @@ _PR_SET_PDEATHSIG = 1
 
 
 def die_with_parent(poll_s: float = 1.0) -> None:
-    """Make the calling process exit when its parent process dies."""
-    parent = os.getppid()
+    """Make the calling process exit when its parent process dies (call it first in a worker)."""
+    import multiprocessing
+
+    origin = multiprocessing.parent_process()
+    parent = origin.pid if origin is not None and origin.pid else os.getppid()
     if sys.platform.startswith("linux"):
         try:
             libc = ctypes.CDLL(None, use_errno=True)

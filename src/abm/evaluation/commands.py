@@ -74,8 +74,9 @@ def run(args: argparse.Namespace) -> int:
         if errors == sum(r.episodes for r in rates):
             from abm.evaluation.results import OutcomeLog
 
-            first = next((o.error for o in OutcomeLog(out / "outcomes.jsonl").read() if o.error), "")
-            raise CommandError(f"every episode crashed, so the table measures nothing; first error: {first}")
+            latest = [o.error for o in OutcomeLog(out / "outcomes.jsonl").read() if o.error][-1:]  # this run's
+            raise CommandError(f"every episode crashed, so the table measures nothing; last error: "
+                               f"{latest[0] if latest else '?'}")
     return 0
 
 

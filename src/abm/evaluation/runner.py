@@ -107,11 +107,11 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
 
 
 def _worker_init() -> None:
-    import torch
-
     from abm.workers import die_with_parent
 
-    die_with_parent()
+    die_with_parent()  # before the slow torch import, so there is no window to outlive the command
+    import torch
+
     torch.set_num_threads(1)
 
 

@@ -137,6 +137,7 @@ def canonical_gripper_matrix(rotation: np.ndarray, symmetry: int = GRIPPER_SYMME
     Args:
         rotation: ``(3, 3)`` TCP-to-world rotation.
         symmetry: number of equivalent turns (see above).
+        reference_yaw_deg: world yaw (degrees) of the reference finger direction.
 
     Returns:
         ``(3, 3)`` rotation with the same gripper axis.
@@ -151,7 +152,8 @@ def canonical_gripper_matrix(rotation: np.ndarray, symmetry: int = GRIPPER_SYMME
         angle = np.arctan2(float(np.cross(rot[:, 1], ref) @ z), float(rot[:, 1] @ ref))
         return rot @ _turn_z(angle)
     candidates = [rot @ _turn_z(2 * np.pi * k / symmetry) for k in range(max(symmetry, 1))]
-    # Ties (exactly 180° / symmetry away) go to the smallest turn, so the choice is deterministic.
+    # Ties (exactly 180° / symmetry from the reference, a measure-zero set) go to the smallest turn of
+    # the given member, so the result is deterministic for an input but can differ between members.
     scores = [round(float(c[:, 1] @ ref), 9) for c in candidates]
     return candidates[int(np.argmax(scores))]
 

@@ -33,6 +33,10 @@ class InstructionError(ValueError):
     """An instruction that no template matches (the message lists the known skills)."""
 
 
+class MultiStepInstructionError(InstructionError):
+    """An instruction that asks for several skills in a row; abm runs one skill per instruction."""
+
+
 @dataclass(frozen=True)
 class ParsedInstruction:
     """The result of decomposing one instruction.
@@ -247,7 +251,7 @@ class TemplateParser:
         steps = self._steps(normalized)
         if len(steps) > 1:
             listed = "; ".join(f"{p.skill.replace(PLACEHOLDER, p.target)!r}" for p in steps)
-            raise InstructionError(
+            raise MultiStepInstructionError(
                 f"instruction {instruction!r} asks for {len(steps)} steps ({listed}); abm runs one skill per "
                 "instruction: give the steps one at a time"
             )
@@ -301,6 +305,8 @@ class RewritingParser:
     def parse(self, instruction: str) -> ParsedInstruction:
         try:
             return self.base.parse(instruction)
+        except MultiStepInstructionError:
+            raise  # several skills: rewriting them into one would drop a step
         except InstructionError:
             rewritten = self.rewrite(instruction)
         parsed = self.base.parse(rewritten)

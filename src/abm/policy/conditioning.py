@@ -55,13 +55,16 @@ def split_instruction(instruction: str, object_names: Mapping[int, str] | None =
     way, so the skill text the policy sees is the same in both.
 
     Raises:
-        ValueError: no target can be identified.
+        ValueError: no target can be identified, or the instruction asks for several skills
+            (:class:`abm.grounding.instruction.MultiStepInstructionError`).
     """
-    from abm.grounding.instruction import decompose_instruction
+    from abm.grounding.instruction import MultiStepInstructionError, decompose_instruction
 
     try:
         obj, skill = decompose_instruction(instruction)
         return str(obj), str(skill)
+    except MultiStepInstructionError:
+        raise  # several skills in one instruction: never run just one of them silently
     except ValueError:  # no template matches: fall back to a scene object name
         pass
     names = ([target] if target else []) + sorted(set((object_names or {}).values()), key=len, reverse=True)

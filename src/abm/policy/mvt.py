@@ -232,6 +232,8 @@ class MultiViewTransformer(nn.Module):
         if pool_weights is None:
             prob = torch.softmax(heat.detach().float().flatten(2), -1).view(b * v, 1, h, w)
         else:
+            if tuple(pool_weights.shape) != (b, v, h, w):
+                raise ValueError(f"pool_weights must be (B, V, H, W) = {(b, v, h, w)}, got {tuple(pool_weights.shape)}")
             prob = pool_weights.detach().float().reshape(b * v, 1, h, w)
         weights = F.avg_pool2d(prob, p).flatten(1) * (p * p)  # (B*V, g*g), sums to 1
         pooled = torch.einsum("nt,ntd->nd", weights.to(tok.dtype), tok)

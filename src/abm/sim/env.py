@@ -20,7 +20,7 @@ from typing import Any
 
 import mujoco
 
-from abm.geometry.rotations import matrix_to_quat
+from abm.geometry.rotations import canonical_gripper_quat, matrix_to_quat
 from abm.sim.robot import FLIP_Z
 from abm.sim.scene import CAMERA_NAMES
 from abm.sim.simulation import Simulation
@@ -133,11 +133,17 @@ def _episode(env: TaskEnv, steps, success: bool, extra: dict[str, Any]) -> Episo
 
 
 def executed_action(action: KeyframeAction, flipped: bool) -> KeyframeAction:
-    """The keyframe the arm actually executed: ``action`` turned 180 degrees about the gripper axis
-    when the controller had to fall back to the flipped grasp (see :meth:`PandaIK.solve_either`)."""
+    """The keyframe the arm actually executed, in canonical form.
+
+    When the controller had to fall back to the grasp turned 180 degrees about the gripper axis (see
+    :meth:`PandaIK.solve_either`), that turn is applied and the result canonicalised with the label's
+    symmetry: for the symmetric classes (2, 4, 0) it is the commanded label again, for symmetry 1 the
+    executed orientation.
+    """
     if not flipped:
         return action
-    return dataclasses.replace(action, quaternion=matrix_to_quat(action.matrix[:3, :3] @ FLIP_Z))
+    executed = action.matrix[:3, :3] @ FLIP_Z
+    return dataclasses.replace(action, quaternion=canonical_gripper_quat(matrix_to_quat(executed), action.symmetry))
 
 
 def run_expert(env: TaskEnv, record: bool = True) -> Episode:

@@ -285,6 +285,8 @@ _RUN_FILES = ("config.json", "log.csv", "summary.json")
 
 def _claim_run_folder(run: Path, cfg: TrainConfig, dinfo: DistInfo) -> None:
     """Refuse to train into a folder that holds another run, unless resuming or told to overwrite."""
+    if cfg.resume and cfg.overwrite:
+        raise ValueError("--resume and --overwrite contradict each other: choose one")
     existing = list_checkpoints(run)
     occupied = bool(existing) or any((run / name).exists() for name in _RUN_FILES)
     if occupied and not cfg.resume:
@@ -417,6 +419,7 @@ def train(
             "model": model.state_dict(), "optimizer": optimizer.state_dict(),
             "scheduler": scheduler.state_dict(), "rng": _rng_state(), "step": step,
             "train_config": cfg.to_dict(), "world_size": world,
+            "elapsed_s": prior_s + time.perf_counter() - t0,  # training time over all resumes
         }
 
     def save(step: int) -> None:
@@ -426,6 +429,7 @@ def train(
 
     step = start
     last: dict[str, float] = {}
+    prior_s = float(ckpt.get("elapsed_s", 0.0)) if ckpt is not None else 0.0
     t0 = time.perf_counter()
     tick, tick_step = t0, start
     bar = tqdm(total=cfg.steps, initial=start, desc=f"train {cfg.method}/{cfg.preset}",
@@ -461,7 +465,7 @@ def train(
                 sps = (step - tick_step) * cfg.batch * world / max(now - tick, 1e-9)
                 tick, tick_step = now, step
                 logger.log({"step": step, "lr": scheduler.get_last_lr()[0], **last, "samples_per_s": sps,
-                            "elapsed_s": now - t0})
+                            "elapsed_s": prior_s + now - t0})
             if on_step is not None:
                 on_step(step, last)
             if step % cfg.checkpoint_every == 0 and step != cfg.steps:
