@@ -130,6 +130,31 @@ def _stage_minutes(times: Path) -> dict[str, float]:
     return total
 
 
+def _machine() -> str:
+    """The machine without the report process's own thread count (training threads are stated apart)."""
+    text = describe_machine()
+    head, _, last = text.rpartition(", ")
+    return head if last.endswith("threads") else text
+
+
+def _goal_check(rates: Sequence[Mapping]) -> str:
+    """The issue's goals, checked against the averages (abm seen >= 60 %, unseen >= 0.85 x seen)."""
+    avg: dict[tuple[str, str], float] = {}
+    for m in METHODS:
+        for s in ("seen", "unseen"):
+            vals = [r["mean"] for r in rates if r["method"] == m and r["split"] == s]
+            avg[(m, s)] = sum(vals) / len(vals) if vals else float("nan")
+    seen, unseen, rvt = avg[("abm", "seen")], avg[("abm", "unseen")], avg[("rvt", "unseen")]
+    ratio = unseen / seen if seen > 0 else float("nan")
+
+    def mark(ok: bool) -> str:
+        return "met" if ok else "not met"
+
+    return (f"Goals: abm ≥ 60 % on seen objects — {mark(seen >= 60)} ({seen:.0f} %); abm unseen ≥ 0.85 × seen — "
+            f"{mark(ratio >= 0.85)} ({ratio:.2f}); rvt's unseen success well below abm's — "
+            f"{mark(rvt < 0.5 * unseen)} ({rvt:.0f} % vs {unseen:.0f} %; paper: 24.0 vs 57.5).")
+
+
 def _eval_max_steps(out: Path) -> str:
     """The keyframe budget of the evaluation, from the settings recorded with each outcome."""
     log = out / "eval_seen" / "outcomes.jsonl"
@@ -162,18 +187,21 @@ def report(out: Path, command: str = "bash scripts/seen_unseen.sh") -> str:
         f"Written by `benchmarks/seen_unseen_report.py` from the evaluation JSON of `{command}` "
         f"(kept in [docs/results/seen_unseen/](docs/results/seen_unseen/)).",
         "",
-        f"Machine: {describe_machine()}. Training: {', '.join(f'{t} {n}' for t, n in sorted(demos.items()))} "
+        f"Machine: {_machine()}. Training: {', '.join(f'{t} {n}' for t, n in sorted(demos.items()))} "
         f"seen demonstrations, {train['abm']['steps']} steps of batch {batch} at "
         f"{config['policy']['resolution']}² views, both methods side by side with one thread each "
         f"(abm {train['abm']['elapsed_min']:.0f} min, rvt {train['rvt']['elapsed_min']:.0f} min; "
         f"{train['abm']['samples_per_s']:.1f} / {train['rvt']['samples_per_s']:.1f} samples/s). "
         f"Evaluation: {episodes // repeats} seeded episodes per task, split and repeat, {repeats} repeat(s), "
-        f"at most {max_steps} keyframes" + ("; stage wall times (min): " + ", ".join(
+        f"at most {max_steps} keyframes" + ("; wall time of the script's last run per stage (min; finished "
+                                             "stages are skipped on a rerun): " + ", ".join(
             f"{k} {v:.0f}" for k, v in stages.items()) if stages else "") + ".",
         "",
         "Rollout success, % (successes / episodes):",
         "",
         success_table(rates),
+        "",
+        _goal_check(rates),
         "",
         "How the comparison is made: both methods see the same demonstrations, views, model size, "
         "recipe and evaluation scenes, and both encode the instruction with the weight-free hash "
