@@ -13,11 +13,16 @@ last checkpoint and skips finished evaluation episodes.
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from multiprocessing import get_context
 from pathlib import Path
+
+from abm.workers import die_with_parent
 
 CPU_CLIP_MODEL = "openai/clip-vit-base-patch16"  # the CPU-sized CLIP tried first on CPU
 GPU_CLIP_MODEL = "openai/clip-vit-large-patch14-336"  # the paper's model
@@ -89,16 +94,28 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
                  resolution=cfg.resolution)
 
     runs = {}
-    for method in cfg.methods:
+    configs = []
+    for i, method in enumerate(cfg.methods):
         run = runs_dir / method
-        print(f"[2/4] training {method} (small preset, {cfg.steps} steps, {cfg.policy_overrides}) -> {run}")
-        tc = TrainConfig(method=method, preset="small", out=run, data=data, tasks=list(cfg.tasks), splits=["seen"],
-                         steps=cfg.steps, batch=cfg.batch, lr=cfg.lr, optimizer=cfg.optimizer,
-                         warmup=min(cfg.warmup, cfg.steps // 4), checkpoint_every=max(50, cfg.steps // 4),
-                         device=cfg.device, grounder=grounder, grounder_options=options, seed=cfg.seed,
-                         resume=True, policy_overrides=dict(cfg.policy_overrides))
-        train(tc)
+        configs.append(TrainConfig(
+            method=method, preset="small", out=run, data=data, tasks=list(cfg.tasks), splits=["seen"],
+            steps=cfg.steps, batch=cfg.batch, lr=cfg.lr, optimizer=cfg.optimizer,
+            warmup=min(cfg.warmup, cfg.steps // 4), checkpoint_every=max(50, cfg.steps // 4), device=cfg.device,
+            grounder=grounder, grounder_options=options, seed=cfg.seed, resume=True,
+            policy_overrides=dict(cfg.policy_overrides), progress=i == 0))
         runs[method] = run
+    parallel = cfg.device == "cpu" and len(configs) > 1 and (os.cpu_count() or 1) >= len(configs)
+    print(f"[2/4] training {', '.join(cfg.methods)} (small preset, {cfg.steps} steps, {cfg.policy_overrides})"
+          + (" side by side, one process each" if parallel else "") + f" -> {runs_dir}")
+    if parallel:
+        # one process per method with its share of the cores: on a CPU this beats training them in turn
+        threads = max(1, (os.cpu_count() or 1) // len(configs))
+        with ProcessPoolExecutor(len(configs), mp_context=get_context("spawn"), initializer=die_with_parent) as pool:
+            for summary in pool.map(_train_with_threads, configs, [threads] * len(configs)):
+                print(f"  {summary['method']}: {summary['steps']} steps, {summary['seconds'] / 60:.1f} min")
+    else:
+        for tc in configs:
+            train(tc)
 
     settings = EvalSettings(device=cfg.device, resolution=cfg.resolution, max_steps=cfg.max_steps)
     eval_dir = out / "eval"
@@ -115,6 +132,16 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     print(table)
     print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
     return report
+
+
+def _train_with_threads(config, threads: int) -> dict:
+    """Train one run in a worker process with ``threads`` torch threads (see :func:`run_quickstart`)."""
+    import torch
+
+    from abm.train.loop import train
+
+    torch.set_num_threads(threads)
+    return train(config)
 
 
 def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path, cfg: QuickstartConfig,
