@@ -23,8 +23,8 @@ from pathlib import Path
 from abm.evaluation.keyframe_accuracy import as_records, keyframe_errors, markdown, summarise
 from abm.evaluation.runner import method_labels
 from abm.machine import describe_machine
-from abm.policy.inference import Policy
-from abm.train.checkpoint import checkpoint_path
+from abm.policy import KeyframePolicy
+from abm.policy.checkpoint import checkpoint_path
 
 
 def main() -> None:
@@ -44,11 +44,11 @@ def main() -> None:
     policies = {}
     for run in args.run:
         name = labels[str(run)]
-        policies[name] = Policy.load(run)
+        policies[name] = KeyframePolicy.from_checkpoint(run)
         for step in args.steps:
             path = checkpoint_path(run, step)
             if path.is_file():
-                policies[f"{name}@{step}"] = Policy.load(path)
+                policies[f"{name}@{step}"] = KeyframePolicy.from_checkpoint(path)
             else:
                 print(f"skipping {path}: no such checkpoint")
     start = time.perf_counter()

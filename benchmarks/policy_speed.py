@@ -16,7 +16,7 @@ import time
 import torch
 
 from abm.machine import describe_machine
-from abm.policy import MultiViewTransformer, Policy, PolicyConfig
+from abm.policy import KeyframePolicy, PolicyConfig
 from abm.policy.language import HashLanguageEncoder
 from abm.train.synthetic import synthetic_episode
 
@@ -24,7 +24,7 @@ from abm.train.synthetic import synthetic_episode
 def measure(preset: str, method: str, device: str, repeats: int, camera_resolution: int) -> dict:
     torch.manual_seed(0)
     cfg = PolicyConfig.from_preset(preset, method)
-    policy = Policy(MultiViewTransformer(cfg), HashLanguageEncoder(cfg.lang_dim), {"kind": "oracle"}, device=device)
+    policy = KeyframePolicy(cfg, HashLanguageEncoder(cfg.lang_dim), {"kind": "oracle"}).to(device).eval()
     ep = synthetic_episode(0, camera_resolution)
     obs, _ = ep.steps[0]
     policy.act(obs, ep.instruction, ep.object_names)  # warm-up (allocations, kernels)

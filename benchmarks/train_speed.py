@@ -3,7 +3,8 @@
 Trains on built-in synthetic episodes (4 cameras, 128^2 by default) with the real data pipeline
 (fusion, oracle grounding, SE(3) augmentation, rendering) and the real optimiser, and reports
 samples/s over the timed steps plus the seconds per step spent in each stage: data (fuse, ground,
-augment, render), forward (model + loss), backward and optimiser.
+augment), forward (``KeyframePolicy.compute_loss``: rendering on the policy's device, model and loss),
+backward and optimiser. ``render_s_per_step`` is the rendering part of forward, timed separately.
 
     python benchmarks/train_speed.py --preset small --method abm --batch 8 --steps 10
     OMP_NUM_THREADS=1 python benchmarks/train_speed.py --threads 1 --set resolution=64 --set patch_size=8
@@ -20,9 +21,8 @@ import torch
 
 from abm.data.keyframes import KeyframeDataset, StepSampler, collate, worker_init
 from abm.machine import describe_machine
-from abm.policy import MultiViewTransformer, PolicyConfig, policy_loss, translation_targets
+from abm.policy import KeyframePolicy, PolicyConfig
 from abm.policy.language import HashLanguageEncoder
-from abm.render import OrthographicRenderer
 from abm.train.commands import parse_override
 from abm.train.loop import make_optimizer
 from abm.train.synthetic import synthetic_episodes
@@ -50,14 +50,13 @@ def main() -> None:
     torch.manual_seed(0)
     cfg = PolicyConfig.from_preset(args.preset, args.method, **dict(args.overrides))
     episodes = synthetic_episodes(args.episodes, args.camera_resolution)
-    ds = KeyframeDataset(episodes, cfg, HashLanguageEncoder(cfg.lang_dim))
+    policy = KeyframePolicy(cfg, HashLanguageEncoder(cfg.lang_dim)).to(device).train()
+    ds = KeyframeDataset(episodes, policy.workspace, **policy.sample_options())
     total = args.warmup + args.steps
     loader = torch.utils.data.DataLoader(ds, batch_size=args.batch, sampler=StepSampler(len(ds), args.batch, total),
                                          num_workers=args.workers, collate_fn=collate, worker_init_fn=worker_init)
-    model = MultiViewTransformer(cfg).to(device).train()
-    opt = make_optimizer(args.optimizer, model.parameters(), lr=1e-3, weight_decay=0.0)
-    renderer = OrthographicRenderer(ds.workspace, cfg.resolution, cfg.views, device=device)
-    amp = device.type == "cuda"
+    opt = make_optimizer(args.optimizer, policy.parameters(), lr=1e-3, weight_decay=0.0)
+    render_s = 0.0
     stage: dict[str, float] = defaultdict(float)
 
     def sync() -> float:
@@ -68,34 +67,33 @@ def main() -> None:
     t_prev = time.perf_counter()
     for i, batch in enumerate(loader):
         t_data = time.perf_counter()
-        batch = {k: v.to(device) for k, v in batch.items()}
-        target = translation_targets(renderer, batch["position"])
-        with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=amp):
-            out = model(batch["images"], batch["proprio"], batch["lang"], mask=batch.get("mask"),
-                        ifd_features=batch.get("ifd_features"), ifd_index=batch.get("ifd_index"),
-                        pool_weights=target)
-        loss = policy_loss(out, target, batch["rotation_bins"], batch["gripper"], batch["collision"]).total
+        loss, _ = policy.compute_loss(batch)
         t_fwd = sync()
         opt.zero_grad()
         loss.backward()
         t_bwd = sync()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        torch.nn.utils.clip_grad_norm_(policy.parameters(), 1.0)
         opt.step()
         t_end = sync()
         if i >= args.warmup:
+            with torch.no_grad():  # the rendering share of forward, timed on its own
+                t_r = sync()
+                policy.model_inputs(batch)
+                render_s += sync() - t_r
             for name, dt in (("data", t_data - t_prev), ("forward", t_fwd - t_data), ("backward", t_bwd - t_fwd),
                              ("optimizer", t_end - t_bwd)):
                 stage[name] += dt
-        t_prev = t_end
+        t_prev = time.perf_counter()
     total_s = sum(stage.values())
     data_s = stage["data"]
     n = args.steps * args.batch
     result = {
         "preset": cfg.preset, "method": args.method, "device": str(device), "batch": args.batch,
         "steps": args.steps, "workers": args.workers, "threads": torch.get_num_threads(),
-        "parameters": model.num_parameters(), "samples_per_s": n / total_s,
+        "parameters": policy.model.num_parameters(), "samples_per_s": n / total_s,
         "s_per_step": total_s / args.steps, "data_share": data_s / total_s,
         "stage_s_per_step": {k: round(v / args.steps, 4) for k, v in stage.items()},
+        "render_s_per_step": round(render_s / args.steps, 4),
         "resolution": cfg.resolution, "patch_size": cfg.patch_size, "optimizer": args.optimizer,
         "machine": describe_machine(),
         "gpu": torch.cuda.get_device_name() if device.type == "cuda" else None,

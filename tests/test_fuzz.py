@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 
 from abm.data.episode_store import EpisodeFormatError, load_episode, read_info
 from abm.grounding.instruction import InstructionError, decompose_instruction
+from abm.policy.checkpoint import load_checkpoint
 from abm.sim.splits import SplitFileError, load_splits
-from abm.train.checkpoint import load_checkpoint
 
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 

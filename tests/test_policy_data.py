@@ -1,4 +1,5 @@
-"""Keyframe dataset: sample contents per variant, determinism, workers, sampler sharding/resume."""
+"""Keyframe dataset and the policy's rendering of its samples: contents per variant, determinism,
+padding, workers, sampler sharding/resume."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import torch
 
 import abm.data.keyframes as keyframes
 from abm.data.keyframes import KeyframeDataset, StepSampler, collate
-from abm.policy import PolicyConfig
+from abm.policy import KeyframePolicy, PolicyConfig
 from abm.policy.language import HashLanguageEncoder
 from abm.train.synthetic import synthetic_episodes
 
@@ -22,26 +23,36 @@ def episodes():
     return synthetic_episodes(3, camera_resolution=48)
 
 
-def _dataset(episodes, variant: str, **kw) -> KeyframeDataset:
-    cfg = PolicyConfig.from_preset("small", variant, resolution=48, lang_dim=LANG, ifd_feature_dim=8)
-    return KeyframeDataset(episodes, cfg, HashLanguageEncoder(LANG), **kw)
+def _policy(variant: str, resolution: int = 48) -> KeyframePolicy:
+    cfg = PolicyConfig.from_preset("small", variant, resolution=resolution, lang_dim=LANG, ifd_feature_dim=8)
+    return KeyframePolicy(cfg, HashLanguageEncoder(LANG))
+
+
+def _dataset(episodes, policy: KeyframePolicy, **kw) -> KeyframeDataset:
+    return KeyframeDataset(episodes, policy.workspace, **policy.sample_options(), **kw)
 
 
 @pytest.mark.parametrize("variant", ["abm", "rvt", "stack", "concat-rerendered", "concat-full"])
 def test_sample_contents(episodes, variant: str) -> None:
-    ds = _dataset(episodes, variant)
+    policy = _policy(variant)
+    ds = _dataset(episodes, policy)
     assert len(ds) == 6
     s = ds[(1, 7)]
-    assert s["images"].shape == (5, 10, 48, 48)
-    assert s["lang"].shape == (77, LANG) and s["proprio"].shape == (4,)
-    assert s["rotation_bins"].shape == (3,) and s["position"].shape == (3,)
+    n = s["points"].shape[0]
+    assert s["points"].shape == (n, 3) and s["colors"].shape == (n, 3) and n > 100
+    assert s["gripper_position"].shape == (3,) and s["action_position"].shape == (3,)
+    assert s["action_quaternion"].shape == (4,) and "images" not in s  # the policy renders, not the dataset
+    inputs = policy.model_inputs(collate([s]))
+    assert inputs["images"].shape == (1, 5, 10, 48, 48)
+    assert inputs["lang"].shape == (1, 77, LANG) and inputs["proprio"].shape == (1, 4)
     if variant == "rvt":
-        assert "mask" not in s
-        assert "block" in ds.texts[0]  # full instruction
+        assert "mask" not in inputs and "point_mask" not in s
+        assert "block" in policy.language_goal(s["instruction"], s["skill"])  # full instruction
     else:
-        assert s["mask"].shape == (5, 1, 48, 48)
-        assert ds.texts[0] == "put X on the target"  # skill text only
-        per_view = s["mask"].sum((1, 2, 3))
+        assert s["point_mask"].shape == (n,) and s["point_mask"].sum() > 0
+        assert policy.language_goal(s["instruction"], s["skill"]) == "put X on the target"  # skill text only
+        per_view = inputs["mask"][0].sum((1, 2, 3))
+        assert inputs["mask"].shape == (1, 5, 1, 48, 48)
         if variant == "abm":
             assert torch.all(per_view <= 1) and per_view.sum() >= 3  # one centre pixel per view
         else:
@@ -49,20 +60,37 @@ def test_sample_contents(episodes, variant: str) -> None:
 
 
 def test_center_pixel_is_on_target_and_action_moves_with_augmentation(episodes) -> None:
-    ds = _dataset(episodes, "abm")
-    a = ds[(0, 1)]
-    b = ds[(0, 1)]
-    c = ds[(0, 2)]
+    policy = _policy("abm")
+    ds = _dataset(episodes, policy)
+    a, b, c = ds[(0, 1)], ds[(0, 1)], ds[(0, 2)]
     for k in a:
-        torch.testing.assert_close(a[k], b[k])  # same key -> same sample
-    assert not torch.allclose(a["position"], c["position"])  # another seed -> another augmentation
-    plain = _dataset(episodes, "abm", augment=False)[(0, 1)]
+        if isinstance(a[k], torch.Tensor):
+            torch.testing.assert_close(a[k], b[k])  # same key -> same sample
+    assert not torch.allclose(a["action_position"], c["action_position"])  # another seed -> another augmentation
+    plain = _dataset(episodes, policy, augment=False)[(0, 1)]
     grasp = episodes[0].steps[0][1].position
-    np.testing.assert_allclose(plain["position"].numpy(), grasp, atol=1e-5)
+    np.testing.assert_allclose(plain["action_position"].numpy(), grasp, atol=1e-5)
     # the centre pixel of the top view is near the grasp point's projection (target block top)
-    uv, _ = _dataset(episodes, "abm", augment=False).renderer.project(torch.tensor(grasp, dtype=torch.float32))
-    row, col = plain["mask"][4, 0].nonzero()[0].tolist()
+    uv, _ = policy.renderer.project(torch.tensor(grasp, dtype=torch.float32))
+    mask = policy.model_inputs(collate([plain]))["mask"][0]
+    row, col = mask[4, 0].nonzero()[0].tolist()
     assert abs(col - uv[4, 0]) < 4 and abs(row - uv[4, 1]) < 4
+
+
+def test_padded_batch_renders_like_single_samples(episodes) -> None:
+    policy = _policy("abm")
+    ds = _dataset(episodes, policy, augment=False)
+    short = dict(ds[3])
+    for key in ("points", "colors", "point_mask", "point_heatmap"):
+        short[key] = short[key][:-500]  # a smaller cloud, so the batch pads it
+    samples = [ds[0], short]
+    batch = collate(samples)
+    assert batch["valid"].sum(1).tolist() == [s["points"].shape[0] for s in samples]
+    together = policy.model_inputs(batch)
+    for i, s in enumerate(samples):
+        alone = policy.model_inputs(collate([s]))
+        for key in ("images", "mask", "proprio", "lang"):
+            torch.testing.assert_close(together[key][i], alone[key][0], msg=key)
 
 
 def test_ifd_features_through_index_map(episodes, monkeypatch, tmp_path) -> None:
@@ -74,21 +102,26 @@ def test_ifd_features_through_index_map(episodes, monkeypatch, tmp_path) -> None
             raise AssertionError
 
     monkeypatch.setattr(keyframes, "make_grounder_from_spec", lambda spec: FakeClip())
-    ds = _dataset(episodes, "ifd", grounder={"kind": "clip"}, cache_dir=tmp_path, show_progress=False)
+    policy = _policy("ifd")
+    ds = _dataset(episodes, policy, grounder={"kind": "clip"}, cache_dir=tmp_path, show_progress=False)
     assert len(list(tmp_path.glob("*.npz"))) == 6
     s = ds[(0, 0)]
-    idx, feats = s["ifd_index"], s["ifd_features"]
-    assert idx.shape == (5, 48, 48) and feats.shape[1] == 8
-    assert idx.max() == feats.shape[0] - 1 and (idx >= 0).sum() > 100
+    assert s["point_features"].shape == (s["points"].shape[0], 8)
+    inputs = policy.model_inputs(collate([s, ds[(1, 1)]]))
+    idx, feats = inputs["ifd_index"], inputs["ifd_features"]
+    assert idx.shape == (2, 5, 48, 48) and feats.shape[0] == 2 and feats.shape[2] == 8
+    assert idx[0].max() < feats.shape[1] and (idx[0] >= 0).sum() > 100
     # the gathered feature of a visible pixel equals its rendered colour (fp16 cache tolerance)
-    v, r, c = (idx >= 0).nonzero()[0].tolist()
-    torch.testing.assert_close(feats[idx[v, r, c], :3], s["images"][v, :3, r, c], atol=2e-3, rtol=0)
-    batch = collate([ds[(0, 0)], ds[(1, 1)]])
-    assert batch["ifd_features"].shape[0] == 2 and batch["ifd_index"].shape == (2, 5, 48, 48)
+    v, r, c = (idx[0] >= 0).nonzero()[0].tolist()
+    torch.testing.assert_close(feats[0, idx[0, v, r, c], :3], inputs["images"][0, v, :3, r, c], atol=2e-3, rtol=0)
+    wrong = _policy("ifd")
+    wrong.config.ifd_feature_dim = 16
+    with pytest.raises(ValueError, match="ifd_feature_dim"):
+        wrong.model_inputs(collate([s]))
 
 
 def test_workers_give_the_same_batches(episodes) -> None:
-    ds = _dataset(episodes, "abm")
+    ds = _dataset(episodes, _policy("abm"))
     pickle.dumps(ds)  # nothing unpicklable
     batches = []
     for workers in (0, 2):
@@ -98,7 +131,10 @@ def test_workers_give_the_same_batches(episodes) -> None:
         batches.append(list(loader))
     for b0, b2 in zip(*batches, strict=True):
         for k in b0:
-            torch.testing.assert_close(b0[k], b2[k])
+            if isinstance(b0[k], torch.Tensor):
+                torch.testing.assert_close(b0[k], b2[k])
+            else:
+                assert b0[k] == b2[k]
 
 
 def test_step_sampler_sharding_and_resume() -> None:
@@ -141,11 +177,10 @@ class _FakeStore:
 def test_dataset_over_an_episode_store(episodes) -> None:
     store = _FakeStore(episodes)
     source = keyframes.EpisodeSource(store, store.select(tasks=["pick_block"]))
-    cfg = PolicyConfig.from_preset("small", "abm", resolution=32, lang_dim=LANG)
-    ds = KeyframeDataset(source, cfg, HashLanguageEncoder(LANG))
+    ds = _dataset(source, _policy("abm", resolution=32))
     assert len(ds) == 6 and ds.source.meta[1].key == "ep1.h5"
     s = ds[(3, 0)]
-    assert s["mask"].sum() >= 3 and store.loaded_steps[-1] == (1, 1)
+    assert s["point_mask"].sum() > 0 and store.loaded_steps[-1] == (1, 1)
     pickle.dumps(ds)
 
 

@@ -16,9 +16,8 @@ import numpy as np
 import torch
 
 from abm.data.keyframes import KeyframeDataset, collate
-from abm.policy import MultiViewTransformer, PolicyConfig, decode_output, policy_loss, translation_targets
+from abm.policy import KeyframePolicy, PolicyConfig, decode_output
 from abm.policy.language import HashLanguageEncoder
-from abm.render import OrthographicRenderer
 from abm.train.synthetic import synthetic_episodes
 
 GOLDEN = Path(__file__).parent / "data" / "golden_policy.npz"
@@ -30,27 +29,24 @@ def _compute(state: dict[str, np.ndarray] | None) -> dict[str, np.ndarray]:
     torch.manual_seed(0)
     cfg = PolicyConfig.from_preset("small", "abm", **TINY)
     episodes = synthetic_episodes(1, camera_resolution=32)
-    ds = KeyframeDataset(episodes, cfg, HashLanguageEncoder(cfg.lang_dim), augment=False, show_progress=False)
-    batch = collate([ds[0], ds[1]])
-    model = MultiViewTransformer(cfg).eval()
+    policy = KeyframePolicy(cfg, HashLanguageEncoder(cfg.lang_dim)).eval()
     if state is not None:
-        model.load_state_dict({k: torch.from_numpy(v) for k, v in state.items()})
-    renderer = OrthographicRenderer(ds.workspace, cfg.resolution, cfg.views)
-    target = translation_targets(renderer, batch["position"])
+        policy.model.load_state_dict({k: torch.from_numpy(v) for k, v in state.items()})
+    ds = KeyframeDataset(episodes, policy.workspace, **policy.sample_options(), augment=False, show_progress=False)
+    batch = collate([ds[0], ds[1]])
     with torch.no_grad():
-        out = model(batch["images"], batch["proprio"], batch["lang"], mask=batch.get("mask"))
-        trained = model(batch["images"], batch["proprio"], batch["lang"], mask=batch.get("mask"),
-                        pool_weights=target)
-    terms = policy_loss(trained, target, batch["rotation_bins"], batch["gripper"], batch["collision"])
-    actions = decode_output(out, renderer)
+        inputs = policy.model_inputs(batch)
+        out = policy.run_model(inputs)
+        _, terms = policy.compute_loss(batch)
+        actions = policy.predict(batch)
+    assert [a.position.tolist() for a in actions] == [a.position.tolist() for a in decode_output(out, policy.renderer)]
     result = {
-        "images": batch["images"].numpy(), "mask": batch["mask"].numpy(), "heatmap": out.heatmap.numpy(),
+        "images": inputs["images"].numpy(), "mask": inputs["mask"].numpy(), "heatmap": out.heatmap.numpy(),
         "rotation": out.rotation.numpy(), "gripper": out.gripper.numpy(),
-        "loss": np.array([terms.total.item(), terms.translation.item(), terms.rotation.item(),
-                          terms.gripper.item(), terms.collision.item()]),
+        "loss": np.array([terms[k].item() for k in ("total", "translation", "rotation", "gripper", "collision")]),
         "positions": np.stack([a.position for a in actions]), "quaternions": np.stack([a.quaternion for a in actions]),
     }
-    result.update({f"state/{k}": v.numpy() for k, v in model.state_dict().items()})
+    result.update({f"state/{k}": v.numpy() for k, v in policy.model.state_dict().items()})
     return result
 
 

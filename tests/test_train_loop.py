@@ -1,17 +1,19 @@
-"""Training: overfitting a tiny batch, exact resume after an interruption, CLI errors, Policy.load."""
+"""Training: overfitting a tiny batch, exact resume after an interruption, CLI errors, loading a policy."""
 
 from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 import torch
 
 from abm.cli import main as cli_main
 from abm.data.keyframes import KeyframeDataset, collate
-from abm.policy import MultiViewTransformer, Policy, PolicyConfig, policy_loss, translation_targets
+from abm.policy import KeyframePolicy, PolicyConfig
+from abm.policy.checkpoint import list_checkpoints
 from abm.policy.language import HashLanguageEncoder
-from abm.train import TrainConfig, list_checkpoints, train
+from abm.train import TrainConfig, train
 from abm.train.synthetic import synthetic_episodes
 from abm.types import KeyframeAction
 
@@ -29,15 +31,14 @@ def test_small_model_overfits_a_fixed_batch(episodes) -> None:
     # the small preset's depth (2 + 2 layers) at 32^2 views and width 64, so it takes ~50 steps / ~2 s
     cfg = PolicyConfig.from_preset("small", "abm", resolution=32, width=64, stem_channels=16, decoder_channels=8,
                                    lang_dim=32)
-    ds = KeyframeDataset(episodes[:1], cfg, HashLanguageEncoder(32), augment=False)
+    policy = KeyframePolicy(cfg, HashLanguageEncoder(32))
+    ds = KeyframeDataset(episodes[:1], policy.workspace, **policy.sample_options(), augment=False)
     batch = collate([ds[0], ds[1]])
-    target = translation_targets(ds.renderer, batch["position"])
-    model = MultiViewTransformer(cfg)
-    opt = torch.optim.Adam(model.parameters(), lr=2e-3)
+    opt = torch.optim.Adam(policy.parameters(), lr=2e-3)
     losses = []
     for _ in range(150):
-        out = model(batch["images"], batch["proprio"], batch["lang"], mask=batch["mask"])
-        loss = policy_loss(out, target, batch["rotation_bins"], batch["gripper"], batch["collision"]).total
+        loss, metrics = policy.compute_loss(batch)
+        assert set(metrics) == {"total", "translation", "rotation", "gripper", "collision"}
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -102,17 +103,28 @@ def test_resume_into_another_variant_is_a_clear_error(episodes, tmp_path) -> Non
     with pytest.raises(ValueError, match="variant 'abm' but the model is 'rvt'"):
         train(_cfg(tmp_path, method="rvt", steps=2, resume=True), episodes)
     with pytest.raises(ValueError, match="expected 'rvt'"):
-        Policy.load(tmp_path, expect_variant="rvt")
+        KeyframePolicy.from_checkpoint(tmp_path, expect_variant="rvt")
 
 
 def test_policy_load_and_act(episodes, tmp_path) -> None:
     train(_cfg(tmp_path, steps=2), episodes)
-    policy = Policy.load(tmp_path)
+    policy = KeyframePolicy.from_checkpoint(tmp_path)
+    assert not policy.training
     obs, _ = episodes[0].steps[0]
     action = policy.act(obs, episodes[0].instruction, episodes[0].object_names)
     assert isinstance(action, KeyframeAction)
     assert policy.renderer.workspace.contains(action.position)
-    assert set(policy.last_timings) >= {"fuse_s", "render_s", "model_s", "decode_s"}
+    assert set(policy.last_timings) == {"condition_s", "render_s", "model_s", "decode_s"}
+    # acting on one observation = predicting on the dataset's sample of it (one pipeline, not two)
+    ds = KeyframeDataset(episodes[:1], policy.workspace, **policy.sample_options(), augment=False)
+    [predicted] = policy.predict(collate([ds[0]]))
+    np.testing.assert_allclose(predicted.position, action.position, atol=1e-6)
+    np.testing.assert_allclose(np.abs(predicted.quaternion @ action.quaternion), 1.0, atol=1e-6)
+    # save / from_checkpoint round trip
+    saved = policy.save(tmp_path / "exported.pt")
+    again = KeyframePolicy.from_checkpoint(saved)
+    np.testing.assert_allclose(again.act(obs, episodes[0].instruction, episodes[0].object_names).position,
+                               action.position, atol=1e-6)
     with pytest.raises(ValueError, match="object_names"):
         policy.act(obs, episodes[0].instruction)
 
@@ -123,10 +135,10 @@ def test_grounder_override_of_the_same_kind_keeps_trained_options(episodes, tmp_
     ckpt = torch.load(path, weights_only=True)
     ckpt["grounder"] = {"kind": "clip", "model": "tiny", "threshold": 0.7}  # as if trained with a CLIP grounder
     torch.save(ckpt, path)
-    merged = Policy.load(tmp_path, grounder={"kind": "clip", "threshold": 0.5})
-    assert merged._grounder_spec == {"kind": "clip", "model": "tiny", "threshold": 0.5}
-    replaced = Policy.load(tmp_path, grounder={"kind": "oracle"})
-    assert replaced._grounder_spec == {"kind": "oracle"}
+    merged = KeyframePolicy.from_checkpoint(tmp_path, grounder={"kind": "clip", "threshold": 0.5})
+    assert merged.grounder_spec == {"kind": "clip", "model": "tiny", "threshold": 0.5}
+    replaced = KeyframePolicy.from_checkpoint(tmp_path, grounder={"kind": "oracle"})
+    assert replaced.grounder_spec == {"kind": "oracle"}
 
 
 def test_cli_errors(tmp_path, capsys) -> None:
@@ -171,7 +183,7 @@ class _Payload:
 
 
 def test_crafted_checkpoint_is_refused_without_running_code(episodes, tmp_path) -> None:
-    from abm.train.checkpoint import load_checkpoint
+    from abm.policy.checkpoint import load_checkpoint
 
     train(_cfg(tmp_path / "run", steps=1, checkpoint_every=1), episodes)
     good = load_checkpoint(tmp_path / "run")  # a real checkpoint loads with weights_only=True
@@ -201,4 +213,4 @@ def test_an_existing_run_is_never_silently_replaced(episodes, tmp_path, capsys) 
     # --overwrite replaces it: only the new run's checkpoints remain
     train(_cfg(tmp_path / "run", method="rvt", steps=2, overwrite=True), episodes)
     assert [s for s, _ in list_checkpoints(tmp_path / "run")] == [2]
-    assert Policy.load(tmp_path / "run").config.variant == "rvt"
+    assert KeyframePolicy.from_checkpoint(tmp_path / "run").config.variant == "rvt"

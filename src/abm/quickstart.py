@@ -138,8 +138,10 @@ def _train_with_threads(config, threads: int) -> dict:
     """Train one run in a worker process with ``threads`` torch threads (see :func:`run_quickstart`)."""
     import torch
 
+    from abm.cli import configure_logging
     from abm.train.loop import train
 
+    configure_logging()
     torch.set_num_threads(threads)
     return train(config)
 
@@ -149,7 +151,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
     """Table, curves, example views and GIFs in one folder with a README that links them."""
     from abm.data.episode_store import EpisodeStore
     from abm.evaluation.report import plot_training_curves, views_figure
-    from abm.policy.inference import Policy
+    from abm.policy import KeyframePolicy
+    from abm.samples import collate
 
     report.mkdir(parents=True, exist_ok=True)
     plot_training_curves({m: r for m, r in runs.items()}, report / "training_curves.png")
@@ -159,8 +162,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
         index = store.select(tasks=[cfg.tasks[0]])[0]
         episode = store.load(index)
         obs, _ = episode.steps[0]
-        policy = Policy.load(runs["abm"], device="cpu")
-        inputs = policy.prepare(obs, episode.instruction, episode.object_names)
+        policy = KeyframePolicy.from_checkpoint(runs["abm"], device="cpu")
+        inputs = policy.model_inputs(collate([policy.observe(obs, episode.instruction, episode.object_names)]))
         mask = inputs["mask"][0].numpy() if "mask" in inputs else None
         views_figure(inputs["images"][0].numpy(), mask, list(policy.config.views), report / "virtual_views.png")
         figures.append(f"![virtual views]({'virtual_views.png'})\n\n*{episode.instruction}*: the five virtual "

@@ -179,9 +179,12 @@ class KeyframeAction:
     @property
     def matrix(self) -> np.ndarray:
         """``(4, 4)`` gripper-to-world transform of the target."""
-        from abm.geometry.rotations import pose_matrix
+        from scipy.spatial.transform import Rotation
 
-        return pose_matrix(self.position, self.quaternion)
+        out = np.eye(4)
+        out[:3, :3] = Rotation.from_quat(self.quaternion).as_matrix()
+        out[:3, 3] = self.position
+        return out
 
 
 @dataclass

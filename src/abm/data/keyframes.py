@@ -1,27 +1,30 @@
-"""Keyframe dataset: episodes -> model inputs of one policy variant.
+"""Keyframe dataset: episodes -> policy-independent samples (:mod:`abm.samples`).
 
 Per sample (episode ``e``, keyframe ``k``):
 
-1. fuse the cameras into a point cloud (:func:`abm.geometry.fuse_cameras`), cropped to the workspace
-   cube grown by what augmentation can bring into view (so shifted / rotated samples have no empty
-   bands; the renderer does the final crop to the cube after augmentation);
-2. conditioning *before* augmentation, per point: the mask field of the target object (mask
-   variants; from the grounder, cached on disk for non-oracle grounders) and the CLIP point features
-   (``ifd``; cached on disk); the language goal is looked up in a per-text cache built once;
-3. SE(3) augmentation of the points, the action and the gripper position together;
-4. re-rendering into the virtual views, carrying ``[mask, heatmap, point index]`` as extra channels,
-   and turning them into the variant's mask channel / CLIP feature index map;
-5. targets: the action's position, rotation bins, gripper and ignore-collision flags.
+1. fuse the cameras into a point cloud, cropped to the workspace cube grown by what augmentation can
+   bring into view (so shifted / rotated samples have no empty bands; the policy's renderer does the
+   final crop to the cube), and condition it on the instruction
+   (:func:`abm.grounding.conditioning.condition_scene`): the target X and skill text (split once per
+   episode), the per-point mask field of X (oracle: computed here; other grounders: cached on disk by
+   :meth:`KeyframeDataset.precompute`) and per-point CLIP features (cached on disk);
+2. SE(3) augmentation of the points, the action and the gripper position together;
+3. the sample: points, colours, per-point mask / features, gripper state, texts and the action targets.
+
+The dataset knows nothing of policies: which conditioning to compute is given by three flags
+(``split``, ``mask``, ``features``; a policy names them in ``KeyframePolicy.sample_options()``), and
+rendering, language encoding and target coding happen inside the policy.
 
 Sampling is a pure function of ``(seed, global sample position)``: :class:`StepSampler` yields
 ``(index, sample_seed)`` keys and the augmentation is seeded by ``sample_seed`` alone, so the data
 stream does not depend on the number of DataLoader workers and resumes exactly at any step. Nothing
-unpicklable is held (episodes are loaded lazily by index; grounders and encoders are only used in
-the main process), so multiple workers work.
+unpicklable is held (episodes are loaded lazily by index; grounders other than the oracle are only
+used in the main process), so multiple workers work.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -36,20 +39,19 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, Sampler
 
-from abm.geometry import PointCloud, Workspace, augment_scene, fuse_cameras, transform_points
-from abm.policy.action_coding import encode_action, proprioception
-from abm.policy.conditioning import (
+from abm.geometry import Workspace, augment_scene, transform_points
+from abm.grounding.conditioning import (
+    ConditionedScene,
     PointMask,
-    ground_points,
-    language_text,
+    condition_scene,
     make_grounder_from_spec,
     split_instruction,
 )
-from abm.policy.config import PolicyConfig
-from abm.policy.language import LanguageEncoder, encode_unique
-from abm.policy.variants import mask_channel
-from abm.render import OrthographicRenderer
+from abm.samples import action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
+
+__all__ = ["EpisodeMeta", "EpisodeSource", "KeyframeDataset", "StepSampler", "augmentation_margin_cube",
+           "collate", "worker_init"]
 
 
 @dataclass
@@ -177,48 +179,34 @@ def worker_init(worker_id: int) -> None:
     random.seed(seed)
 
 
-def collate(samples: Sequence[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
-    """Stack samples; ``ifd_features`` ``(M_i, D)`` are zero-padded to the largest ``M``."""
-    out: dict[str, torch.Tensor] = {}
-    for key in samples[0]:
-        vals = [s[key] for s in samples]
-        if key == "ifd_features":
-            m = max(v.shape[0] for v in vals)
-            padded = torch.zeros(len(vals), max(m, 1), vals[0].shape[1], dtype=vals[0].dtype)
-            for i, v in enumerate(vals):
-                padded[i, : v.shape[0]] = v
-            out[key] = padded
-        else:
-            out[key] = torch.stack(vals)
-    return out
-
-
 class KeyframeDataset(Dataset):
-    """Samples of one policy variant over a set of episodes (see module docstring).
+    """Policy-independent samples over a set of episodes (see module docstring and :mod:`abm.samples`).
 
     Args:
         source: the episodes (:class:`EpisodeSource`, a list of episodes or an ``EpisodeStore``).
-        config: the policy config (variant, views, resolution, language and feature sizes).
-        language: encoder for the language goals (used once, here, to fill the text cache).
+        workspace: the policy's workspace cube (crop and augmentation bounds).
         grounder: grounder spec (``{"kind": "oracle"}`` or ``{"kind": "clip", ...}``).
+        split: split each instruction into the target X and the skill text.
+        mask: compute the per-point mask field of X (implies ``split``).
+        features: compute per-point CLIP features (needs a CLIP grounder and ``cache_dir``).
         augment: apply SE(3) augmentation (translation ``max_translation`` m, yaw ``max_yaw_deg``).
         cache_dir: folder for cached grounding results / CLIP point features (needed for non-oracle
-            grounders and ``ifd``).
+            grounders and ``features``).
         seed: base seed of the augmentation.
         camera_names: cameras to fuse (default all).
 
-    Each item is a dict of tensors: ``images`` ``(V, 10, H, W)``, ``proprio`` ``(4,)``, ``lang``
-    ``(L, D)``, ``position`` ``(3,)`` (m), ``rotation_bins`` ``(3,)``, ``gripper`` ``()``,
-    ``collision`` ``()``, plus ``mask`` ``(V, 1, H, W)`` for mask variants and ``ifd_features``
-    ``(M, F)`` / ``ifd_index`` ``(V, H, W)`` for ``ifd``.
+    Items are indexed by ``(index, sample_seed)`` keys (see :class:`StepSampler`) or plain indices.
     """
 
     def __init__(
         self,
         source: EpisodeSource | Sequence[Episode] | Any,
-        config: PolicyConfig,
-        language: LanguageEncoder,
+        workspace: Workspace,
         grounder: Mapping[str, Any] | None = None,
+        *,
+        split: bool = True,
+        mask: bool = False,
+        features: bool = False,
         augment: bool = True,
         cache_dir: str | Path | None = None,
         seed: int = 0,
@@ -228,51 +216,47 @@ class KeyframeDataset(Dataset):
         show_progress: bool = True,
     ) -> None:
         self.source = source if isinstance(source, EpisodeSource) else EpisodeSource(source)
-        self.config = config
-        self.spec = config.spec
         self.grounder_spec = dict(grounder or {"kind": "oracle"})
+        self.split, self.mask, self.features = split or mask, mask, features
         self.augment = augment
         self.seed = seed
         self.camera_names = list(camera_names) if camera_names is not None else None
         self.max_translation, self.max_yaw_deg = max_translation, max_yaw_deg
-        self.workspace = Workspace(config.workspace_center, config.workspace_size)
+        self.workspace = workspace
         self.fuse_workspace = augmentation_margin_cube(self.workspace, max_translation, max_yaw_deg) \
             if augment else self.workspace
         self.items = [(j, k) for j, m in enumerate(self.source.meta) for k in range(m.num_steps)]
         if not self.items:
             raise ValueError("the dataset is empty: the selected episodes have no keyframes")
-        # per-episode conditioning: target name and language text
+        self.oracle = self.grounder_spec.get("kind") == "oracle"
+        # per-episode split of the instruction: target X and skill text
         self.targets: list[str | None] = []
-        texts = []
+        self.skills: list[str | None] = []
         for m in self.source.meta:
             target, skill = None, None
-            if self.spec.uses_mask or self.spec.language == "skill":
+            if self.split:
                 hint = m.target_names[0] if m.target_names else None
                 target, skill = split_instruction(m.instruction, m.object_names, hint)
-                if hint is not None and self.grounder_spec.get("kind") == "oracle":
+                if hint is not None and self.oracle:
                     target = hint  # ground truth for the oracle; X text for learned grounders
             self.targets.append(target)
-            texts.append(language_text(self.spec, m.instruction, skill))
-        self.texts = texts
-        if language.tokens != config.lang_tokens or language.dim != config.lang_dim:
-            raise ValueError(
-                f"language encoder gives {language.tokens} x {language.dim} tokens but the policy expects "
-                f"{config.lang_tokens} x {config.lang_dim}"
-            )
-        self.lang_cache = encode_unique(language, texts)
-        self._renderer: OrthographicRenderer | None = None
+            self.skills.append(skill)
         self._oracle = None
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
-        needs_cache = (self.spec.uses_mask and self.grounder_spec.get("kind") != "oracle") or self.spec.clip_features
-        if needs_cache:
+        if (self.mask and not self.oracle) or self.features:
             if self.cache_dir is None:
                 raise ValueError(
-                    f"variant {self.spec.name!r} with grounder {self.grounder_spec.get('kind')!r} needs a cache_dir "
+                    f"grounder {self.grounder_spec.get('kind')!r} (mask field or CLIP features) needs a cache_dir "
                     "for grounding results / CLIP features"
                 )
             self.precompute(show_progress)
 
     # ------------------------------------------------------------------ caching
+    @property
+    def cached(self) -> bool:
+        """Whether conditioning is read from the on-disk cache (non-oracle grounders, CLIP features)."""
+        return self.cache_dir is not None and ((self.mask and not self.oracle) or self.features)
+
     def _cache_file(self, j: int, k: int) -> Path:
         assert self.cache_dir is not None
         meta = self.source.meta[j]
@@ -280,6 +264,13 @@ class KeyframeDataset(Dataset):
                 "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}
         digest = hashlib.sha1(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
         return self.cache_dir / f"{digest}_k{k:03d}.npz"
+
+    def _scene(self, j: int, obs: Observation, grounder: Any | None, mask: bool, features: bool
+               ) -> ConditionedScene:
+        meta = self.source.meta[j]
+        return condition_scene(obs, meta.instruction, self.fuse_workspace, grounder=grounder,
+                               object_names=meta.object_names, split=False, target=self.targets[j],
+                               skill=self.skills[j], mask=mask, features=features, camera_names=self.camera_names)
 
     def precompute(self, show_progress: bool = True) -> None:
         """Compute (in this process) and cache grounding results and CLIP point features of every keyframe."""
@@ -293,19 +284,13 @@ class KeyframeDataset(Dataset):
         grounder = make_grounder_from_spec(self.grounder_spec)
         for j, k in tqdm(todo, desc="grounding keyframes", disable=not show_progress):
             obs, _ = self.source.load_step(j, k)
-            cloud = self._cloud(obs)
+            scene = self._scene(j, obs, grounder, self.mask, self.features)
             arrays: dict[str, np.ndarray] = {}
-            if self.spec.uses_mask:
-                pm = ground_points(grounder, obs, cloud, self.targets[j], self.source.meta[j].object_names)
-                arrays.update(mask=pm.mask.astype(np.float16), heatmap=pm.heatmap.astype(np.float16))
-            if self.spec.clip_features:
-                feats = np.asarray(grounder.point_features(obs, cloud), np.float32)
-                if feats.shape != (len(cloud), self.config.ifd_feature_dim):
-                    raise ValueError(
-                        f"CLIP point features have shape {feats.shape}, expected ({len(cloud)}, "
-                        f"{self.config.ifd_feature_dim}); set the policy's ifd_feature_dim to the CLIP width"
-                    )
-                arrays["features"] = feats.astype(np.float16)
+            if scene.point_mask is not None:
+                arrays.update(mask=scene.point_mask.mask.astype(np.float16),
+                              heatmap=scene.point_mask.heatmap.astype(np.float16))
+            if scene.features is not None:
+                arrays["features"] = scene.features.astype(np.float16)
             path = self._cache_file(j, k)
             tmp = path.with_name(path.name + f".tmp{os.getpid()}.npz")
             np.savez(tmp, **arrays)
@@ -315,58 +300,37 @@ class KeyframeDataset(Dataset):
     def __len__(self) -> int:
         return len(self.items)
 
-    def _cloud(self, obs: Observation) -> PointCloud:
-        return fuse_cameras(obs, self.fuse_workspace, self.camera_names)
+    def _conditioned(self, j: int, k: int, obs: Observation) -> ConditionedScene:
+        if not self.cached:
+            if self.mask and self._oracle is None:
+                self._oracle = make_grounder_from_spec({"kind": "oracle"})
+            return self._scene(j, obs, self._oracle, self.mask, False)
+        path = self._cache_file(j, k)
+        if not path.exists():
+            raise FileNotFoundError(f"grounding cache entry {path} is missing; run precompute() first")
+        scene = self._scene(j, obs, None, False, False)
+        with np.load(path) as data:
+            pm = None
+            if self.mask:
+                mask, heat = data["mask"].astype(np.float32), data["heatmap"].astype(np.float32)
+                pm = PointMask(mask, heat, bool(mask.any()))
+            feats = data["features"] if self.features else None
+        return dataclasses.replace(scene, point_mask=pm, features=feats)
 
-    @property
-    def renderer(self) -> OrthographicRenderer:
-        if self._renderer is None:
-            self._renderer = OrthographicRenderer(self.workspace, self.config.resolution, self.config.views)
-        return self._renderer
-
-    def _conditioning(self, j: int, k: int, obs: Observation, cloud: PointCloud
-                      ) -> tuple[PointMask | None, np.ndarray | None]:
-        if not (self.spec.uses_mask or self.spec.clip_features):
-            return None, None
-        if self.cache_dir is not None and (self.grounder_spec.get("kind") != "oracle" or self.spec.clip_features):
-            path = self._cache_file(j, k)
-            if not path.exists():
-                raise FileNotFoundError(f"grounding cache entry {path} is missing; run precompute() first")
-            with np.load(path) as data:
-                pm = None
-                if self.spec.uses_mask:
-                    mask, heat = data["mask"].astype(np.float32), data["heatmap"].astype(np.float32)
-                    pm = PointMask(mask, heat, bool(mask.any()))
-                feats = data["features"].astype(np.float32) if self.spec.clip_features else None
-            return pm, feats
-        if self._oracle is None:
-            self._oracle = make_grounder_from_spec({"kind": "oracle"})
-        pm = ground_points(self._oracle, obs, cloud, self.targets[j], self.source.meta[j].object_names)
-        return pm, None
-
-    def __getitem__(self, key: int | tuple[int, int]) -> dict[str, torch.Tensor]:
+    def __getitem__(self, key: int | tuple[int, int]) -> dict[str, Any]:
         index, sample_seed = (key, index_seed(key)) if isinstance(key, int) else key
         j, k = self.items[index]
         obs, action = self.source.load_step(j, k)
-        cloud = self._cloud(obs)
-        pm, feats = self._conditioning(j, k, obs, cloud)
-        rng = np.random.default_rng([self.seed, sample_seed])
-        points = cloud.xyz
+        scene = self._conditioned(j, k, obs)
+        points = scene.cloud.xyz
         grip_pos = np.asarray(obs.gripper_pose[:3, 3], np.float64)
         if self.augment:
+            rng = np.random.default_rng([self.seed, sample_seed])
             points, action, transform = augment_scene(points, action, self.workspace, rng,
                                                       self.max_translation, self.max_yaw_deg)
             grip_pos = transform_points(transform, grip_pos[None])[0]
-        sample = render_inputs(self.renderer, self.config, points, cloud.rgb, pm, feats)
-        enc = encode_action(action, self.config.rotation_bins)
-        sample.update(
-            proprio=torch.from_numpy(proprioception(obs.gripper_open, grip_pos, self.workspace)),
-            lang=self.lang_cache[self.texts[j]],
-            position=torch.from_numpy(enc.position),
-            rotation_bins=torch.from_numpy(enc.rotation_bins),
-            gripper=torch.tensor(enc.gripper, dtype=torch.int64),
-            collision=torch.tensor(enc.collision, dtype=torch.int64),
-        )
+        sample = scene_sample(scene, obs.gripper_open, grip_pos, points)
+        sample.update(action_targets(action))
         return sample
 
 
@@ -385,53 +349,3 @@ def augmentation_margin_cube(workspace: Workspace, max_translation: float, max_y
 def index_seed(index: int) -> int:
     """Sample seed used when a dataset is indexed by a plain integer."""
     return int(index)
-
-
-def render_inputs(
-    renderer: OrthographicRenderer,
-    config: PolicyConfig,
-    points: np.ndarray,
-    rgb: np.ndarray,
-    point_mask: PointMask | None,
-    features: np.ndarray | None,
-) -> dict[str, torch.Tensor]:
-    """Render one point cloud into the model's image inputs for ``config``'s variant.
-
-    Args:
-        points: ``(N, 3)`` world metres (after augmentation).
-        rgb: ``(N, 3)`` in ``[0, 1]``.
-        point_mask: per-point mask field (mask variants).
-        features: ``(N, F)`` per-point CLIP features (``ifd``).
-
-    Returns:
-        ``images`` ``(V, 10, H, W)``, and ``mask`` ``(V, 1, H, W)`` or ``ifd_features`` ``(M, F)`` +
-        ``ifd_index`` ``(V, H, W)`` (index into ``ifd_features`` of the visible point, -1 = none).
-    """
-    spec = config.spec
-    n = points.shape[0]
-    extra = []
-    if spec.uses_mask:
-        if point_mask is None:
-            raise ValueError(f"variant {spec.name!r} needs a per-point mask field")
-        extra += [point_mask.mask, point_mask.heatmap]
-    if spec.clip_features:
-        extra.append(np.arange(n, dtype=np.float32))
-    pts = torch.from_numpy(np.ascontiguousarray(points, np.float32))
-    cols = torch.from_numpy(np.ascontiguousarray(rgb, np.float32))
-    ext = torch.from_numpy(np.stack(extra, -1).astype(np.float32)) if extra else None
-    with torch.no_grad():
-        views = renderer.render(pts, cols, extra=ext)
-    out = {"images": views.rvt_channels()[0].contiguous()}
-    if spec.uses_mask:
-        out["mask"] = mask_channel(spec, views.extra[:, :, :2])[0].contiguous()
-    if spec.clip_features:
-        if features is None:
-            raise ValueError(f"variant {spec.name!r} needs per-point CLIP features")
-        idx = views.extra[0, :, -1].round().long()
-        idx = torch.where(views.occupied[0], idx, torch.full_like(idx, -1))
-        visible, inverse = torch.unique(idx[idx >= 0], return_inverse=True)
-        compact = torch.full_like(idx, -1)
-        compact[idx >= 0] = inverse
-        out["ifd_features"] = torch.from_numpy(np.asarray(features, np.float32))[visible]
-        out["ifd_index"] = compact
-    return out

@@ -85,8 +85,8 @@ def _check_setup(args: argparse.Namespace, tasks: list[str]) -> None:
     import torch
 
     from abm.cli import CommandError
+    from abm.policy.checkpoint import load_checkpoint
     from abm.sim.splits import load_splits
-    from abm.train.checkpoint import load_checkpoint
 
     splits = load_splits(args.splits)
     for task in tasks:

@@ -29,7 +29,7 @@ from abm.sim.env import make_env, run_expert
 from abm.types import KeyframeAction, Observation
 
 ActFn = Callable[[Observation, str, Mapping[int, str]], KeyframeAction]
-"""``(observation, instruction, object_names) -> keyframe`` (e.g. :meth:`Policy.act`)."""
+"""``(observation, instruction, object_names) -> keyframe`` (e.g. :meth:`abm.policy.KeyframePolicy.act`)."""
 
 GRASP_TOLERANCE_CM = 2.0
 """Position error a grasp tolerates (measured on pick_block by perturbing expert keyframes)."""

@@ -72,12 +72,12 @@ _POLICIES: dict[tuple[str, str | None, str], Any] = {}  # per-process cache of l
 
 
 def _load_policy(run: str, settings: EvalSettings) -> Any:
-    from abm.policy.inference import Policy
+    from abm.policy import KeyframePolicy
 
     key = (run, settings.grounder, settings.device)
     if key not in _POLICIES:
         grounder = {"kind": settings.grounder} if settings.grounder else None
-        _POLICIES[key] = Policy.load(run, device=settings.device, grounder=grounder)
+        _POLICIES[key] = KeyframePolicy.from_checkpoint(run, device=settings.device, grounder=grounder)
     return _POLICIES[key]
 
 
@@ -117,7 +117,7 @@ def _worker_init() -> None:
 
 def method_labels(runs: Sequence[str | Path]) -> dict[str, str]:
     """Table labels of runs: the policy variant, or ``variant (run folder)`` when variants repeat."""
-    from abm.train.checkpoint import load_checkpoint
+    from abm.policy.checkpoint import load_checkpoint
 
     variants = {str(r): load_checkpoint(r, map_location="cpu")["policy_config"]["variant"] for r in runs}
     counts: dict[str, int] = {}
@@ -218,7 +218,7 @@ def evaluate(
 def checkpoint_of(run: str | Path) -> str:
     """The checkpoint file a run folder (or checkpoint path) resolves to; ``str(run)`` if none exists."""
     try:
-        from abm.train.checkpoint import resolve_checkpoint
+        from abm.policy.checkpoint import resolve_checkpoint
 
         return str(resolve_checkpoint(run).resolve())
     except (FileNotFoundError, ValueError):

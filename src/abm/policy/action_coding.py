@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from abm.geometry import Workspace, bins_to_quat, quat_to_bins
+from abm.geometry import bins_to_quat, quat_to_bins
 from abm.types import KeyframeAction
 
 
@@ -55,10 +55,3 @@ def decode_action(
     """
     quat = bins_to_quat(np.asarray(rotation_bins, np.int64), num_bins)
     return KeyframeAction(np.asarray(position, np.float64), quat, bool(gripper), bool(collision))
-
-
-def proprioception(gripper_open: float, gripper_position: np.ndarray, workspace: Workspace) -> np.ndarray:
-    """``(4,)`` float32 proprioception: gripper opening in ``[0, 1]`` and the gripper position in cube
-    coordinates (``[-1, 1]`` inside the workspace)."""
-    pos = workspace.normalize(np.asarray(gripper_position, np.float64))
-    return np.concatenate([[float(gripper_open)], pos]).astype(np.float32)

@@ -2,7 +2,7 @@
 
 The policy reads ``L`` language-token embeddings of width ``D`` (77 x 512 for CLIP ViT-B text
 features, 77 x 768 for ViT-L). Encoders are described by a JSON-compatible *spec* stored in every
-checkpoint so :class:`~abm.policy.inference.Policy` can rebuild the same encoder:
+checkpoint so :class:`~abm.policy.KeyframePolicy` can rebuild the same encoder:
 
 * ``{"kind": "hash", "dim": D, "tokens": L, "seed": s}`` — :class:`HashLanguageEncoder`, a frozen,
   weight-free encoder: every lower-cased word maps to a fixed pseudo-random unit vector (seeded by a
@@ -96,17 +96,8 @@ def make_language_encoder(spec: dict[str, Any]) -> LanguageEncoder:
     if kind == "hash":
         return HashLanguageEncoder(int(spec.get("dim", 512)), int(spec.get("tokens", 77)), int(spec.get("seed", 0)))
     if kind == "clip":
-        from abm.policy.conditioning import make_grounder_from_spec
+        from abm.grounding.conditioning import make_grounder_from_spec
 
         grounder = make_grounder_from_spec({**spec, "kind": "clip"})
         return ClipLanguageEncoder(grounder, spec)
     raise ValueError(f"unknown language encoder kind {kind!r}; use 'hash' or 'clip'")
-
-
-def encode_unique(encoder: LanguageEncoder, texts: Sequence[str]) -> dict[str, torch.Tensor]:
-    """Encode each distinct text once: text -> ``(tokens, dim)`` float32 (the dataset's language cache)."""
-    unique = sorted(set(texts))
-    if not unique:
-        return {}
-    emb = encoder.encode(unique)
-    return {t: emb[i].contiguous() for i, t in enumerate(unique)}

@@ -7,6 +7,8 @@
   resumed from a checkpoint sees exactly the batches the uninterrupted run would have seen.
 * Distributed: launched by ``torchrun`` (``WORLD_SIZE`` > 1) the loop joins a process group (gloo on
   CPU, nccl on CUDA) and wraps the model in ``DistributedDataParallel``; rank 0 logs and saves.
+* :class:`Trainer` splits a run into build / step / save-restore / fit; :func:`train` runs one.
+  Messages go through :mod:`logging` (logger ``abm.train.loop``; the ``abm`` command shows INFO).
 * Outputs in the run folder: ``config.json``, ``log.csv``, ``tb/`` (TensorBoard),
   ``checkpoints/step_XXXXXXXX.pt`` (every ``checkpoint_every`` steps, at the end, and on Ctrl-C),
   ``summary.json``.
@@ -18,6 +20,7 @@ import csv
 import dataclasses
 import hashlib
 import json
+import logging
 import math
 import os
 import random
@@ -33,19 +36,20 @@ import torch
 import torch.distributed as dist
 
 from abm.data.keyframes import EpisodeSource, KeyframeDataset, StepSampler, collate, worker_init
-from abm.policy.config import PolicyConfig, check_compatible
-from abm.policy.heads import policy_loss, translation_targets
-from abm.policy.language import make_language_encoder
-from abm.policy.mvt import MultiViewTransformer
-from abm.render import OrthographicRenderer
-from abm.train.checkpoint import (
+from abm.grounding.conditioning import make_grounder_from_spec
+from abm.policy.checkpoint import (
     checkpoint_path,
     list_checkpoints,
     load_checkpoint,
     prune_checkpoints,
     save_checkpoint,
 )
+from abm.policy.config import PolicyConfig, check_compatible
+from abm.policy.keyframe_policy import LOSS_TERMS, KeyframePolicy
+from abm.policy.language import make_language_encoder
 from abm.types import Episode
+
+log = logging.getLogger(__name__)
 
 LOG_FIELDS = ("step", "lr", "total", "translation", "rotation", "gripper", "collision", "samples_per_s",
               "elapsed_s")
@@ -305,6 +309,219 @@ def _claim_run_folder(run: Path, cfg: TrainConfig, dinfo: DistInfo) -> None:
     run.mkdir(parents=True, exist_ok=True)
 
 
+class Trainer:
+    """One training run: :meth:`build` (distributed setup, run folder, policy, data, optimiser, resume
+    state), :meth:`step` (one optimiser step), :meth:`save` / :meth:`restore` (checkpoints) and
+    :meth:`fit` (the loop with logging, progress and checkpoints).
+
+    Args:
+        cfg: run options.
+        episodes: in-memory episodes (instead of ``cfg.data``).
+    """
+
+    def __init__(self, cfg: TrainConfig, episodes: Sequence[Episode] | None = None) -> None:
+        self.cfg = cfg
+        self.episodes = episodes
+        self.run = Path(cfg.out)
+        self.start = 0
+        self.prior_s = 0.0  # training seconds of earlier sessions of this run (resumes)
+        self._t0 = time.perf_counter()
+
+    # ------------------------------------------------------------------ build
+    def build(self) -> Trainer:
+        """Set everything up; raises ``ValueError`` on bad options before anything is written."""
+        cfg = self.cfg
+        self.dinfo = dinfo = _setup_distributed(cfg.device)
+        self.device = device = torch.device(cfg.device)
+        if device.type == "cuda":
+            if not torch.cuda.is_available():
+                raise ValueError("--device cuda requested but CUDA is not available")
+            if dinfo.enabled:
+                self.device = device = torch.device("cuda", dinfo.local_rank)
+            torch.cuda.set_device(device)
+        _claim_run_folder(self.run, cfg, dinfo)
+        ckpt = self._resume_checkpoint()
+
+        torch.manual_seed(cfg.seed)
+        np.random.seed(cfg.seed)  # noqa: NPY002 - global RNG of third-party code
+        random.seed(cfg.seed)
+        base_lang = int(cfg.policy_overrides.get("lang_dim", 512))
+        self.language_spec = ckpt["language"] if ckpt is not None else language_spec(cfg, base_lang)
+        encoder = make_language_encoder(self.language_spec)
+        self.grounder_spec = gspec = ({"kind": "oracle"} if cfg.grounder == "oracle"
+                                      else {"kind": cfg.grounder, **cfg.grounder_options})
+        ifd_dim = None
+        if cfg.method == "ifd":
+            if cfg.grounder != "clip":
+                raise ValueError("method 'ifd' re-renders CLIP features: use --grounder clip")
+            g = make_grounder_from_spec(gspec)
+            ifd_dim = getattr(g, "feature_dim", None) or getattr(getattr(g, "backbone", None), "embed_dim", None)
+        self.policy_config = build_policy_config(cfg, encoder.dim, ifd_dim)
+        if ckpt is not None:
+            check_compatible(PolicyConfig.from_dict(ckpt["policy_config"]), self.policy_config)
+        self.policy = KeyframePolicy(self.policy_config, encoder, gspec, cfg.camera_names).to(device)
+        self.dataset = self._dataset()
+
+        world = dinfo.world_size
+        self.lr = cfg.lr if cfg.lr is not None else 1e-4 * cfg.batch * world
+        self.warmup = cfg.warmup if cfg.warmup is not None else min(2000, cfg.steps // 20)
+        self.optimizer = make_optimizer(cfg.optimizer, self.policy.parameters(), self.lr, cfg.weight_decay)
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(
+            self.optimizer, _lr_lambda(self.warmup, cfg.steps, cfg.min_lr_ratio))
+        if ckpt is not None:
+            self.restore(ckpt)
+        self.train_policy: torch.nn.Module = self.policy
+        if dinfo.enabled:
+            from torch.nn.parallel import DistributedDataParallel
+
+            self.train_policy = DistributedDataParallel(
+                self.policy, device_ids=[device.index] if device.type == "cuda" else None)
+        if dinfo.main:
+            (self.run / "config.json").write_text(json.dumps(
+                {"train": cfg.to_dict(), "policy": self.policy_config.to_dict(), "language": self.language_spec,
+                 "grounder": gspec, "world_size": world, "lr": self.lr, "warmup": self.warmup}, indent=2))
+        sampler = StepSampler(len(self.dataset), cfg.batch, cfg.steps, self.start, world, dinfo.rank, cfg.seed)
+        self.loader = torch.utils.data.DataLoader(
+            self.dataset, batch_size=cfg.batch, sampler=sampler, num_workers=cfg.workers, collate_fn=collate,
+            worker_init_fn=worker_init, pin_memory=device.type == "cuda",
+        )
+        return self
+
+    def _resume_checkpoint(self) -> dict[str, Any] | None:
+        if not self.cfg.resume:
+            return None
+        if not list_checkpoints(self.run):
+            if self.dinfo.main:
+                log.info("abm train: no checkpoint in %s; starting from scratch", self.run)
+            return None
+        ckpt = load_checkpoint(self.run)
+        if int(ckpt["step"]) > self.cfg.steps:
+            raise ValueError(f"{self.run} is already at step {ckpt['step']}, past --steps {self.cfg.steps}: resume "
+                             f"with --steps {ckpt['step']} or more")
+        return ckpt
+
+    def _dataset(self) -> KeyframeDataset:
+        cfg, dinfo = self.cfg, self.dinfo
+        source = _episode_source(cfg, self.episodes)
+        cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else self.run / "cache"
+        if dinfo.enabled and not dinfo.main:
+            dist.barrier()  # rank 0 fills the grounding cache first
+        dataset = KeyframeDataset(source, self.policy.workspace, self.grounder_spec, **self.policy.sample_options(),
+                                  augment=cfg.augment, cache_dir=cache, seed=cfg.seed, camera_names=cfg.camera_names,
+                                  show_progress=dinfo.main and cfg.progress)
+        if dinfo.enabled and dinfo.main:
+            dist.barrier()
+        return dataset
+
+    # ------------------------------------------------------------------ checkpoints
+    def state(self, step: int) -> dict[str, Any]:
+        """Checkpoint payload: the policy's plus the optimiser, scheduler, RNG and run bookkeeping."""
+        return {
+            **self.policy.checkpoint_payload(), "optimizer": self.optimizer.state_dict(),
+            "scheduler": self.scheduler.state_dict(), "rng": _rng_state(), "step": step,
+            "train_config": self.cfg.to_dict(), "world_size": self.dinfo.world_size,
+            "elapsed_s": self.elapsed_s(),  # training time over all resumes
+        }
+
+    def restore(self, ckpt: dict[str, Any]) -> None:
+        """Load policy, optimiser, scheduler and RNG states and the step from a checkpoint."""
+        self.policy.model.load_state_dict(ckpt["model"])
+        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self.scheduler.load_state_dict(ckpt["scheduler"])
+        _set_rng_state(ckpt["rng"])
+        self.start = int(ckpt["step"])
+        self.prior_s = float(ckpt.get("elapsed_s", 0.0))
+        if self.dinfo.main:
+            log.info("abm train: resumed from %s at step %d", ckpt["path"], self.start)
+
+    def save(self, step: int) -> None:
+        """Checkpoint at ``step`` (rank 0) and prune old ones."""
+        if self.dinfo.main:
+            save_checkpoint(checkpoint_path(self.run, step), self.state(step))
+            prune_checkpoints(self.run, self.cfg.keep_checkpoints)
+
+    def elapsed_s(self) -> float:
+        return self.prior_s + time.perf_counter() - self._t0
+
+    # ------------------------------------------------------------------ steps
+    def step(self, batch: dict[str, Any]) -> dict[str, float]:
+        """One optimiser step on a batch; returns the loss terms (averaged over ranks)."""
+        loss, metrics = self.train_policy(batch)  # KeyframePolicy.compute_loss (through DDP when distributed)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.cfg.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.cfg.grad_clip)
+        self.optimizer.step()
+        self.scheduler.step()
+        vals = torch.stack([metrics[k] for k in LOSS_TERMS]).float()
+        if self.dinfo.enabled:
+            dist.all_reduce(vals)
+            vals /= self.dinfo.world_size
+        return dict(zip(LOSS_TERMS, vals.tolist(), strict=True))
+
+    def fit(self, on_step: Callable[[int, dict[str, float]], None] | None = None) -> dict[str, Any]:
+        """Train from the current step to ``cfg.steps``; returns the run summary (also ``summary.json``)."""
+        from tqdm import tqdm
+
+        cfg, dinfo = self.cfg, self.dinfo
+        world = dinfo.world_size
+        logger = _Logger(self.run, self.start, dinfo.main)
+        step, last = self.start, {}
+        self._t0 = time.perf_counter()
+        tick, tick_step = self._t0, step
+        bar = tqdm(total=cfg.steps, initial=step, desc=f"train {cfg.method}/{cfg.preset}",
+                   disable=not (dinfo.main and cfg.progress), dynamic_ncols=True)
+        try:
+            self.train_policy.train()
+            for batch in self.loader:
+                last = self.step(batch)
+                step += 1
+                bar.update(1)
+                bar.set_postfix(loss=f"{last['total']:.3f}")
+                if step % cfg.log_every == 0 or step == cfg.steps:
+                    now = time.perf_counter()
+                    sps = (step - tick_step) * cfg.batch * world / max(now - tick, 1e-9)
+                    tick, tick_step = now, step
+                    logger.log({"step": step, "lr": self.scheduler.get_last_lr()[0], **last, "samples_per_s": sps,
+                                "elapsed_s": self.elapsed_s()})
+                if on_step is not None:
+                    on_step(step, last)
+                if step % cfg.checkpoint_every == 0 and step != cfg.steps:
+                    self.save(step)
+        except KeyboardInterrupt:
+            self.save(step)
+            if dinfo.main:
+                log.warning("abm train: interrupted; checkpoint saved at step %d (continue with --resume)", step)
+            raise
+        finally:
+            bar.close()
+            logger.close()
+        if step > self.start or not list_checkpoints(self.run):
+            self.save(step)
+        return self._summary(step, last)
+
+    def _summary(self, step: int, last: dict[str, float]) -> dict[str, Any]:
+        dinfo = self.dinfo
+        digest = parameter_digest(self.policy.model)
+        digests = [digest]
+        if dinfo.enabled:
+            gathered: list[Any] = [None] * dinfo.world_size
+            dist.all_gather_object(gathered, digest)
+            digests = list(gathered)
+        summary = {
+            "method": self.cfg.method, "preset": self.policy_config.preset, "steps": step, "final_loss": last,
+            "parameters": self.policy.model.num_parameters(), "world_size": dinfo.world_size,
+            "parameter_digests": digests, "ranks_in_sync": len(set(digests)) == 1,
+            "seconds": time.perf_counter() - self._t0, "checkpoint": str(checkpoint_path(self.run, step)),
+        }
+        if dinfo.main:
+            (self.run / "summary.json").write_text(json.dumps(summary, indent=2))
+        if dinfo.enabled:
+            dist.barrier()
+            dist.destroy_process_group()
+        return summary
+
+
 def train(
     cfg: TrainConfig,
     episodes: Sequence[Episode] | None = None,
@@ -320,181 +537,4 @@ def train(
     Raises:
         ValueError: bad options, a checkpoint of another variant/preset, or an empty selection.
     """
-    from tqdm import tqdm
-
-    dinfo = _setup_distributed(cfg.device)
-    device = torch.device(cfg.device)
-    if device.type == "cuda":
-        if not torch.cuda.is_available():
-            raise ValueError("--device cuda requested but CUDA is not available")
-        if dinfo.enabled:
-            device = torch.device("cuda", dinfo.local_rank)
-        torch.cuda.set_device(device)
-    run = Path(cfg.out)
-    _claim_run_folder(run, cfg, dinfo)
-
-    # ---- resume state
-    ckpt = None
-    if cfg.resume:
-        if list_checkpoints(run):
-            ckpt = load_checkpoint(run)
-            if int(ckpt["step"]) > cfg.steps:
-                raise ValueError(f"{run} is already at step {ckpt['step']}, past --steps {cfg.steps}: resume "
-                                 f"with --steps {ckpt['step']} or more")
-        elif dinfo.main:
-            print(f"abm train: no checkpoint in {run}; starting from scratch")
-
-    # ---- conditioning, data and model config
-    torch.manual_seed(cfg.seed)
-    np.random.seed(cfg.seed)  # noqa: NPY002 - global RNG of third-party code
-    random.seed(cfg.seed)
-    base_lang = int(cfg.policy_overrides.get("lang_dim", 512))
-    lspec = ckpt["language"] if ckpt is not None else language_spec(cfg, base_lang)
-    encoder = make_language_encoder(lspec)
-    gspec = {"kind": "oracle"} if cfg.grounder == "oracle" else {"kind": cfg.grounder, **cfg.grounder_options}
-    ifd_dim = None
-    if cfg.method == "ifd":
-        if cfg.grounder != "clip":
-            raise ValueError("method 'ifd' re-renders CLIP features: use --grounder clip")
-        from abm.policy.conditioning import make_grounder_from_spec
-
-        g = make_grounder_from_spec(gspec)
-        ifd_dim = getattr(g, "feature_dim", None) or getattr(getattr(g, "backbone", None), "embed_dim", None)
-    pconfig = build_policy_config(cfg, encoder.dim, ifd_dim)
-    if ckpt is not None:
-        stored = PolicyConfig.from_dict(ckpt["policy_config"])
-        check_compatible(stored, pconfig)
-    source = _episode_source(cfg, episodes)
-    cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else run / "cache"
-
-    def make_dataset(progress: bool) -> KeyframeDataset:
-        return KeyframeDataset(source, pconfig, encoder, gspec, augment=cfg.augment, cache_dir=cache,
-                               seed=cfg.seed, camera_names=cfg.camera_names, show_progress=progress)
-
-    if dinfo.enabled and not dinfo.main:
-        dist.barrier()  # rank 0 fills the grounding cache first
-    dataset = make_dataset(dinfo.main and cfg.progress)
-    if dinfo.enabled and dinfo.main:
-        dist.barrier()
-
-    model = MultiViewTransformer(pconfig).to(device)
-    world = dinfo.world_size
-    lr = cfg.lr if cfg.lr is not None else 1e-4 * cfg.batch * world
-    warmup = cfg.warmup if cfg.warmup is not None else min(2000, cfg.steps // 20)
-    optimizer = make_optimizer(cfg.optimizer, model.parameters(), lr, cfg.weight_decay)
-    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, _lr_lambda(warmup, cfg.steps, cfg.min_lr_ratio))
-    start = 0
-    if ckpt is not None:
-        model.load_state_dict(ckpt["model"])
-        optimizer.load_state_dict(ckpt["optimizer"])
-        scheduler.load_state_dict(ckpt["scheduler"])
-        _set_rng_state(ckpt["rng"])
-        start = int(ckpt["step"])
-        if dinfo.main:
-            print(f"abm train: resumed from {ckpt['path']} at step {start}")
-    train_model: torch.nn.Module = model
-    if dinfo.enabled:
-        from torch.nn.parallel import DistributedDataParallel
-
-        train_model = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
-
-    if dinfo.main:
-        (run / "config.json").write_text(json.dumps(
-            {"train": cfg.to_dict(), "policy": pconfig.to_dict(), "language": lspec, "grounder": gspec,
-             "world_size": world, "lr": lr, "warmup": warmup}, indent=2))
-
-    sampler = StepSampler(len(dataset), cfg.batch, cfg.steps, start, world, dinfo.rank, cfg.seed)
-    loader = torch.utils.data.DataLoader(
-        dataset, batch_size=cfg.batch, sampler=sampler, num_workers=cfg.workers, collate_fn=collate,
-        worker_init_fn=worker_init, pin_memory=device.type == "cuda",
-    )
-    renderer = OrthographicRenderer(dataset.workspace, pconfig.resolution, pconfig.views, device=device)
-    logger = _Logger(run, start, dinfo.main)
-    use_amp = device.type == "cuda"
-
-    def payload(step: int) -> dict[str, Any]:
-        return {
-            "policy_config": pconfig.to_dict(), "variant": pconfig.variant, "preset": pconfig.preset,
-            "language": lspec, "grounder": gspec, "camera_names": cfg.camera_names,
-            "model": model.state_dict(), "optimizer": optimizer.state_dict(),
-            "scheduler": scheduler.state_dict(), "rng": _rng_state(), "step": step,
-            "train_config": cfg.to_dict(), "world_size": world,
-            "elapsed_s": prior_s + time.perf_counter() - t0,  # training time over all resumes
-        }
-
-    def save(step: int) -> None:
-        if dinfo.main:
-            save_checkpoint(checkpoint_path(run, step), payload(step))
-            prune_checkpoints(run, cfg.keep_checkpoints)
-
-    step = start
-    last: dict[str, float] = {}
-    prior_s = float(ckpt.get("elapsed_s", 0.0)) if ckpt is not None else 0.0
-    t0 = time.perf_counter()
-    tick, tick_step = t0, start
-    bar = tqdm(total=cfg.steps, initial=start, desc=f"train {cfg.method}/{cfg.preset}",
-               disable=not (dinfo.main and cfg.progress), dynamic_ncols=True)
-    try:
-        train_model.train()
-        for batch in loader:
-            batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
-            target = translation_targets(renderer, batch["position"])
-            with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
-                out = train_model(batch["images"], batch["proprio"], batch["lang"], mask=batch.get("mask"),
-                                  ifd_features=batch.get("ifd_features"), ifd_index=batch.get("ifd_index"),
-                                  pool_weights=target)
-            terms = policy_loss(out, target, batch["rotation_bins"], batch["gripper"], batch["collision"])
-            optimizer.zero_grad(set_to_none=True)
-            terms.total.backward()
-            if cfg.grad_clip > 0:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
-            optimizer.step()
-            scheduler.step()
-            step += 1
-            vals = torch.stack([terms.total, terms.translation, terms.rotation, terms.gripper,
-                                terms.collision]).detach().float()
-            if dinfo.enabled:
-                dist.all_reduce(vals)
-                vals /= world
-            last = dict(zip(("total", "translation", "rotation", "gripper", "collision"), vals.tolist(),
-                            strict=True))
-            bar.update(1)
-            bar.set_postfix(loss=f"{last['total']:.3f}")
-            if step % cfg.log_every == 0 or step == cfg.steps:
-                now = time.perf_counter()
-                sps = (step - tick_step) * cfg.batch * world / max(now - tick, 1e-9)
-                tick, tick_step = now, step
-                logger.log({"step": step, "lr": scheduler.get_last_lr()[0], **last, "samples_per_s": sps,
-                            "elapsed_s": prior_s + now - t0})
-            if on_step is not None:
-                on_step(step, last)
-            if step % cfg.checkpoint_every == 0 and step != cfg.steps:
-                save(step)
-    except KeyboardInterrupt:
-        save(step)
-        if dinfo.main:
-            print(f"abm train: interrupted; checkpoint saved at step {step} (continue with --resume)")
-        raise
-    finally:
-        bar.close()
-        logger.close()
-    if step > start or not list_checkpoints(run):
-        save(step)
-    digest = parameter_digest(model)
-    digests = [digest]
-    if dinfo.enabled:
-        gathered: list[Any] = [None] * world
-        dist.all_gather_object(gathered, digest)
-        digests = list(gathered)
-    summary = {
-        "method": cfg.method, "preset": pconfig.preset, "steps": step, "final_loss": last,
-        "parameters": model.num_parameters(), "world_size": world, "parameter_digests": digests,
-        "ranks_in_sync": len(set(digests)) == 1, "seconds": time.perf_counter() - t0,
-        "checkpoint": str(checkpoint_path(run, step)),
-    }
-    if dinfo.main:
-        (run / "summary.json").write_text(json.dumps(summary, indent=2))
-    if dinfo.enabled:
-        dist.barrier()
-        dist.destroy_process_group()
-    return summary
+    return Trainer(cfg, episodes).build().fit(on_step)

@@ -1,7 +1,8 @@
-"""What a variant is conditioned on: the language goal text and the per-point mask field.
+"""Conditioning of one scene on an instruction: the target X, the skill text and the per-point mask field.
 
-This module is the policy's only contact with :mod:`abm.grounding` (``decompose_instruction``,
-``make_grounder``); grounding results are normalised to :class:`PointMask`.
+The training data (:mod:`abm.data.keyframes`) and the policy at run time (:mod:`abm.policy`) both go
+through :func:`condition_scene`, so the two see the same points, mask and texts. Grounding results are
+normalised to :class:`PointMask`.
 
 Grounders are described by a JSON-compatible spec stored in checkpoints: ``{"kind": "oracle"}`` or
 ``{"kind": "clip", ...options passed to make_grounder}``.
@@ -16,8 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from abm.geometry import PointCloud
-from abm.policy.variants import VariantSpec
+from abm.geometry import PointCloud, Workspace, fuse_cameras
 from abm.types import Observation
 
 PLACEHOLDER = "X"
@@ -75,15 +75,6 @@ def split_instruction(instruction: str, object_names: Mapping[int, str] | None =
     raise ValueError(f"cannot find the target object in instruction {instruction!r}")
 
 
-def language_text(spec: VariantSpec, instruction: str, skill: str | None) -> str:
-    """The text a variant reads: the skill text or the whole instruction."""
-    if spec.language == "skill":
-        if skill is None:
-            raise ValueError(f"variant {spec.name!r} needs the skill text of {instruction!r}")
-        return skill
-    return instruction
-
-
 def make_grounder_from_spec(spec: Mapping[str, Any]) -> Any:
     """Build a grounder (``abm.grounding.make_grounder``) from its JSON-compatible spec."""
     from abm.grounding import make_grounder
@@ -103,3 +94,67 @@ def ground_points(grounder: Any, observation: Observation, cloud: PointCloud, ta
         raise ValueError(f"grounder returned {mask.shape[0]} mask values for a cloud of {len(cloud)} points")
     found = bool(getattr(field, "found", mask.any()))
     return PointMask(mask, np.clip(heat, 0.0, 1.0), found)
+
+
+@dataclass
+class ConditionedScene:
+    """One observation fused into a point cloud and conditioned on an instruction.
+
+    Attributes:
+        cloud: the fused, workspace-cropped point cloud (``N`` points).
+        instruction: the full instruction.
+        target: the object X the instruction names (``None`` when not split).
+        skill: the skill text with X replaced by ``"X"`` (``None`` when not split).
+        point_mask: the mask field over the cloud's points (``None`` unless asked for).
+        features: ``(N, F)`` float32 per-point CLIP features (``None`` unless asked for).
+    """
+
+    cloud: PointCloud
+    instruction: str
+    target: str | None
+    skill: str | None
+    point_mask: PointMask | None
+    features: np.ndarray | None
+
+
+def condition_scene(
+    observation: Observation,
+    instruction: str,
+    workspace: Workspace,
+    *,
+    grounder: Any | None = None,
+    object_names: Mapping[int, str] | None = None,
+    split: bool = True,
+    target: str | None = None,
+    skill: str | None = None,
+    mask: bool = False,
+    features: bool = False,
+    camera_names: list[str] | None = None,
+) -> ConditionedScene:
+    """Fuse the cameras inside ``workspace`` and condition the cloud on ``instruction``.
+
+    Args:
+        observation: cameras and gripper state.
+        instruction: the full English instruction.
+        workspace: crop cube of the fused cloud.
+        grounder: grounder object (needed when ``mask`` or ``features``).
+        object_names: segmentation id -> object name (the oracle grounder needs them).
+        split: split the instruction into ``(X, skill text)`` with :func:`split_instruction` unless
+            ``target`` and ``skill`` are given (a dataset splits each episode's instruction once).
+        target / skill: the already known split.
+        mask: compute the mask field of X over the cloud.
+        features: compute per-point CLIP features.
+        camera_names: cameras to fuse (default all).
+
+    Raises:
+        ValueError: no target in the instruction (when splitting), or no grounder for ``mask`` /
+            ``features``.
+    """
+    cloud = fuse_cameras(observation, workspace, camera_names)
+    if (split or mask) and (target is None or skill is None):
+        target, skill = split_instruction(instruction, object_names)
+    if (mask or features) and grounder is None:
+        raise ValueError("a grounder is needed for the mask field and CLIP point features")
+    point_mask = ground_points(grounder, observation, cloud, target, object_names or {}) if mask else None
+    feats = np.asarray(grounder.point_features(observation, cloud), np.float32) if features else None
+    return ConditionedScene(cloud, instruction, target, skill, point_mask, feats)

@@ -1,0 +1,308 @@
+"""The policy object: one ``nn.Module`` that owns the renderer, the conditioning, the language cache,
+the action coding and the network, for training and for acting.
+
+* :meth:`KeyframePolicy.compute_loss` (= ``forward``) takes a batch of policy-independent samples
+  (:mod:`abm.samples`), renders them into the virtual views on the policy's device, builds the
+  targets and returns ``(loss, metrics)``;
+* :meth:`KeyframePolicy.predict` decodes a batch into keyframe actions;
+* :meth:`KeyframePolicy.act` runs the whole per-step pipeline on one observation;
+* :meth:`KeyframePolicy.save` / :meth:`KeyframePolicy.from_checkpoint` write and read checkpoints.
+
+Example::
+
+    policy = KeyframePolicy.from_checkpoint("runs/abm", device="cuda")
+    action = policy.act(observation, "put the ketchup in the plate", object_names=episode.object_names)
+
+    policy = KeyframePolicy(PolicyConfig.from_preset("small", "abm"), {"kind": "hash", "dim": 512})
+    loss, metrics = policy.compute_loss(batch)          # batch = abm.samples.collate([...])
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from abm.geometry import Workspace, quat_to_bins
+from abm.grounding.conditioning import condition_scene, make_grounder_from_spec
+from abm.policy.checkpoint import load_checkpoint, save_checkpoint
+from abm.policy.config import PolicyConfig
+from abm.policy.heads import decode_output, policy_loss, translation_targets
+from abm.policy.language import LanguageEncoder, make_language_encoder
+from abm.policy.mvt import MultiViewTransformer, PolicyOutput
+from abm.policy.variants import mask_channel
+from abm.render import OrthographicRenderer
+from abm.samples import collate, scene_sample
+from abm.types import KeyframeAction, Observation
+
+LOSS_TERMS = ("total", "translation", "rotation", "gripper", "collision")
+
+
+class KeyframePolicy(nn.Module):
+    """A keyframe policy of one variant (``abm``, ``rvt``, ``ifd`` or an ablation).
+
+    Args:
+        config: variant and sizes.
+        language: language encoder, or its spec (``{"kind": "hash", ...}`` / ``{"kind": "clip", ...}``).
+        grounder: grounder spec (``{"kind": "oracle"}``, ``{"kind": "clip", ...}``) or a grounder object
+            with ``ground(observation, cloud, target, object_names)``; used by :meth:`act`.
+        camera_names: cameras to fuse in :meth:`act` (default all of the observation's).
+    """
+
+    def __init__(
+        self,
+        config: PolicyConfig,
+        language: LanguageEncoder | Mapping[str, Any],
+        grounder: Mapping[str, Any] | Any | None = None,
+        camera_names: Sequence[str] | None = None,
+    ) -> None:
+        super().__init__()
+        self.config = config
+        self.spec = config.spec
+        self.model = MultiViewTransformer(config)
+        self.language = make_language_encoder(dict(language)) if isinstance(language, Mapping) else language
+        if self.language.tokens != config.lang_tokens or self.language.dim != config.lang_dim:
+            raise ValueError(
+                f"language encoder gives {self.language.tokens} x {self.language.dim} tokens but the policy "
+                f"expects {config.lang_tokens} x {config.lang_dim}"
+            )
+        if grounder is None:
+            grounder = {"kind": "oracle"}
+        self.grounder_spec: dict[str, Any] | None = dict(grounder) if isinstance(grounder, Mapping) else None
+        self._grounder = None if isinstance(grounder, Mapping) else grounder
+        self.camera_names = list(camera_names) if camera_names else None
+        self.workspace = Workspace(config.workspace_center, config.workspace_size)
+        self._renderer = OrthographicRenderer(self.workspace, config.resolution, config.views)
+        self._lang_cache: dict[str, torch.Tensor] = {}
+        self.last_timings: dict[str, float] = {}
+        self.checkpoint_path: str | None = None
+
+    # ------------------------------------------------------------------ parts
+    @property
+    def device(self) -> torch.device:
+        return next(self.model.parameters()).device
+
+    @property
+    def renderer(self) -> OrthographicRenderer:
+        """The virtual-view renderer, on the policy's device."""
+        if self._renderer.device != self.device:
+            self._renderer = self._renderer.to(self.device)
+        return self._renderer
+
+    @property
+    def grounder(self) -> Any:
+        if self._grounder is None:
+            self._grounder = make_grounder_from_spec(self.grounder_spec or {"kind": "oracle"})
+        return self._grounder
+
+    def sample_options(self) -> dict[str, bool]:
+        """What the data pipeline must compute for this variant (``KeyframeDataset(**options)``)."""
+        return {"split": self.spec.uses_mask or self.spec.language == "skill", "mask": self.spec.uses_mask,
+                "features": self.spec.clip_features}
+
+    def language_goal(self, instruction: str, skill: str) -> str:
+        """The text the variant reads: the skill text (mask variants) or the whole instruction."""
+        if self.spec.language == "skill":
+            if not skill:
+                raise ValueError(f"variant {self.spec.name!r} needs the skill text of {instruction!r}")
+            return skill
+        return instruction
+
+    def encode_language(self, texts: Sequence[str]) -> torch.Tensor:
+        """``(B, L, D)`` language tokens on the policy's device; each distinct text is encoded once."""
+        todo = sorted({t for t in texts if t not in self._lang_cache})
+        if todo:
+            emb = self.language.encode(todo)
+            self._lang_cache.update({t: emb[i].contiguous() for i, t in enumerate(todo)})
+        return torch.stack([self._lang_cache[t] for t in texts]).to(self.device)
+
+    # ------------------------------------------------------------------ batch -> model inputs
+    def model_inputs(self, batch: Mapping[str, Any]) -> dict[str, torch.Tensor]:
+        """Render a batch of samples into the network's inputs, on the policy's device.
+
+        Returns ``images`` ``(B, V, 10, H, W)``, ``proprio`` ``(B, 4)``, ``lang`` ``(B, L, D)``, and
+        ``mask`` ``(B, V, 1, H, W)`` (mask variants) or ``ifd_features`` ``(B, M, F)`` + ``ifd_index``
+        ``(B, V, H, W)`` (``ifd``).
+        """
+        dev = self.device
+        points = batch["points"].to(dev, torch.float32)
+        b, n, _ = points.shape
+        valid = batch["valid"].to(dev) if "valid" in batch else None
+        extra = []
+        if self.spec.uses_mask:
+            if "point_mask" not in batch:
+                raise ValueError(f"variant {self.spec.name!r} needs a per-point mask field (point_mask)")
+            extra += [batch["point_mask"].to(dev, torch.float32), batch["point_heatmap"].to(dev, torch.float32)]
+        if self.spec.clip_features:
+            if "point_features" not in batch:
+                raise ValueError(f"variant {self.spec.name!r} needs per-point CLIP features (point_features)")
+            extra.append(torch.arange(n, device=dev, dtype=torch.float32).expand(b, n))
+        with torch.no_grad():
+            views = self.renderer.render(points, batch["colors"].to(dev, torch.float32),
+                                         extra=torch.stack(extra, -1) if extra else None, valid=valid)
+        inputs = {"images": views.rvt_channels().contiguous()}
+        if self.spec.uses_mask:
+            inputs["mask"] = mask_channel(self.spec, views.extra[:, :, :2]).contiguous()
+        if self.spec.clip_features:
+            inputs["ifd_features"], inputs["ifd_index"] = self._visible_features(
+                batch["point_features"].to(dev), views.extra[:, :, -1], views.occupied)
+        grip_pos = batch["gripper_position"].to(dev, torch.float32)
+        center = torch.tensor(self.workspace.center, device=dev, dtype=torch.float32)
+        inputs["proprio"] = torch.cat([batch["gripper_open"].to(dev, torch.float32).reshape(b, 1),
+                                       (grip_pos - center) / float(self.workspace.half)], -1)
+        inputs["lang"] = self.encode_language(
+            [self.language_goal(i, s) for i, s in zip(batch["instruction"], batch["skill"], strict=True)])
+        return inputs
+
+    def _visible_features(self, features: torch.Tensor, index: torch.Tensor, occupied: torch.Tensor
+                          ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Keep the features of the points seen in some view: ``(B, M, F)`` float32 and the views'
+        index into them ``(B, V, H, W)`` (-1 = empty pixel)."""
+        if features.shape[-1] != self.config.ifd_feature_dim:
+            raise ValueError(f"CLIP point features have width {features.shape[-1]}, expected "
+                             f"{self.config.ifd_feature_dim}; set the policy's ifd_feature_dim to the CLIP width")
+        idx = torch.where(occupied, index.round().long(), torch.full_like(index, -1, dtype=torch.long))
+        kept, compact = [], torch.full_like(idx, -1)
+        for i in range(idx.shape[0]):
+            seen = idx[i] >= 0
+            visible, inverse = torch.unique(idx[i][seen], return_inverse=True)
+            compact[i][seen] = inverse
+            kept.append(features[i, visible].float())
+        m = max(max(k.shape[0] for k in kept), 1)
+        out = features.new_zeros((len(kept), m, features.shape[-1]), dtype=torch.float32)
+        for i, k in enumerate(kept):
+            out[i, : k.shape[0]] = k
+        return out, compact
+
+    def targets(self, batch: Mapping[str, Any]) -> dict[str, torch.Tensor]:
+        """Training targets: per-view heatmaps ``(B, V, H, W)``, rotation bins ``(B, 3)``, gripper and
+        collision classes ``(B,)``."""
+        dev = self.device
+        quat = batch["action_quaternion"].detach().cpu().numpy()
+        bins = np.asarray(quat_to_bins(quat, self.config.rotation_bins), np.int64).reshape(-1, 3)
+        return {
+            "heatmap": translation_targets(self.renderer, batch["action_position"].to(dev, torch.float32)),
+            "rotation_bins": torch.from_numpy(bins).to(dev),
+            "gripper": batch["action_gripper"].to(dev),
+            "collision": batch["action_collision"].to(dev),
+        }
+
+    def run_model(self, inputs: Mapping[str, torch.Tensor], pool_weights: torch.Tensor | None = None
+                  ) -> PolicyOutput:
+        """The network on prepared inputs (bf16 autocast on CUDA)."""
+        with torch.autocast(device_type=self.device.type, dtype=torch.bfloat16, enabled=self.device.type == "cuda"):
+            return self.model(inputs["images"], inputs["proprio"], inputs["lang"], mask=inputs.get("mask"),
+                              ifd_features=inputs.get("ifd_features"), ifd_index=inputs.get("ifd_index"),
+                              pool_weights=pool_weights)
+
+    # ------------------------------------------------------------------ training / inference
+    def forward(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Loss of a batch of samples with targets: ``(total loss, detached loss terms)``.
+
+        The rotation/gripper head pools at the ground-truth heatmap (as RVT-2 does in training).
+        """
+        inputs = self.model_inputs(batch)
+        target = self.targets(batch)
+        out = self.run_model(inputs, pool_weights=target["heatmap"])
+        terms = policy_loss(out, target["heatmap"], target["rotation_bins"], target["gripper"], target["collision"])
+        metrics = {k: getattr(terms, k).detach() for k in LOSS_TERMS}
+        return terms.total, metrics
+
+    def compute_loss(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Same as calling the module (so ``DistributedDataParallel`` wrapping works)."""
+        return self(batch)
+
+    @torch.no_grad()
+    def predict(self, batch: Mapping[str, Any]) -> list[KeyframeAction]:
+        """One keyframe action per sample of the batch (heatmaps decoded to a 3-D point, bins to a rotation)."""
+        out = self.run_model(self.model_inputs(batch))
+        return decode_output(out, self.renderer)
+
+    def observe(self, observation: Observation, instruction: str,
+                object_names: Mapping[int, str] | None = None) -> dict[str, Any]:
+        """The sample of one observation (fuse, split the instruction, ground), as the dataset makes it."""
+        opts = self.sample_options()
+        if opts["mask"] and (self.grounder_spec or {}).get("kind") == "oracle" and object_names is None:
+            raise ValueError("the oracle grounder needs object_names (segmentation id -> name)")
+        needs_grounder = opts["mask"] or opts["features"]
+        scene = condition_scene(observation, instruction, self.workspace,
+                                grounder=self.grounder if needs_grounder else None, object_names=object_names,
+                                split=opts["split"], mask=opts["mask"], features=opts["features"],
+                                camera_names=self.camera_names)
+        return scene_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
+
+    def act(self, observation: Observation, instruction: str,
+            object_names: Mapping[int, str] | None = None) -> KeyframeAction:
+        """The next keyframe for ``observation`` under ``instruction``.
+
+        Args:
+            observation: the current cameras and gripper state.
+            instruction: the full English instruction.
+            object_names: segmentation id -> object name (needed by the oracle grounder, and used to
+                find the target in the instruction when no decomposition template matches).
+
+        Seconds per stage of the last call are in :attr:`last_timings`: ``condition_s`` (fusion, instruction
+        split, grounding), ``render_s`` (virtual views, language tokens), ``model_s`` and ``decode_s``.
+        """
+        sync = torch.cuda.synchronize if self.device.type == "cuda" else (lambda *_: None)
+        t0 = time.perf_counter()
+        batch = collate([self.observe(observation, instruction, object_names)])
+        t1 = time.perf_counter()
+        with torch.no_grad():
+            inputs = self.model_inputs(batch)
+            sync(self.device)
+            t2 = time.perf_counter()
+            out = self.run_model(inputs)
+            sync(self.device)
+        t3 = time.perf_counter()
+        action = decode_output(out, self.renderer)[0]
+        self.last_timings = {"condition_s": t1 - t0, "render_s": t2 - t1, "model_s": t3 - t2,
+                             "decode_s": time.perf_counter() - t3}
+        return action
+
+    # ------------------------------------------------------------------ checkpoints
+    def checkpoint_payload(self) -> dict[str, Any]:
+        """What a checkpoint needs to rebuild this policy (training adds its own state)."""
+        return {
+            "policy_config": self.config.to_dict(), "variant": self.config.variant, "preset": self.config.preset,
+            "language": self.language.spec(), "grounder": self.grounder_spec, "camera_names": self.camera_names,
+            "model": self.model.state_dict(),
+        }
+
+    def save(self, path: str | Path, **extra: Any) -> Path:
+        """Write an inference checkpoint (plus ``extra`` entries) atomically; returns the path."""
+        return save_checkpoint(path, {**self.checkpoint_payload(), **extra})
+
+    @classmethod
+    def from_checkpoint(
+        cls,
+        run_or_ckpt: str | Path,
+        device: str | torch.device = "cpu",
+        grounder: Mapping[str, Any] | Any | None = None,
+        expect_variant: str | None = None,
+    ) -> KeyframePolicy:
+        """Load a checkpoint file or the latest checkpoint of a run folder, in eval mode on ``device``.
+
+        Args:
+            run_or_ckpt: ``RUN/`` or ``RUN/checkpoints/step_XXXXXXXX.pt``.
+            device: where to run.
+            grounder: override the grounder stored in the checkpoint (spec or object); a spec of the
+                same kind only overrides the options it names.
+            expect_variant: if given, a checkpoint of another variant raises ``ValueError``.
+        """
+        ckpt = load_checkpoint(run_or_ckpt, map_location="cpu")
+        config = PolicyConfig.from_dict(ckpt["policy_config"])
+        if expect_variant is not None and config.variant != expect_variant:
+            raise ValueError(f"checkpoint {ckpt['path']} is a {config.variant!r} policy, expected {expect_variant!r}")
+        stored = ckpt.get("grounder")
+        if isinstance(grounder, Mapping) and isinstance(stored, Mapping) and grounder.get("kind") == stored.get("kind"):
+            grounder = {**stored, **grounder}  # same grounder: keep the trained options (e.g. the CLIP model)
+        policy = cls(config, ckpt["language"], grounder or stored, ckpt.get("camera_names"))
+        policy.model.load_state_dict(ckpt["model"])
+        policy.checkpoint_path = ckpt["path"]
+        return policy.to(device).eval()

@@ -1,0 +1,96 @@
+"""The keyframe sample: what the data pipeline hands a policy, independent of the policy.
+
+A sample is a dict. Scene entries (training and inference):
+
+* ``points`` ``(N, 3)`` float32, world metres (after augmentation in training);
+* ``colors`` ``(N, 3)`` float32 in ``[0, 1]``;
+* ``point_mask`` / ``point_heatmap`` ``(N,)`` float32: the mask field of the target X (only when asked for);
+* ``point_features`` ``(N, F)`` float16: per-point CLIP features (only when asked for);
+* ``gripper_open`` ``()`` float32 (1 = open) and ``gripper_position`` ``(3,)`` float32, world metres;
+* ``instruction`` and ``skill`` (``str``; ``skill`` is the instruction with X replaced by ``"X"``, or ``""``
+  when the instruction was not split).
+
+Training targets (the keyframe to reach): ``action_position`` ``(3,)`` float32 metres,
+``action_quaternion`` ``(4,)`` float64 ``(x, y, z, w)``, ``action_gripper`` int64 (1 = open),
+``action_collision`` int64 (1 = ignore collisions).
+
+:func:`collate` stacks samples into a batch: point arrays are zero-padded to the longest cloud and a
+``valid`` ``(B, N)`` bool marks the real points; strings become lists. The policy renders the batch
+itself (:class:`abm.policy.KeyframePolicy`), on its own device.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+from abm.grounding.conditioning import ConditionedScene
+from abm.types import KeyframeAction
+
+POINT_KEYS = ("points", "colors", "point_mask", "point_heatmap", "point_features")
+TEXT_KEYS = ("instruction", "skill")
+
+
+def scene_sample(scene: ConditionedScene, gripper_open: float, gripper_position: np.ndarray,
+                 points: np.ndarray | None = None) -> dict[str, Any]:
+    """The scene entries of a sample.
+
+    Args:
+        scene: the conditioned observation.
+        gripper_open: gripper opening in ``[0, 1]``.
+        gripper_position: ``(3,)`` world metres (after augmentation in training).
+        points: ``(N, 3)`` replacement point positions (the augmented cloud); default the scene's.
+    """
+    xyz = scene.cloud.xyz if points is None else points
+    sample: dict[str, Any] = {
+        "points": torch.from_numpy(np.ascontiguousarray(xyz, np.float32)),
+        "colors": torch.from_numpy(np.ascontiguousarray(scene.cloud.rgb, np.float32)),
+        "gripper_open": torch.tensor(float(gripper_open), dtype=torch.float32),
+        "gripper_position": torch.from_numpy(np.asarray(gripper_position, np.float32).reshape(3)),
+        "instruction": scene.instruction,
+        "skill": scene.skill or "",
+    }
+    if scene.point_mask is not None:
+        sample["point_mask"] = torch.from_numpy(np.asarray(scene.point_mask.mask, np.float32))
+        sample["point_heatmap"] = torch.from_numpy(np.asarray(scene.point_mask.heatmap, np.float32))
+    if scene.features is not None:
+        sample["point_features"] = torch.from_numpy(np.asarray(scene.features, np.float16))
+    return sample
+
+
+def action_targets(action: KeyframeAction) -> dict[str, torch.Tensor]:
+    """The training-target entries of a sample for the keyframe ``action``."""
+    return {
+        "action_position": torch.from_numpy(np.asarray(action.position, np.float32)),
+        "action_quaternion": torch.from_numpy(np.asarray(action.quaternion, np.float64)),
+        "action_gripper": torch.tensor(int(action.gripper_open), dtype=torch.int64),
+        "action_collision": torch.tensor(int(action.ignore_collision), dtype=torch.int64),
+    }
+
+
+def collate(samples: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Stack samples into a batch (see module docstring); ``valid`` ``(B, N)`` marks real points."""
+    if not samples:
+        raise ValueError("cannot collate an empty list of samples")
+    sizes = [int(s["points"].shape[0]) for s in samples]
+    n = max(max(sizes), 1)
+    out: dict[str, Any] = {}
+    for key in samples[0]:
+        vals = [s[key] for s in samples]
+        if key in TEXT_KEYS:
+            out[key] = list(vals)
+        elif key in POINT_KEYS:
+            padded = vals[0].new_zeros((len(vals), n, *vals[0].shape[1:]))
+            for i, v in enumerate(vals):
+                padded[i, : v.shape[0]] = v
+            out[key] = padded
+        else:
+            out[key] = torch.stack(vals)
+    valid = torch.zeros(len(samples), n, dtype=torch.bool)
+    for i, size in enumerate(sizes):
+        valid[i, :size] = True
+    out["valid"] = valid
+    return out
