@@ -1,5 +1,6 @@
-"""Imports flow one way: types -> geometry -> render / grounding / sim -> samples -> policy -> data -> train
--> evaluation -> commands (quickstart, cli, every ``*.commands`` module).
+"""Imports flow one way: types (and the small helpers machine, workers, configuration) -> geometry
+-> render / grounding / sim -> samples -> policy -> data -> train -> evaluation -> commands (quickstart,
+cli, every ``*.commands`` module).
 
 Checked on the source text (every ``import`` statement, at module level or inside functions), so a
 backwards import cannot hide in a function body.
@@ -14,7 +15,7 @@ import abm
 
 ROOT = Path(abm.__file__).parent
 LAYERS = [
-    ("types", "machine", "workers"),
+    ("types", "machine", "workers", "configuration"),
     ("geometry",),
     ("render", "grounding", "sim"),
     ("samples",),

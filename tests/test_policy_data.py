@@ -184,6 +184,14 @@ def test_dataset_over_an_episode_store(episodes) -> None:
     pickle.dumps(ds)
 
 
+def test_keyframes_outside_the_workspace_are_refused(episodes) -> None:
+    from abm.geometry import Workspace
+
+    small = Workspace((0.5, 0.0, 0.35), 0.05)  # 5 cm around a point above the table: no keyframe fits
+    with pytest.raises(ValueError, match=r"6 keyframes of 3 episodes lie outside .* workspace_size"):
+        KeyframeDataset(episodes, small)
+
+
 def test_margin_cube_holds_every_point_augmentation_can_move_into_view():
     import numpy as np
 

@@ -219,3 +219,18 @@ def test_water_plants_predicate_needs_tilt():
         env.sim.execute(next(keyframes))  # tilt
         assert env.success()
         assert np.isfinite(env.sim.object_pose(env.instance.info["target"])).all()
+
+
+def test_every_task_instruction_parses_to_a_skill_of_that_task():
+    """The tasks' templates and the parser's skills (grounding/templates.yaml) cannot drift apart."""
+    from abm.grounding import TemplateParser
+    from abm.sim.splits import load_splits
+
+    parser, splits = TemplateParser(), load_splits()
+    for name, cls in TASKS.items():
+        for split, objects in splits.tasks.get(name, {}).items():
+            for template in cls.templates:
+                for obj in objects:
+                    parsed = parser.parse(template.format(target=obj))
+                    assert name in parsed.tasks, (name, split, template, parsed)
+                    assert parsed.target == obj, (name, template, obj, parsed.target)

@@ -336,6 +336,16 @@ class EpisodeStore:
         with f:
             return _read_step(f, info.path, k, _json_attr(f, info.path, "camera_names"))
 
+    def load_positions(self, i: int) -> np.ndarray:
+        """``(K, 3)`` keyframe target positions (m) of episode ``i``, without reading any image."""
+        info = self._info(i)
+        f = _open(info.path)
+        with f:
+            try:
+                return np.asarray(f["actions"]["position"][:], np.float64).reshape(-1, 3)
+            except (KeyError, OSError, ValueError) as err:
+                raise EpisodeFormatError(f"{info.path}: keyframe positions cannot be read ({err})") from None
+
     def select(self, tasks: Iterable[str] | None = None, splits: Iterable[str] | None = None) -> list[int]:
         """Indices of the episodes whose task and split are among the given ones (``None`` = any)."""
         tasks = set(tasks) if tasks is not None else None

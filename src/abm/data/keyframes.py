@@ -105,6 +105,14 @@ class EpisodeSource:
     def __len__(self) -> int:
         return len(self.indices)
 
+    def positions(self, j: int) -> np.ndarray:
+        """``(K, 3)`` keyframe target positions (m) of the ``j``-th selected episode."""
+        if self.in_memory:
+            return np.array([a.position for _, a in self.episodes[self.indices[j]].steps]).reshape(-1, 3)
+        if hasattr(self.episodes, "load_positions"):
+            return self.episodes.load_positions(self.indices[j])
+        return np.array([self.load_step(j, k)[1].position for k in range(self.meta[j].num_steps)]).reshape(-1, 3)
+
     def load_step(self, j: int, k: int) -> tuple[Observation, KeyframeAction]:
         """Observation and action of keyframe ``k`` of the ``j``-th selected episode."""
         if self.in_memory:
@@ -228,6 +236,7 @@ class KeyframeDataset(Dataset):
         self.items = [(j, k) for j, m in enumerate(self.source.meta) for k in range(m.num_steps)]
         if not self.items:
             raise ValueError("the dataset is empty: the selected episodes have no keyframes")
+        self.check_inside_workspace()
         self.oracle = self.grounder_spec.get("kind") == "oracle"
         # per-episode split of the instruction: target X and skill text
         self.targets: list[str | None] = []
@@ -250,6 +259,24 @@ class KeyframeDataset(Dataset):
                     "for grounding results / CLIP features"
                 )
             self.precompute(show_progress)
+
+    def check_inside_workspace(self) -> None:
+        """Refuse episodes whose keyframes lie outside the workspace cube: the policy could not point at
+        them (their heatmap target would fall off the views)."""
+        outside = []
+        for j, meta in enumerate(self.source.meta):
+            pos = self.source.positions(j)
+            bad = ~self.workspace.contains(pos)
+            if bad.any():
+                outside.append((meta, int(bad.sum()), pos[bad][0]))
+        if outside:
+            meta, count, where = outside[0]
+            lo, hi = np.round(self.workspace.lower, 3).tolist(), np.round(self.workspace.upper, 3).tolist()
+            raise ValueError(
+                f"{sum(c for _, c, _ in outside)} keyframes of {len(outside)} episodes lie outside the policy's "
+                f"workspace cube {lo}..{hi} (m), e.g. {count} of {meta.task} episode {meta.key} such as "
+                f"{np.round(where, 3).tolist()}; enlarge the cube (--set workspace_size=M --set "
+                f"workspace_center=[X,Y,Z]) or leave these tasks out")
 
     # ------------------------------------------------------------------ caching
     @property

@@ -1,5 +1,7 @@
-"""Training of the policy family: :func:`train` (single process or ``torchrun`` DDP)."""
+"""Training of the policy family: :class:`TrainConfig`, :class:`Trainer` and :func:`train` (single
+process or ``torchrun`` DDP)."""
 
-from abm.train.loop import TrainConfig, parameter_digest, train
+from abm.train.config import TrainConfig
+from abm.train.loop import Trainer, parameter_digest, train
 
-__all__ = ["TrainConfig", "parameter_digest", "train"]
+__all__ = ["TrainConfig", "Trainer", "parameter_digest", "train"]

@@ -17,7 +17,6 @@
 from __future__ import annotations
 
 import csv
-import dataclasses
 import hashlib
 import json
 import logging
@@ -27,7 +26,7 @@ import random
 import shutil
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -47,85 +46,13 @@ from abm.policy.checkpoint import (
 from abm.policy.config import PolicyConfig, check_compatible
 from abm.policy.keyframe_policy import LOSS_TERMS, KeyframePolicy
 from abm.policy.language import make_language_encoder
+from abm.train.config import TrainConfig
 from abm.types import Episode
 
 log = logging.getLogger(__name__)
 
 LOG_FIELDS = ("step", "lr", "total", "translation", "rotation", "gripper", "collision", "samples_per_s",
               "elapsed_s")
-
-
-@dataclass
-class TrainConfig:
-    """Options of one training run (the ``abm train`` flags).
-
-    Attributes:
-        method: policy variant (``abm``, ``rvt``, ``ifd``, ``stack``, ``concat-rerendered``, ``concat-full``).
-        preset: size preset (``small``, ``paper``).
-        out: run folder.
-        data: episode store folder (``None`` when episodes are passed in memory).
-        tasks / splits: episode selection in the store.
-        steps: total optimiser steps.
-        batch: samples per step *per process*.
-        optimizer: ``lamb`` (the paper's choice, ``torch_optimizer.Lamb``) or ``adamw`` (converges much
-            faster in short CPU runs: LAMB's per-layer trust ratio makes updates of small-norm layers,
-            such as the heatmap decoder's output, tiny at first).
-        lr: peak learning rate (default ``1e-4 * batch * world_size``; the paper used 0.003 at batch 30).
-        warmup: linear warm-up steps (default ``min(2000, steps // 20)``).
-        min_lr_ratio: the cosine decays to ``lr * min_lr_ratio``.
-        weight_decay: LAMB weight decay.
-        grad_clip: max global gradient norm (0 = off).
-        checkpoint_every: steps between checkpoints (also one at the end).
-        keep_checkpoints: periodic checkpoints kept (0 = all).
-        log_every: steps between log lines.
-        workers: DataLoader worker processes.
-        device: ``cpu``, ``cuda`` or ``cuda:N`` (under torchrun CUDA uses ``cuda:LOCAL_RANK``).
-        grounder: grounder spec kind (``oracle`` or ``clip``); options in ``grounder_options``.
-        language: language encoder kind (``hash`` or ``clip``; default: ``clip`` with the clip grounder).
-        seed: seed of model init and the data stream.
-        resume: continue from the latest checkpoint in ``out`` (from scratch if it has none).
-        overwrite: replace a run already in ``out`` (without it, and without ``resume``, a folder that
-            holds a run is refused).
-        augment: SE(3) augmentation.
-        policy_overrides: :class:`PolicyConfig` field overrides (e.g. ``{"resolution": 64}``).
-        cache_dir: grounding / CLIP feature cache (default ``out/cache``).
-        camera_names: cameras to fuse (default all).
-        progress: show a tqdm bar.
-    """
-
-    method: str = "abm"
-    preset: str = "small"
-    out: Path = Path("runs/policy")
-    data: Path | None = None
-    tasks: list[str] | None = None
-    splits: list[str] | None = field(default_factory=lambda: ["seen"])
-    steps: int = 1000
-    batch: int = 8
-    lr: float | None = None
-    optimizer: str = "lamb"
-    warmup: int | None = None
-    min_lr_ratio: float = 0.0
-    weight_decay: float = 1e-4
-    grad_clip: float = 1.0
-    checkpoint_every: int = 1000
-    keep_checkpoints: int = 3
-    log_every: int = 10
-    workers: int = 0
-    device: str = "cpu"
-    grounder: str = "oracle"
-    grounder_options: dict[str, Any] = field(default_factory=dict)
-    language: str | None = None
-    seed: int = 0
-    resume: bool = False
-    overwrite: bool = False
-    augment: bool = True
-    policy_overrides: dict[str, Any] = field(default_factory=dict)
-    cache_dir: Path | None = None
-    camera_names: list[str] | None = None
-    progress: bool = True
-
-    def to_dict(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self), default=str))
 
 
 @dataclass

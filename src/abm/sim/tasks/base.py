@@ -1,13 +1,21 @@
 """Task interface, registry and shared helpers (layout sampling, top-down pick-and-place expert).
 
-A task is a small class registered with :func:`register_task`. It must provide:
+A task is one small class registered with :func:`register_task`. It declares:
 
-* ``name`` and ``templates`` (instruction templates with ``{target}``);
-* ``categories``: catalog categories its split objects may belong to (checked when splits load);
-* :meth:`Task.sample`: seeded scene sampler -> :class:`TaskInstance`;
-* :meth:`Task.success`: success predicate on the simulator state;
-* :meth:`Task.expert`: scripted expert, a generator of :class:`abm.types.KeyframeAction` that may read
-  the simulator between keyframes.
+* ``name``, ``templates`` (instruction templates with ``{target}``) and ``categories`` (catalog
+  categories its split objects may belong to, checked when splits load);
+* ``seed_salt``: the scene RNG is ``default_rng([seed, seed_salt])``;
+* ``fixtures``: ``(role, catalog object)`` pairs placed before the target (a plate, the goal pad, a lid);
+  the role names index the objects in :attr:`TaskInstance.info` (``info["target"]`` is the target);
+* ``distractors``: how many other objects of the task's own split join the scene, and
+  ``borrowed_distractors``: ``(task, count)`` objects taken from another task's split;
+* ``fixed_yaw``: yaw ranges (rad) of objects that must face the robot;
+
+and fills two methods: :meth:`Task.success` (predicate on the simulator state) and :meth:`Task.expert`
+(scripted expert, a generator of :class:`abm.types.KeyframeAction` that may read the simulator between
+keyframes). :meth:`Task.sample` does the rest; a task whose layout is not "fixtures, target, distractors
+on the table" (a shelf placed first, food inside a pan) overrides it. See docs/benchmark.md for a
+worked example.
 """
 
 from __future__ import annotations
@@ -73,6 +81,11 @@ class Task(ABC):
     name: ClassVar[str]
     templates: ClassVar[tuple[str, ...]]
     categories: ClassVar[tuple[str, ...]]
+    seed_salt: ClassVar[int]
+    fixtures: ClassVar[tuple[tuple[str, str], ...]] = ()
+    distractors: ClassVar[int] = 2
+    borrowed_distractors: ClassVar[tuple[tuple[str, int], ...]] = ()
+    fixed_yaw: ClassVar[dict[str, tuple[float, float]]] = {}
     #: Evaluation-only tasks (the compositional ones) are never offered for demonstration generation.
     evaluation_only: ClassVar[bool] = False
 
@@ -102,9 +115,36 @@ class Task(ABC):
         variation = int(rng.integers(len(names)))
         return names[variation], variation, [n for i, n in enumerate(names) if i != variation]
 
-    @abstractmethod
+    def rng(self, seed: int) -> np.random.Generator:
+        """The scene RNG of ``seed``."""
+        return np.random.default_rng([seed, self.seed_salt])
+
+    def pick_distractors(self, rng: np.random.Generator, split: str, others: list[str]) -> list[str]:
+        """``distractors`` of the split's other objects, then each ``borrowed_distractors`` entry."""
+        names: list[str] = []
+        if self.distractors:
+            count = min(self.distractors, len(others))
+            names += [str(n) for n in rng.choice(others, size=count, replace=False)]
+        for task, wanted in self.borrowed_distractors:
+            pool = self.splits.tasks.get(task, {}).get(split, [])
+            names += [str(n) for n in rng.choice(pool, size=min(wanted, len(pool)), replace=False)]
+        return names
+
+    def roles(self) -> dict[str, int]:
+        """Role name -> object index: the fixtures in order, then ``"target"``."""
+        roles = {role: i for i, (role, _) in enumerate(self.fixtures)}
+        roles["target"] = len(self.fixtures)
+        return roles
+
     def sample(self, seed: int, split: str) -> TaskInstance:
-        """Seeded, reproducible scene sampler."""
+        """Seeded, reproducible scene: fixtures, the target and the distractors, laid out on the table."""
+        rng = self.rng(seed)
+        target, variation, others = self.pick_target(rng, split)
+        distractors = self.pick_distractors(rng, split, others)
+        names = [obj for _, obj in self.fixtures] + [target, *distractors]
+        objects = sample_layout(rng, names, fixed_yaw=dict(self.fixed_yaw) or None)
+        return TaskInstance(self.name, split, seed, variation, self.instruction(target), SceneSpec(objects),
+                            [target], self.roles())
 
     @abstractmethod
     def success(self, sim, instance: TaskInstance) -> bool:

@@ -13,8 +13,7 @@ import numpy as np
 
 from abm.sim.catalog import object_geometry
 from abm.sim.props import JAR_HALF_HEIGHT
-from abm.sim.scene import SceneSpec
-from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, sample_layout
+from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task
 from abm.types import KeyframeAction
 
 NUM_DISTRACTORS = 2          # other jars of the split
@@ -28,15 +27,9 @@ class CloseJar(Task):
     name = "close_jar"
     templates = ("close the {target}", "put the lid on the {target}")
     categories = ("jar",)
-
-    def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, 6])
-        target, variation, others = self.pick_target(rng, split)
-        count = min(NUM_DISTRACTORS, len(others))
-        distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]
-        objects = sample_layout(rng, [LID, target, *distractors])
-        return TaskInstance(self.name, split, seed, variation, self.instruction(target),
-                            SceneSpec(objects), [target], {"target": 1, "lid": 0})
+    seed_salt = 6
+    fixtures = (("lid", LID),)
+    distractors = NUM_DISTRACTORS
 
     def success(self, sim, instance: TaskInstance) -> bool:
         lid_i, jar_i = instance.info["lid"], instance.info["target"]

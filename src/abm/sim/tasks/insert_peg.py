@@ -14,14 +14,12 @@ import numpy as np
 
 from abm.sim.catalog import object_geometry
 from abm.sim.props import PEG_HALF, RING_BAR_HALF_WIDTH, RING_HALF_HEIGHT, RING_OUTER_HALF
-from abm.sim.scene import SceneSpec
 from abm.sim.tasks.base import (
     FINGER_REACH,
     Task,
     TaskInstance,
     pick_and_place,
     register_task,
-    sample_layout,
     top_down_pose,
 )
 from abm.types import KeyframeAction
@@ -63,15 +61,9 @@ class InsertPeg(Task):
     name = "insert_peg"
     templates = ("put the ring on the {target}", "slide the ring onto the {target}")
     categories = ("peg",)
-
-    def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, 7])
-        target, variation, others = self.pick_target(rng, split)
-        count = min(NUM_DISTRACTORS, len(others))
-        distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]
-        objects = sample_layout(rng, [RING, target, *distractors])
-        return TaskInstance(self.name, split, seed, variation, self.instruction(target),
-                            SceneSpec(objects), [target], {"target": 1, "ring": 0})
+    seed_salt = 7
+    fixtures = (("ring", RING),)
+    distractors = NUM_DISTRACTORS
 
     def success(self, sim, instance: TaskInstance) -> bool:
         ring_i, peg_i = instance.info["ring"], instance.info["target"]

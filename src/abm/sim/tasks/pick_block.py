@@ -7,8 +7,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from abm.sim.catalog import catalog_entry
-from abm.sim.scene import SceneSpec
-from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, resting_on, sample_layout
+from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, resting_on
 from abm.types import KeyframeAction
 
 NUM_DISTRACTORS = 2
@@ -19,16 +18,9 @@ class PickBlock(Task):
     name = "pick_block"
     templates = ("put the {target} on the target", "stack the {target} on the target")
     categories = ("block",)
-    seed_salt = 2  # the scene rng is seeded with [seed, seed_salt]
-
-    def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, self.seed_salt])
-        target, variation, others = self.pick_target(rng, split)
-        count = min(NUM_DISTRACTORS, len(others))
-        distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]
-        objects = sample_layout(rng, ["target", target, *distractors])
-        return TaskInstance(self.name, split, seed, variation, self.instruction(target),
-                            SceneSpec(objects), [target], {"target": 1, "goal": 0})
+    seed_salt = 2
+    fixtures = (("goal", "target"),)  # the flat target pad the block goes on
+    distractors = NUM_DISTRACTORS
 
     def success(self, sim, instance: TaskInstance) -> bool:
         block, goal = instance.info["target"], instance.info["goal"]

@@ -6,8 +6,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from abm.sim.scene import SceneSpec
-from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, resting_on, sample_layout
+from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, resting_on
 from abm.types import KeyframeAction
 
 PLATE_RADIUS = 0.065     # m, success if the food's centre is this close to the plate centre
@@ -20,16 +19,9 @@ class PlaceFood(Task):
     name = "place_food"
     templates = ("put the {target} in the plate", "place the {target} on the plate")
     categories = ("grocery",)
-    seed_salt = 1  # the scene rng is seeded with [seed, seed_salt]
-
-    def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, self.seed_salt])
-        target, variation, others = self.pick_target(rng, split)
-        count = min(NUM_DISTRACTORS, len(others))
-        distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]
-        objects = sample_layout(rng, ["plate", target, *distractors])
-        return TaskInstance(self.name, split, seed, variation, self.instruction(target),
-                            SceneSpec(objects), [target], {"target": 1, "plate": 0})
+    seed_salt = 1
+    fixtures = (("plate", "plate"),)
+    distractors = NUM_DISTRACTORS
 
     def success(self, sim, instance: TaskInstance) -> bool:
         target, plate = instance.info["target"], instance.info["plate"]

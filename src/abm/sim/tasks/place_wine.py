@@ -11,8 +11,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from abm.sim.catalog import RACK_SLOT_PITCH, catalog_entry, rack_slot_offsets
-from abm.sim.scene import SceneSpec
-from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, resting_on, sample_layout
+from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, resting_on
 from abm.types import KeyframeAction
 
 NUM_DISTRACTORS = 2
@@ -24,17 +23,11 @@ class PlaceWine(Task):
     name = "place_wine"
     templates = ("put the {target} in the wine rack", "place the {target} in the wine rack")
     categories = ("bottle",)
-
-    def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, 3])
-        target, variation, _ = self.pick_target(rng, split)
-        # Distractors: groceries of the same split (when the split file defines place_food).
-        foods = self.splits.tasks.get("place_food", {}).get(split, [])
-        distractors = [str(n) for n in rng.choice(foods, size=min(NUM_DISTRACTORS, len(foods)), replace=False)]
-        objects = sample_layout(rng, ["wine rack", target, *distractors],
-                                fixed_yaw={"wine rack": (-0.35, 0.35)})
-        return TaskInstance(self.name, split, seed, variation, self.instruction(target),
-                            SceneSpec(objects), [target], {"target": 1, "rack": 0})
+    seed_salt = 3
+    fixtures = (("rack", "wine rack"),)
+    distractors = 0
+    borrowed_distractors = (("place_food", NUM_DISTRACTORS),)  # groceries of the same split
+    fixed_yaw = {"wine rack": (-0.35, 0.35)}
 
     @staticmethod
     def slot_positions(sim, rack_index: int) -> np.ndarray:

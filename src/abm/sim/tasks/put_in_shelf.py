@@ -30,13 +30,14 @@ class PutInShelf(Task):
     name = "put_in_shelf"
     templates = ("put the {target} on the top shelf", "put the {target} on the bottom shelf")
     categories = ("grocery",)
+    seed_salt = 4
+    distractors = NUM_DISTRACTORS
 
     def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, 4])
+        rng = self.rng(seed)
         target, variation, others = self.pick_target(rng, split)
         level = "top" if rng.random() < 0.5 else "bottom"
-        count = min(NUM_DISTRACTORS, len(others))
-        distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]
+        distractors = self.pick_distractors(rng, split, others)
         side = 1.0 if rng.random() < 0.5 else -1.0
         sx, sy = rng.uniform(*SHELF_X), side * rng.uniform(*SHELF_Y)
         yaw = float(np.arctan2(sy, sx) + rng.uniform(-SHELF_YAW_JITTER, SHELF_YAW_JITTER))

@@ -40,12 +40,13 @@ class TakeOffPan(Task):
     name = "take_off_pan"
     templates = ("take the {target} off the frypan", "remove the {target} from the frypan")
     categories = ("grocery",)
+    seed_salt = 8
+    distractors = NUM_DISTRACTORS
 
     def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, 8])
+        rng = self.rng(seed)
         target, variation, others = self.pick_target(rng, split)
-        count = min(NUM_DISTRACTORS, len(others))
-        distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]
+        distractors = self.pick_distractors(rng, split, others)
         x, y, yaw = rng.uniform(*PAN_X), rng.uniform(*PAN_Y), rng.uniform(-PAN_YAW, PAN_YAW)
         pan = PlacedObject(PAN, float(x), float(y), float(yaw))
         c, s = np.cos(yaw), np.sin(yaw)

@@ -13,7 +13,6 @@ import numpy as np
 
 from abm.sim.catalog import object_geometry
 from abm.sim.props import PLANT_HEIGHT, POT_RADIUS
-from abm.sim.scene import SceneSpec
 from abm.sim.tasks.base import (
     APPROACH_HEIGHT,
     LIFT_HEIGHT,
@@ -22,7 +21,6 @@ from abm.sim.tasks.base import (
     action,
     grasp_pose,
     register_task,
-    sample_layout,
     top_down_pose,
 )
 from abm.types import KeyframeAction
@@ -63,17 +61,10 @@ class WaterPlants(Task):
     name = "water_plants"
     templates = ("water the plant with the {target}", "use the {target} to water the plant")
     categories = ("mug",)
-
-    def sample(self, seed: int, split: str) -> TaskInstance:
-        rng = np.random.default_rng([seed, 5])
-        target, variation, others = self.pick_target(rng, split)
-        count = min(NUM_DISTRACTORS, len(others))
-        distractors = [str(n) for n in rng.choice(others, size=count, replace=False)]
-        foods = self.splits.tasks.get("place_food", {}).get(split, [])
-        distractors += [str(n) for n in rng.choice(foods, size=min(1, len(foods)), replace=False)]
-        objects = sample_layout(rng, ["plant", target, *distractors])
-        return TaskInstance(self.name, split, seed, variation, self.instruction(target),
-                            SceneSpec(objects), [target], {"target": 1, "plant": 0})
+    seed_salt = 5
+    fixtures = (("plant", "plant"),)
+    distractors = NUM_DISTRACTORS
+    borrowed_distractors = (("place_food", 1),)  # and one grocery of the same split
 
     def success(self, sim, instance: TaskInstance) -> bool:
         target, plant = instance.info["target"], instance.info["plant"]

@@ -1,0 +1,128 @@
+"""Command-line flags generated from config dataclasses, so every option is spelled once.
+
+A config is a ``@dataclass`` whose docstring has an ``Attributes:`` section (one ``name: text`` entry per
+field, continuation lines indented deeper). :func:`add_config_arguments` adds one flag per field to an
+``argparse`` parser, with the docstring text as help and the field's default; :func:`config_from_args`
+builds the dataclass back from the parsed arguments. Field ``metadata`` adjusts a flag:
+
+* ``flag``: the flag name (default ``--field-name``);
+* ``choices``: allowed values; ``required``: the flag must be given (even though the field has a default);
+* ``cli=False``: no flag (the command fills the field itself, e.g. from several flags).
+
+Booleans become switches: ``--name`` for a ``False`` default, ``--no-name`` for a ``True`` default.
+``list[...]`` fields take one or more values; ``X | None`` fields default to ``None``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import re
+import types
+import typing
+from pathlib import Path
+from typing import Any
+
+_ENTRY = re.compile(r"^(\s+)([A-Za-z_][\w ,/]*?):\s+(.*)$")
+
+
+def attribute_docs(cls: type) -> dict[str, str]:
+    """Field name -> its text in the class docstring's ``Attributes:`` section (whitespace joined)."""
+    doc = cls.__doc__ or ""
+    lines = doc.splitlines()
+    try:
+        start = next(i for i, line in enumerate(lines) if line.strip() == "Attributes:")
+    except StopIteration:
+        return {}
+    docs: dict[str, str] = {}
+    current: list[str] = []
+    indent = None
+    for line in lines[start + 1:]:
+        if not line.strip():
+            if current:
+                break
+            continue
+        m = _ENTRY.match(line)
+        if m and (indent is None or len(m.group(1)) == indent):
+            indent = len(m.group(1))
+            current = [n.strip() for n in re.split(r"[/,]", m.group(2))]
+            for name in current:
+                docs[name] = m.group(3).strip()
+        elif indent is not None and len(line) - len(line.lstrip()) > indent and current:
+            for name in current:
+                docs[name] += " " + line.strip()
+        else:
+            break
+    return {name: _plain(text) for name, text in docs.items()}
+
+
+def _plain(text: str) -> str:
+    """Docstring markup to plain text: ``code`` -> code, :class:`abm.X` -> X, *word* -> word."""
+    text = re.sub(r":\w+:`~?([\w.]+)`", lambda m: m.group(1).rsplit(".", 1)[-1], text)
+    return re.sub(r"\*(\w[^*]*?)\*", r"\1", text.replace("``", ""))
+
+
+def _flag(f: dataclasses.Field) -> str:
+    return f.metadata.get("flag", "--" + f.name.replace("_", "-"))
+
+
+def _base_type(annotation: Any) -> tuple[Any, bool, bool]:
+    """``(element type, is_list, is_optional)`` of a field annotation."""
+    optional = False
+    origin = typing.get_origin(annotation)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(annotation) if a is not type(None)]
+        optional = len(args) < len(typing.get_args(annotation))
+        annotation = args[0] if len(args) == 1 else str
+        origin = typing.get_origin(annotation)
+    if origin is list:
+        (element,) = typing.get_args(annotation) or (str,)
+        return element, True, optional
+    return annotation, False, optional
+
+
+def add_config_arguments(parser: argparse.ArgumentParser, cls: type, defaults: Any | None = None) -> None:
+    """Add one flag per field of the dataclass ``cls`` (see module docstring).
+
+    Args:
+        parser: where the flags go.
+        cls: the config dataclass (its annotations must be resolvable with ``typing.get_type_hints``).
+        defaults: an instance whose values become the flags' defaults (default: ``cls()``).
+    """
+    docs = attribute_docs(cls)
+    hints = typing.get_type_hints(cls)
+    defaults = defaults if defaults is not None else cls()
+    for f in dataclasses.fields(cls):
+        if not f.metadata.get("cli", True):
+            continue
+        default = getattr(defaults, f.name)
+        text = docs.get(f.name, "")
+        kind, is_list, _ = _base_type(hints[f.name])
+        kwargs: dict[str, Any] = {"dest": f.name, "help": text}
+        if kind is bool:
+            flag = _flag(f) if not default else f.metadata.get("flag", "--no-" + f.name.replace("_", "-"))
+            parser.add_argument(flag, action="store_false" if default else "store_true", default=default, **kwargs)
+            continue
+        kwargs["type"] = kind if kind in (int, float, Path) else str
+        kwargs["metavar"] = _flag(f).lstrip("-").replace("-", "_").upper()
+        if is_list:
+            kwargs["nargs"] = "+"
+        if "choices" in f.metadata:
+            kwargs["choices"] = f.metadata["choices"]
+            kwargs.pop("metavar")
+        if f.metadata.get("required"):
+            kwargs["required"] = True
+        else:
+            kwargs["default"] = default
+            shown = default if not isinstance(default, list) else " ".join(map(str, default))
+            if default is not None and default != [] and "default" not in text:
+                kwargs["help"] = f"{text.rstrip('.')} (default: {shown})"
+        parser.add_argument(_flag(f), **kwargs)
+
+
+def config_from_args(cls: type, args: argparse.Namespace, **extra: Any) -> Any:
+    """Build ``cls`` from parsed arguments; ``extra`` fills (or overrides) fields without a flag."""
+    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
+              if f.metadata.get("cli", True) and hasattr(args, f.name)}
+    values.update(extra)
+    return cls(**values)

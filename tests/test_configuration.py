@@ -1,0 +1,94 @@
+"""Config dataclasses generate their command-line flags (abm.configuration)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from abm.configuration import add_config_arguments, attribute_docs, config_from_args
+from abm.quickstart import QuickstartConfig
+from abm.train.config import TrainConfig
+
+
+@dataclass
+class Example:
+    """An example config.
+
+    Attributes:
+        name: the name, in ``code``.
+        count / size: two fields
+            sharing one entry.
+        tags: labels.
+        verbose: talk more.
+        fast: go fast.
+        path: where.
+        hidden: filled by the command.
+    """
+
+    name: str = field(default="x", metadata={"choices": ["x", "y"]})
+    count: int = field(default=1, metadata={"required": True})
+    size: float | None = None
+    tags: list[str] = field(default_factory=lambda: ["a"])
+    verbose: bool = False
+    fast: bool = True
+    path: Path = field(default=Path("out"), metadata={"flag": "--where"})
+    hidden: dict = field(default_factory=dict, metadata={"cli": False})
+
+
+def _parser(cls=Example) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(exit_on_error=False)
+    add_config_arguments(p, cls)
+    return p
+
+
+def test_attribute_docs_read_grouped_and_continued_entries() -> None:
+    docs = attribute_docs(Example)
+    assert docs["name"] == "the name, in code."
+    assert docs["count"] == docs["size"] == "two fields sharing one entry."
+    assert set(docs) == {f.name for f in dataclasses.fields(Example)}
+
+
+def test_flags_round_trip_into_the_dataclass() -> None:
+    args = _parser().parse_args(["--count", "3", "--size", "0.5", "--tags", "b", "c", "--verbose", "--no-fast",
+                                 "--where", "/tmp/x", "--name", "y"])
+    cfg = config_from_args(Example, args, hidden={"k": 1})
+    assert cfg == Example(name="y", count=3, size=0.5, tags=["b", "c"], verbose=True, fast=False,
+                          path=Path("/tmp/x"), hidden={"k": 1})
+    defaults = config_from_args(Example, _parser().parse_args(["--count", "2"]))
+    assert defaults == Example(count=2)
+
+
+def test_required_choices_and_hidden_fields() -> None:
+    p = _parser()
+    with pytest.raises(SystemExit):
+        p.parse_args([])  # --count is required
+    with pytest.raises((SystemExit, argparse.ArgumentError)):
+        p.parse_args(["--count", "1", "--name", "z"])
+    assert "--hidden" not in p.format_help()
+    assert "two fields sharing one entry (default: 1)" not in p.format_help()  # required: no default shown
+
+
+@pytest.mark.parametrize("cls", [TrainConfig, QuickstartConfig])
+def test_every_option_is_documented_and_reachable(cls) -> None:
+    docs = attribute_docs(cls)
+    p = _parser(cls)
+    flags = {a.dest: a for a in p._actions}
+    for f in dataclasses.fields(cls):
+        assert docs.get(f.name), f"{cls.__name__}.{f.name} has no Attributes entry (it would have no --help)"
+        assert f.name in flags or not f.metadata.get("cli", True), f.name
+
+
+def test_abm_train_flags_build_the_train_config(tmp_path) -> None:
+    from abm.cli import build_parser
+
+    args = build_parser().parse_args(
+        ["train", "--method", "rvt", "--data", str(tmp_path), "--steps", "7", "--out", str(tmp_path / "r"),
+         "--no-augment", "--cameras", "front", "top", "--set", "resolution=64", "--clip-model", "tiny",
+         "--language", "clip"])
+    cfg = config_from_args(TrainConfig, args, policy_overrides=dict(args.overrides))
+    assert (cfg.method, cfg.steps, cfg.augment, cfg.camera_names) == ("rvt", 7, False, ["front", "top"])
+    assert cfg.policy_overrides == {"resolution": 64} and cfg.splits == ["seen"] and cfg.progress
