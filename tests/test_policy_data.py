@@ -103,8 +103,14 @@ def test_ifd_features_through_index_map(episodes, monkeypatch, tmp_path) -> None
 
     monkeypatch.setattr(keyframes, "make_grounder_from_spec", lambda spec: FakeClip())
     policy = _policy("ifd")
-    ds = _dataset(episodes, policy, grounder={"kind": "clip"}, cache_dir=tmp_path, show_progress=False)
-    assert len(list(tmp_path.glob("*.npz"))) == 6
+    with pytest.raises(ValueError, match="lacks 6 of 6 keyframes.*abm data ground"):
+        _dataset(episodes, policy, grounder={"kind": "clip"}, cache_dir=tmp_path)  # grounding is an explicit step
+    made = keyframes.ground_keyframes(episodes, policy.workspace, {"kind": "clip"}, tmp_path, mask=False,
+                                      features=True, show_progress=False)
+    assert made == 6 and len(list(tmp_path.glob("*.npz"))) == 6
+    assert keyframes.ground_keyframes(episodes, policy.workspace, {"kind": "clip"}, tmp_path, mask=False,
+                                      features=True, show_progress=False) == 0  # resumable: nothing left
+    ds = _dataset(episodes, policy, grounder={"kind": "clip"}, cache_dir=tmp_path)
     s = ds[(0, 0)]
     assert s["point_features"].shape == (s["points"].shape[0], 8)
     inputs = policy.model_inputs(collate([s, ds[(1, 1)]]))

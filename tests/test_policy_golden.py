@@ -32,7 +32,7 @@ def _compute(state: dict[str, np.ndarray] | None) -> dict[str, np.ndarray]:
     policy = KeyframePolicy(cfg, HashLanguageEncoder(cfg.lang_dim)).eval()
     if state is not None:
         policy.model.load_state_dict({k: torch.from_numpy(v) for k, v in state.items()})
-    ds = KeyframeDataset(episodes, policy.workspace, **policy.sample_options(), augment=False, show_progress=False)
+    ds = KeyframeDataset(episodes, policy.workspace, **policy.sample_options(), augment=False)
     batch = collate([ds[0], ds[1]])
     with torch.no_grad():
         inputs = policy.model_inputs(batch)

@@ -214,3 +214,24 @@ def test_an_existing_run_is_never_silently_replaced(episodes, tmp_path, capsys) 
     train(_cfg(tmp_path / "run", method="rvt", steps=2, overwrite=True), episodes)
     assert [s for s, _ in list_checkpoints(tmp_path / "run")] == [2]
     assert KeyframePolicy.from_checkpoint(tmp_path / "run").config.variant == "rvt"
+
+
+def test_grounding_is_an_explicit_cached_step(episodes, tmp_path, capsys) -> None:
+    """`abm data ground` fills the cache a CLIP-grounded training run reads; training finds it complete."""
+    from abm.data.episode_store import save_episode
+
+    data = tmp_path / "data"
+    for i, ep in enumerate(episodes):
+        save_episode(ep, data / f"ep{i}.h5")
+    args = ["data", "ground", "--data", str(data), "--cache", str(tmp_path / "cache"), "--clip-model", "tiny",
+            "--clip-device", "cpu"]
+    assert cli_main(args) == 0
+    assert "mask fields of 6 keyframes computed (3 episodes)" in capsys.readouterr().out
+    assert len(list((tmp_path / "cache").glob("*.npz"))) == 6
+    assert cli_main(args) == 0
+    assert "of 0 keyframes computed" in capsys.readouterr().out  # resumable: nothing left to do
+    summary = train(_cfg(tmp_path / "run", steps=1, data=data, grounder="clip",
+                         grounder_options={"model": "tiny", "device": "cpu"}, cache_dir=tmp_path / "cache",
+                         policy_overrides={**TINY, "lang_dim": 512}, language="hash"))
+    assert summary["steps"] == 1
+    assert len(list((tmp_path / "cache").glob("*.npz"))) == 6  # training used the entries made above

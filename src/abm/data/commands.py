@@ -1,4 +1,4 @@
-"""``abm data generate`` and ``abm data info``."""
+"""``abm data generate``, ``abm data ground`` and ``abm data info``."""
 
 from __future__ import annotations
 
@@ -23,6 +23,28 @@ def register(subparsers) -> None:
     gen.add_argument("--resolution", type=int, default=128, help="camera resolution (pixels, square)")
     gen.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
     gen.set_defaults(func=_generate)
+
+    ground = sub.add_parser(
+        "ground", help="run a CLIP grounder once over every keyframe and cache the results for training",
+        description="The explicit grounding step of training with a learned grounder: the per-point mask "
+        "field of each keyframe's target (or, with --features, the per-point CLIP features of the ifd "
+        "baseline) is computed once and cached. Train with the same --cameras / workspace / --no-augment "
+        "and `abm train --cache-dir CACHE` (abm train also fills missing entries itself). Resumable.")
+    ground.add_argument("--data", required=True, type=Path, help="episode store folder")
+    ground.add_argument("--cache", required=True, type=Path, help="cache folder (abm train --cache-dir)")
+    ground.add_argument("--grounder", default="clip", choices=["clip"], help="grounder (the oracle needs no cache)")
+    ground.add_argument("--clip-model", help="CLIP weights: hub name, local folder, or 'tiny' (tests only)")
+    ground.add_argument("--clip-device", help="device of the CLIP model (default: CUDA when available)")
+    ground.add_argument("--features", action="store_true",
+                        help="cache CLIP point features (ifd) instead of the target's mask field")
+    ground.add_argument("--tasks", nargs="+", help="tasks (default: all in the store)")
+    ground.add_argument("--splits", nargs="+", default=["seen"], help="splits (default: seen)")
+    ground.add_argument("--cameras", nargs="+", help="cameras to fuse (default: all)")
+    ground.add_argument("--workspace-center", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                        help="the policy's workspace cube centre in m (default: the policy default)")
+    ground.add_argument("--workspace-size", type=float, help="the cube's edge in m (default: the policy default)")
+    ground.add_argument("--no-augment", action="store_true", help="for training with --no-augment (smaller crop)")
+    ground.set_defaults(func=_ground)
 
     info = sub.add_parser("info", help="summarise the episodes in a directory")
     info.add_argument("dir", type=Path)
@@ -98,4 +120,34 @@ def _info(args: argparse.Namespace) -> int:
     else:
         print("every dataset read back and checked against its checksum"
               + (f" ({unchecked} episode(s) written without checksums were only read)" if unchecked else ""))
+    return 0
+
+
+def _ground(args: argparse.Namespace) -> int:
+    from abm.cli import CommandError
+    from abm.data.episode_store import EpisodeFormatError, EpisodeStore
+    from abm.data.keyframes import EpisodeSource, ground_keyframes
+    from abm.geometry import Workspace
+    from abm.policy.config import PolicyConfig
+
+    if not args.data.is_dir():
+        raise CommandError(f"--data {args.data} is not a folder")
+    if args.cache.exists() and not args.cache.is_dir():
+        raise CommandError(f"--cache {args.cache} is a file; give a folder")
+    defaults = PolicyConfig()
+    workspace = Workspace(tuple(args.workspace_center or defaults.workspace_center),
+                          args.workspace_size or defaults.workspace_size)
+    try:
+        store = EpisodeStore(args.data)
+        indices = store.select(tasks=args.tasks, splits=args.splits)
+        if not indices:
+            raise CommandError(f"no episodes in {args.data} for tasks {args.tasks or 'any'} and splits {args.splits}")
+        store.check_consistent(indices)
+    except EpisodeFormatError as err:
+        raise CommandError(str(err)) from None
+    spec = {"kind": args.grounder, **{k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v}}
+    made = ground_keyframes(EpisodeSource(store, indices), workspace, spec, args.cache, mask=not args.features,
+                            features=args.features, augment=not args.no_augment, camera_names=args.cameras)
+    what = "CLIP point features" if args.features else "mask fields"
+    print(f"{what} of {made} keyframes computed ({len(indices)} episodes) -> {args.cache}")
     return 0

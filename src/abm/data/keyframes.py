@@ -6,8 +6,9 @@ Per sample (episode ``e``, keyframe ``k``):
    bring into view (so shifted / rotated samples have no empty bands; the policy's renderer does the
    final crop to the cube), and condition it on the instruction
    (:func:`abm.grounding.conditioning.condition_scene`): the target X and skill text (split once per
-   episode), the per-point mask field of X (oracle: computed here; other grounders: cached on disk by
-   :meth:`KeyframeDataset.precompute`) and per-point CLIP features (cached on disk);
+   episode), the per-point mask field of X (oracle: computed here; other grounders: read from the cache
+   that the explicit grounding step :func:`ground_keyframes` / ``abm data ground`` fills) and per-point
+   CLIP features (cached the same way);
 2. SE(3) augmentation of the points, the action and the gripper position together;
 3. the sample: points, colours, per-point mask / features, gripper state, texts and the action targets.
 
@@ -51,7 +52,7 @@ from abm.samples import action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
 
 __all__ = ["EpisodeMeta", "EpisodeSource", "KeyframeDataset", "StepSampler", "augmentation_margin_cube",
-           "collate", "worker_init"]
+           "collate", "ground_keyframes", "worker_init"]
 
 
 @dataclass
@@ -202,6 +203,8 @@ class KeyframeDataset(Dataset):
             grounders and ``features``).
         seed: base seed of the augmentation.
         camera_names: cameras to fuse (default all).
+        require_cache: refuse to start when cache entries are missing (:func:`ground_keyframes` builds
+            the dataset without it to fill them).
 
     Items are indexed by ``(index, sample_seed)`` keys (see :class:`StepSampler`) or plain indices.
     """
@@ -221,7 +224,7 @@ class KeyframeDataset(Dataset):
         camera_names: Sequence[str] | None = None,
         max_translation: float = 0.125,
         max_yaw_deg: float = 45.0,
-        show_progress: bool = True,
+        require_cache: bool = True,
     ) -> None:
         self.source = source if isinstance(source, EpisodeSource) else EpisodeSource(source)
         self.grounder_spec = dict(grounder or {"kind": "oracle"})
@@ -258,7 +261,12 @@ class KeyframeDataset(Dataset):
                     f"grounder {self.grounder_spec.get('kind')!r} (mask field or CLIP features) needs a cache_dir "
                     "for grounding results / CLIP features"
                 )
-            self.precompute(show_progress)
+            missing = len(self.missing_cache_entries())
+            if missing and require_cache:
+                raise ValueError(
+                    f"the grounding cache {self.cache_dir} lacks {missing} of {len(self.items)} keyframes for grounder "
+                    f"{self.grounder_spec.get('kind')!r}: fill it first with `abm data ground` (abm train does this "
+                    "itself before training)")
 
     def check_inside_workspace(self) -> None:
         """Refuse episodes whose keyframes lie outside the workspace cube: the policy could not point at
@@ -287,7 +295,8 @@ class KeyframeDataset(Dataset):
     def _cache_file(self, j: int, k: int) -> Path:
         assert self.cache_dir is not None
         meta = self.source.meta[j]
-        what = {"grounder": self.grounder_spec, "target": self.targets[j], "key": meta.key,
+        target = self.targets[j] if self.mask else None  # CLIP point features do not depend on the target
+        what = {"grounder": self.grounder_spec, "target": target, "key": meta.key,
                 "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}
         digest = hashlib.sha1(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
         return self.cache_dir / f"{digest}_k{k:03d}.npz"
@@ -299,15 +308,22 @@ class KeyframeDataset(Dataset):
                                object_names=meta.object_names, split=False, target=self.targets[j],
                                skill=self.skills[j], mask=mask, features=features, camera_names=self.camera_names)
 
-    def precompute(self, show_progress: bool = True) -> None:
-        """Compute (in this process) and cache grounding results and CLIP point features of every keyframe."""
+    def missing_cache_entries(self) -> list[tuple[int, int]]:
+        """``(episode, keyframe)`` pairs whose grounding results are not in the cache yet."""
+        if not self.cached:
+            return []
+        return [(j, k) for j, k in self.items if not self._cache_file(j, k).exists()]
+
+    def precompute(self, show_progress: bool = True) -> int:
+        """Compute (in this process) and cache the missing grounding results and CLIP point features;
+        returns how many keyframes were computed."""
         from tqdm import tqdm
 
+        todo = self.missing_cache_entries()
+        if not todo:
+            return 0
         assert self.cache_dir is not None
         self.cache_dir.mkdir(parents=True, exist_ok=True)
-        todo = [(j, k) for j, k in self.items if not self._cache_file(j, k).exists()]
-        if not todo:
-            return
         grounder = make_grounder_from_spec(self.grounder_spec)
         for j, k in tqdm(todo, desc="grounding keyframes", disable=not show_progress):
             obs, _ = self.source.load_step(j, k)
@@ -322,6 +338,7 @@ class KeyframeDataset(Dataset):
             tmp = path.with_name(path.name + f".tmp{os.getpid()}.npz")
             np.savez(tmp, **arrays)
             os.replace(tmp, path)
+        return len(todo)
 
     # ------------------------------------------------------------------ samples
     def __len__(self) -> int:
@@ -359,6 +376,27 @@ class KeyframeDataset(Dataset):
         sample = scene_sample(scene, obs.gripper_open, grip_pos, points)
         sample.update(action_targets(action))
         return sample
+
+
+def ground_keyframes(
+    source: EpisodeSource | Sequence[Episode] | Any,
+    workspace: Workspace,
+    grounder: Mapping[str, Any],
+    cache_dir: str | Path,
+    *,
+    mask: bool = True,
+    features: bool = False,
+    augment: bool = True,
+    camera_names: Sequence[str] | None = None,
+    show_progress: bool = True,
+) -> int:
+    """The explicit grounding step: run a (non-oracle) grounder once over every keyframe and cache the
+    per-point mask fields (``mask``) and CLIP features (``features``) that a :class:`KeyframeDataset`
+    with the same arguments reads. Resumable (existing entries are kept); returns how many keyframes
+    were computed. The oracle grounder needs no cache (it returns 0)."""
+    ds = KeyframeDataset(source, workspace, grounder, mask=mask, features=features, augment=augment,
+                         cache_dir=cache_dir, camera_names=camera_names, require_cache=False)
+    return ds.precompute(show_progress)
 
 
 def augmentation_margin_cube(workspace: Workspace, max_translation: float, max_yaw_deg: float) -> Workspace:

@@ -34,7 +34,14 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
-from abm.data.keyframes import EpisodeSource, KeyframeDataset, StepSampler, collate, worker_init
+from abm.data.keyframes import (
+    EpisodeSource,
+    KeyframeDataset,
+    StepSampler,
+    collate,
+    ground_keyframes,
+    worker_init,
+)
 from abm.grounding.conditioning import make_grounder_from_spec
 from abm.policy.checkpoint import (
     checkpoint_path,
@@ -331,14 +338,17 @@ class Trainer:
         cfg, dinfo = self.cfg, self.dinfo
         source = _episode_source(cfg, self.episodes)
         cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else self.run / "cache"
-        if dinfo.enabled and not dinfo.main:
-            dist.barrier()  # rank 0 fills the grounding cache first
-        dataset = KeyframeDataset(source, self.policy.workspace, self.grounder_spec, **self.policy.sample_options(),
-                                  augment=cfg.augment, cache_dir=cache, seed=cfg.seed, camera_names=cfg.camera_names,
-                                  show_progress=dinfo.main and cfg.progress)
-        if dinfo.enabled and dinfo.main:
-            dist.barrier()
-        return dataset
+        opts = self.policy.sample_options()
+        if dinfo.main and ((opts["mask"] and self.grounder_spec["kind"] != "oracle") or opts["features"]):
+            # the explicit grounding step (what `abm data ground` does ahead of time); resumable
+            made = ground_keyframes(source, self.policy.workspace, self.grounder_spec, cache, mask=opts["mask"],
+                                    features=opts["features"], augment=cfg.augment, camera_names=cfg.camera_names,
+                                    show_progress=cfg.progress)
+            log.info("abm train: grounded %d keyframes with %s into %s", made, self.grounder_spec["kind"], cache)
+        if dinfo.enabled:
+            dist.barrier()  # rank 0 has filled the grounding cache
+        return KeyframeDataset(source, self.policy.workspace, self.grounder_spec, **opts, augment=cfg.augment,
+                               cache_dir=cache, seed=cfg.seed, camera_names=cfg.camera_names)
 
     # ------------------------------------------------------------------ checkpoints
     def state(self, step: int) -> dict[str, Any]:
