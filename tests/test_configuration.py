@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from abm.configuration import add_config_arguments, attribute_docs, config_from_args
+from abm.evaluation.runner import EvalSettings
 from abm.quickstart import QuickstartConfig
 from abm.train.config import TrainConfig
 
@@ -72,7 +73,7 @@ def test_required_choices_and_hidden_fields() -> None:
     assert "two fields sharing one entry (default: 1)" not in p.format_help()  # required: no default shown
 
 
-@pytest.mark.parametrize("cls", [TrainConfig, QuickstartConfig])
+@pytest.mark.parametrize("cls", [TrainConfig, QuickstartConfig, EvalSettings])
 def test_every_option_is_documented_and_reachable(cls) -> None:
     docs = attribute_docs(cls)
     p = _parser(cls)

@@ -7,6 +7,9 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from abm.configuration import add_config_arguments
+    from abm.evaluation.runner import EvalSettings
+
     p = subparsers.add_parser(
         "eval",
         help="evaluate trained policies on seeded benchmark episodes (success tables)",
@@ -21,12 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, default=25, help="episodes per task and repeat (paper: 25)")
     p.add_argument("--repeats", type=int, default=5, help="repeats with different scenes (paper: 5)")
     p.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
-    p.add_argument("--grounder", choices=("clip", "oracle"), default=None,
-                   help="override the grounder stored in the checkpoint")
-    p.add_argument("--device", default="cpu", help="torch device for the policy (cpu, cuda)")
-    p.add_argument("--max-steps", type=int, default=10, help="keyframes before an episode counts as failed")
-    p.add_argument("--resolution", type=int, default=128, help="camera resolution in pixels")
-    p.add_argument("--splits", type=Path, default=None, help="object split file replacing the built-in one")
+    add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
     p.add_argument("--gifs", type=int, default=0, help="save front-camera GIFs of this many episodes per task")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: FIRST_RUN/eval_SPLIT)")
     p.set_defaults(func=run)
@@ -43,6 +41,7 @@ def default_tasks(split: str, splits_path: Path | None) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     from abm.cli import CommandError
+    from abm.configuration import config_from_args
     from abm.evaluation.results import markdown_table
     from abm.evaluation.runner import EvalSettings, evaluate
     from abm.sim.tasks import TASKS
@@ -52,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
             raise CommandError(f"run {r} does not exist (give a training run folder or a checkpoint file)")
     if args.episodes < 1 or args.repeats < 1:
         raise CommandError("--episodes and --repeats must be at least 1")
-    tasks = args.tasks or default_tasks(args.split, args.splits)
+    tasks = args.tasks or default_tasks(args.split, args.splits_path)
     unknown = [t for t in tasks if t not in TASKS]
     if unknown:
         raise CommandError(f"unknown tasks {unknown}; known tasks: {sorted(TASKS)}")
@@ -62,8 +61,7 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or (args.run[0] if args.run[0].is_dir() else args.run[0].parent) / f"eval_{args.split}"
     if out.exists() and not out.is_dir():
         raise CommandError(f"--out {out} is a file; give a folder")
-    settings = EvalSettings(device=args.device, grounder=args.grounder, resolution=args.resolution,
-                            max_steps=args.max_steps, splits_path=str(args.splits) if args.splits else None)
+    settings = config_from_args(EvalSettings, args)
     rates = evaluate(args.run, tasks, args.split, out, args.episodes, args.repeats, args.workers, settings,
                      gifs=args.gifs)
     print(markdown_table([r for r in rates if r.split == args.split and r.task in tasks]))
@@ -88,7 +86,7 @@ def _check_setup(args: argparse.Namespace, tasks: list[str]) -> None:
     from abm.policy.checkpoint import load_checkpoint
     from abm.sim.splits import load_splits
 
-    splits = load_splits(args.splits)
+    splits = load_splits(args.splits_path)
     for task in tasks:
         defined = sorted(splits.tasks.get(task, {}))
         if args.split not in defined:

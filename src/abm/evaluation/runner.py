@@ -14,7 +14,7 @@ import time
 import traceback
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -55,13 +55,21 @@ class EvalJob:
 
 @dataclass(frozen=True)
 class EvalSettings:
-    """Options shared by every rollout of an evaluation."""
+    """Options shared by every rollout of an evaluation (the ``abm eval`` flags besides the run selection).
+
+    Attributes:
+        device: torch device of the policy (cpu, cuda).
+        grounder: override the grounder stored in the checkpoint (clip, oracle).
+        resolution: camera resolution in pixels.
+        max_steps: keyframes before an episode counts as failed.
+        splits_path: object split file replacing the built-in one.
+    """
 
     device: str = "cpu"
-    grounder: str | None = None  # None = the grounder stored in the checkpoint
+    grounder: str | None = field(default=None, metadata={"choices": ["clip", "oracle"]})
     resolution: int = 128
     max_steps: int = 10
-    splits_path: str | None = None
+    splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
 
     def signature(self) -> str:
         """Compact JSON of the settings that change outcomes (recorded with every outcome)."""
