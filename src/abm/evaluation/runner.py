@@ -59,14 +59,15 @@ class EvalSettings:
 
     Attributes:
         device: torch device of the policy (cpu, cuda).
-        grounder: override the grounder stored in the checkpoint (clip, oracle).
+        grounder: override the grounder stored in the checkpoint (clip, oracle; tracking = ground once per
+            episode with the stored grounder, then track the target's points).
         resolution: camera resolution in pixels.
         max_steps: keyframes before an episode counts as failed.
         splits_path: object split file replacing the built-in one.
     """
 
     device: str = "cpu"
-    grounder: str | None = field(default=None, metadata={"choices": ["clip", "oracle"]})
+    grounder: str | None = field(default=None, metadata={"choices": ["clip", "oracle", "tracking"]})
     resolution: int = 128
     max_steps: int = 10
     splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
@@ -99,6 +100,7 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
         policy = _load_policy(job.checkpoint or job.run, settings)
         with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
                       splits_path=settings.splits_path) as env:
+            policy.reset()
             episode = run_policy(env, lambda obs: policy.act(obs, env.instruction, env.object_names))
             steps = len(episode.steps)
             if job.gif_path:

@@ -5,6 +5,8 @@ All grounders share one call::
     field = grounder.ground(observation, cloud, target, object_names)
 
 * :class:`ClipGrounder` — the method: CLIP Feature Cloud + text prompt -> normalised heatmap -> mask.
+* :class:`~abm.grounding.tracking.TrackingGrounder` — grounds once with another grounder, then tracks
+  the target's 3-D points from step to step.
 * :class:`OracleGrounder` — simulator segmentation + object names: the points whose segmentation id is
   named ``target``. An upper bound, and the default where real CLIP weights are unavailable.
 
@@ -27,7 +29,7 @@ from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import MaskField, MaskFieldConfig, mask_field_from_features, negative_prompts
 from abm.types import Observation
 
-GROUNDERS: tuple[str, ...] = ("oracle", "clip")
+GROUNDERS: tuple[str, ...] = ("oracle", "clip", "tracking")
 
 
 @runtime_checkable
@@ -253,8 +255,10 @@ def make_grounder(kind: str = "oracle", **kwargs: Any) -> Grounder:
     """Build a grounder by name.
 
     ``make_grounder("oracle")``; ``make_grounder("clip", model="openai/clip-vit-large-patch14-336" | DIR |
-    "tiny", device="cpu", config=MaskFieldConfig(...), cache=DIR)``. Keyword ``normalization`` and
-    ``threshold`` are accepted as shortcuts for the config.
+    "tiny", device="cpu", config=MaskFieldConfig(...), cache=DIR)``; ``make_grounder("tracking",
+    inner={"kind": "clip", ...}, radius=0.01)`` grounds once per episode with ``inner`` and then tracks
+    (:class:`abm.grounding.tracking.TrackingGrounder`). Keyword ``normalization`` and ``threshold`` are
+    accepted as shortcuts for the clip config.
     """
     if kind == "oracle":
         if kwargs:
@@ -268,4 +272,10 @@ def make_grounder(kind: str = "oracle", **kwargs: Any) -> Grounder:
                 raise TypeError("pass either config or its fields (normalization, threshold, ...), not both")
             kwargs["config"] = MaskFieldConfig(**shortcuts)
         return ClipGrounder(**kwargs)
+    if kind == "tracking":
+        from abm.grounding.tracking import TrackingGrounder
+
+        inner = kwargs.pop("inner", {"kind": "oracle"})
+        inner = dict(inner) if isinstance(inner, Mapping) else {"kind": str(inner)}
+        return TrackingGrounder(make_grounder(inner.pop("kind", "oracle"), **inner), **kwargs)
     raise ValueError(f"unknown grounder {kind!r}; choose from {list(GROUNDERS)}")

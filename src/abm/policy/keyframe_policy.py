@@ -100,6 +100,11 @@ class KeyframePolicy(nn.Module):
             self._grounder = make_grounder_from_spec(self.grounder_spec or {"kind": "oracle"})
         return self._grounder
 
+    def reset(self) -> None:
+        """Start a new episode: forget per-episode state (the tracking grounder's target)."""
+        if self._grounder is not None and hasattr(self._grounder, "reset"):
+            self._grounder.reset()
+
     def sample_options(self) -> dict[str, bool]:
         """What the data pipeline must compute for this variant (``KeyframeDataset(**options)``)."""
         return {"split": self.spec.uses_mask or self.spec.language == "skill", "mask": self.spec.uses_mask,
@@ -302,6 +307,8 @@ class KeyframePolicy(nn.Module):
         stored = ckpt.get("grounder")
         if isinstance(grounder, Mapping) and isinstance(stored, Mapping) and grounder.get("kind") == stored.get("kind"):
             grounder = {**stored, **grounder}  # same grounder: keep the trained options (e.g. the CLIP model)
+        elif isinstance(grounder, Mapping) and grounder.get("kind") == "tracking" and "inner" not in grounder:
+            grounder = {**grounder, "inner": stored or {"kind": "oracle"}}  # track with the trained grounder
         policy = cls(config, ckpt["language"], grounder or stored, ckpt.get("camera_names"))
         policy.model.load_state_dict(ckpt["model"])
         policy.checkpoint_path = ckpt["path"]

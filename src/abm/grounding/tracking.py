@@ -1,0 +1,112 @@
+"""Ground the target once, then track its 3-D points (the paper's proposed fix for its limitation 1).
+
+The per-step grounders rebuild the Object Mask Field at every keyframe: slow with CLIP, and the
+identified target can jump to another object between steps. :class:`TrackingGrounder` runs its inner
+grounder on the first step of an episode (or when the target changes, or when tracking is lost) and
+afterwards carries the target's points forward:
+
+1. **Motion.** When the gripper was closed at the previous step (holding), the target is assumed to
+   have moved with it: the tracked points are moved by the gripper's rigid motion ``T_now @ inv(T_prev)``
+   (so a grasped object is followed, up to its release). Otherwise the target is assumed static.
+2. **Correction.** A few translation-only ICP iterations (median offset to the nearest new points, within
+   ``2 * radius``) absorb small unmodelled motion: an object dropped onto its support, a slip.
+3. **Association.** A point of the new cloud belongs to the target when it lies within ``radius`` (m)
+   of a tracked point (``scipy.spatial.cKDTree``). The tracked points stay the ones the inner grounder
+   found, moved rigidly; new points are never added to them, so the mask cannot drift onto the fingers.
+4. **Loss of track.** A tracked point is found when a new point within ``2 * radius`` has nearly its
+   colour (every channel within ``color_tol``). When fewer than ``min_kept`` are found (occlusion, the
+   object taken away, a wrong motion assumption), the inner grounder runs again.
+
+Call :meth:`TrackingGrounder.reset` between episodes (``KeyframePolicy.reset`` does).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from abm.geometry import PointCloud
+from abm.grounding.mask_field import MaskField
+from abm.types import Observation
+
+
+@dataclass
+class _Track:
+    target: str
+    points: np.ndarray  # (M, 3) world metres: the grounded target points, moved to the last step
+    colors: np.ndarray  # (M, 3) their colours in [0, 1]
+    gripper_pose: np.ndarray  # (4, 4) at the last step
+    gripper_closed: bool
+
+
+class TrackingGrounder:
+    """Ground with ``inner`` once per episode and target, then track the target's points.
+
+    Args:
+        inner: any grounder (``ground(observation, cloud, target, object_names) -> MaskField``).
+        radius: association distance in metres (a point within it of a predicted target point is target).
+        min_kept: share of the predicted target points that must find a new point, else re-ground.
+        closed_below: gripper opening under which the gripper counts as closed (holding).
+        color_tol: largest per-channel colour difference of a found point (colours in ``[0, 1]``).
+
+    Attributes:
+        inner_calls: how often the inner grounder ran (for tests and the tracking benchmark).
+    """
+
+    name = "tracking"
+
+    def __init__(self, inner, radius: float = 0.01, min_kept: float = 0.3, closed_below: float = 0.5,
+                 color_tol: float = 0.2) -> None:
+        if radius <= 0 or not 0 < min_kept <= 1 or color_tol <= 0:
+            raise ValueError(f"radius and color_tol must be > 0 and min_kept in (0, 1], got {radius}, "
+                             f"{color_tol}, {min_kept}")
+        self.inner = inner
+        self.radius, self.min_kept, self.closed_below, self.color_tol = radius, min_kept, closed_below, color_tol
+        self.inner_calls = 0
+        self._track: _Track | None = None
+
+    def reset(self) -> None:
+        """Forget the tracked target (call at the start of every episode)."""
+        self._track = None
+
+    def __getattr__(self, name: str):  # point_features, skill_embeddings, ... of the inner grounder
+        if name.startswith("_") or name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def ground(
+        self,
+        observation: Observation,
+        cloud: PointCloud,
+        target: str,
+        object_names: Mapping[int, str] | None = None,
+    ) -> MaskField:
+        closed = float(observation.gripper_open) < self.closed_below
+        pose = np.asarray(observation.gripper_pose, np.float64)
+        track = self._track
+        if track is not None and track.target == target and len(track.points) and len(cloud):
+            predicted = track.points
+            if track.gripper_closed:  # held during the motion: the target moved with the gripper
+                motion = pose @ np.linalg.inv(track.gripper_pose)
+                predicted = predicted @ motion[:3, :3].T + motion[:3, 3]
+            tree = cKDTree(cloud.xyz)
+            for _ in range(3):  # translation-only ICP
+                dist, index = tree.query(predicted, distance_upper_bound=2 * self.radius)
+                found = np.isfinite(dist)
+                found[found] &= np.abs(cloud.rgb[index[found]] - track.colors[found]).max(-1) <= self.color_tol
+                if found.mean() < self.min_kept:
+                    break
+                predicted = predicted + np.median(cloud.xyz[index[found]] - predicted[found], axis=0)
+            if found.mean() >= self.min_kept:
+                near, _ = cKDTree(predicted).query(cloud.xyz, distance_upper_bound=self.radius)
+                mask = np.isfinite(near).astype(np.float32)
+                self._track = _Track(target, predicted, track.colors, pose, closed)
+                return MaskField(mask, mask.copy(), bool(mask.any()), target, "")
+        field = self.inner.ground(observation, cloud, target, object_names)
+        self.inner_calls += 1
+        keep = np.asarray(field.mask) > 0.5
+        self._track = _Track(target, cloud.xyz[keep], cloud.rgb[keep], pose, closed) if keep.any() else None
+        return field

@@ -1,0 +1,115 @@
+"""Tracking grounder: ground once, then carry the target's points forward (following the gripper)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from abm.geometry import Workspace, fuse_cameras
+from abm.grounding import make_grounder
+from abm.grounding.grounders import OracleGrounder
+from abm.grounding.mask_field import MaskField
+from abm.grounding.tracking import TrackingGrounder
+from abm.sim.env import TaskEnv, run_expert
+
+
+@pytest.fixture(scope="module")
+def rollout():
+    """Clouds of every keyframe of one pick_block expert episode (grasp, lift, move, place...)."""
+    with TaskEnv("pick_block", "seen", 0, resolution=64) as env:
+        episode = run_expert(env)
+    assert episode.success
+    ws = Workspace()
+    return episode, [(obs, fuse_cameras(obs, ws)) for obs, _ in episode.steps]
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a > 0.5, b > 0.5
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+class _FirstRightThenWrong:
+    """Finds the target on its first call, then a distractor (a grounder whose answer jumps)."""
+
+    name = "jumpy"
+
+    def __init__(self, distractor: str) -> None:
+        self.calls, self.oracle, self.distractor = 0, OracleGrounder(), distractor
+
+    def ground(self, observation, cloud, target, object_names=None) -> MaskField:
+        self.calls += 1
+        return self.oracle.ground(observation, cloud, target if self.calls == 1 else self.distractor, object_names)
+
+
+def test_tracking_follows_the_target_through_grasp_and_transport(rollout) -> None:
+    episode, clouds = rollout
+    target, names = episode.target_names[0], episode.object_names
+    tracker = TrackingGrounder(OracleGrounder())
+    oracle = OracleGrounder()
+    ious = []
+    for obs, cloud in clouds:
+        tracked = tracker.ground(obs, cloud, target, names).mask
+        ious.append(_iou(tracked, oracle.ground(obs, cloud, target, names).mask))
+    assert tracker.inner_calls == 1, ious  # grounded once, tracked through lift, move and place
+    assert min(ious) > 0.6 and np.mean(ious) > 0.8, ious
+
+
+def test_tracking_keeps_the_first_answer_when_per_step_grounding_jumps(rollout) -> None:
+    episode, clouds = rollout
+    target, names = episode.target_names[0], episode.object_names
+    distractor = next(n for n in names.values() if n not in (target, "target") and "block" in n)
+    oracle = OracleGrounder()
+    per_step = _FirstRightThenWrong(distractor)
+    tracker = TrackingGrounder(_FirstRightThenWrong(distractor))
+    for obs, cloud in clouds[:3]:
+        truth = oracle.ground(obs, cloud, target, names).mask
+        assert _iou(tracker.ground(obs, cloud, target, names).mask, truth) > 0.6
+        last_per_step = per_step.ground(obs, cloud, target, names).mask
+    assert _iou(last_per_step, truth) == 0.0  # the per-step answer jumped to the distractor
+
+
+def test_reset_target_change_and_loss_of_track_reground(rollout) -> None:
+    episode, clouds = rollout
+    target, names = episode.target_names[0], episode.object_names
+    obs, cloud = clouds[0]
+    tracker = make_grounder("tracking", inner={"kind": "oracle"})
+    assert isinstance(tracker, TrackingGrounder)
+    tracker.ground(obs, cloud, target, names)
+    tracker.ground(obs, cloud, target, names)
+    assert tracker.inner_calls == 1
+    tracker.ground(obs, cloud, "target", names)  # another target: ground again
+    assert tracker.inner_calls == 2
+    tracker.reset()
+    tracker.ground(obs, cloud, "target", names)
+    assert tracker.inner_calls == 3
+    tracker.ground(obs, cloud, target, names)
+    assert tracker.inner_calls == 4
+    gone = ~OracleGrounder().ground(obs, cloud, target, names).mask.astype(bool)
+    tracker.ground(obs, cloud.select(gone), target, names)  # the block was taken away
+    assert tracker.inner_calls == 5  # lost: grounded again
+    with pytest.raises(ValueError):
+        TrackingGrounder(OracleGrounder(), radius=0.0)
+
+
+
+def test_policy_and_evaluation_select_tracking(tmp_path) -> None:
+    from abm.evaluation.runner import EvalSettings, _load_policy
+    from abm.policy import KeyframePolicy
+    from abm.train import TrainConfig, train
+    from abm.train.synthetic import synthetic_episodes
+
+    episodes = synthetic_episodes(2, camera_resolution=32)
+    tiny = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
+            "decoder_channels": 4, "lang_dim": 16}
+    train(TrainConfig(out=tmp_path, steps=1, batch=2, policy_overrides=tiny, progress=False), episodes)
+    policy = KeyframePolicy.from_checkpoint(tmp_path, grounder={"kind": "tracking"})
+    assert policy.grounder_spec == {"kind": "tracking", "inner": {"kind": "oracle"}}
+    obs, _ = episodes[0].steps[0]
+    for _ in range(2):
+        policy.act(obs, episodes[0].instruction, episodes[0].object_names)
+    assert isinstance(policy.grounder, TrackingGrounder) and policy.grounder.inner_calls == 1
+    policy.reset()  # a new episode grounds again
+    policy.act(obs, episodes[0].instruction, episodes[0].object_names)
+    assert policy.grounder.inner_calls == 2
+    loaded = _load_policy(str(tmp_path), EvalSettings(grounder="tracking"))
+    assert isinstance(loaded.grounder, TrackingGrounder)
