@@ -11,6 +11,7 @@ import pytest
 
 from abm.configuration import add_config_arguments, attribute_docs, config_from_args
 from abm.evaluation.runner import EvalSettings
+from abm.policy.config import PolicyConfig
 from abm.quickstart import QuickstartConfig
 from abm.train.config import TrainConfig
 
@@ -73,7 +74,7 @@ def test_required_choices_and_hidden_fields() -> None:
     assert "two fields sharing one entry (default: 1)" not in p.format_help()  # required: no default shown
 
 
-@pytest.mark.parametrize("cls", [TrainConfig, QuickstartConfig, EvalSettings])
+@pytest.mark.parametrize("cls", [TrainConfig, QuickstartConfig, EvalSettings, PolicyConfig])
 def test_every_option_is_documented_and_reachable(cls) -> None:
     docs = attribute_docs(cls)
     p = _parser(cls)
@@ -93,3 +94,18 @@ def test_abm_train_flags_build_the_train_config(tmp_path) -> None:
     cfg = config_from_args(TrainConfig, args, policy_overrides=dict(args.overrides))
     assert (cfg.method, cfg.steps, cfg.augment, cfg.camera_names) == ("rvt", 7, False, ["front", "top"])
     assert cfg.policy_overrides == {"resolution": 64} and cfg.splits == ["seen"] and cfg.progress
+
+
+def test_policy_flags_are_overrides_of_the_preset(tmp_path, monkeypatch) -> None:
+    """Only the policy flags given reach policy_overrides (the preset supplies the rest)."""
+    import abm.train.loop as loop
+    from abm.cli import main
+
+    seen = {}
+    monkeypatch.setattr(loop, "train", lambda cfg, episodes=None: seen.setdefault("cfg", cfg) and {
+        "steps": 0, "final_loss": {}, "checkpoint": ""})
+    assert main(["train", "--method", "abm", "--synthetic", "1", "--steps", "1", "--out", str(tmp_path),
+                 "--patch-size", "6", "--resolution", "48", "--workspace-center", "0.5", "0", "0.15",
+                 "--set", "width=96"]) == 0
+    assert seen["cfg"].policy_overrides == {"patch_size": 6, "resolution": 48, "workspace_center": [0.5, 0.0, 0.15],
+                                            "width": 96}

@@ -10,7 +10,9 @@ builds the dataclass back from the parsed arguments. Field ``metadata`` adjusts 
 * ``cli=False``: no flag (the command fills the field itself, e.g. from several flags).
 
 Booleans become switches: ``--name`` for a ``False`` default, ``--no-name`` for a ``True`` default.
-``list[...]`` fields take one or more values; ``X | None`` fields default to ``None``.
+``list[...]`` and ``tuple[X, ...]`` fields take one or more values, ``tuple[X, X, X]`` exactly three;
+``X | None`` fields default to ``None``. With ``overrides_only`` a flag that is not given leaves no value,
+so a config whose defaults come from a preset (the policy's) only receives what the user changed.
 """
 
 from __future__ import annotations
@@ -66,8 +68,8 @@ def _flag(f: dataclasses.Field) -> str:
     return f.metadata.get("flag", "--" + f.name.replace("_", "-"))
 
 
-def _base_type(annotation: Any) -> tuple[Any, bool, bool]:
-    """``(element type, is_list, is_optional)`` of a field annotation."""
+def _base_type(annotation: Any) -> tuple[Any, Any, bool]:
+    """``(element type, nargs, is_optional)`` of a field annotation (``nargs`` None for a single value)."""
     optional = False
     origin = typing.get_origin(annotation)
     if origin in (typing.Union, types.UnionType):
@@ -77,47 +79,61 @@ def _base_type(annotation: Any) -> tuple[Any, bool, bool]:
         origin = typing.get_origin(annotation)
     if origin is list:
         (element,) = typing.get_args(annotation) or (str,)
-        return element, True, optional
-    return annotation, False, optional
+        return element, "+", optional
+    if origin is tuple:
+        args = typing.get_args(annotation) or (str, ...)
+        return args[0], ("+" if len(args) == 2 and args[1] is Ellipsis else len(args)), optional
+    return annotation, None, optional
 
 
-def add_config_arguments(parser: argparse.ArgumentParser, cls: type, defaults: Any | None = None) -> None:
+def add_config_arguments(parser: argparse.ArgumentParser, cls: type, defaults: Any | None = None, *,
+                         overrides_only: bool = False, exclude: tuple[str, ...] = (), dest_prefix: str = "",
+                         title: str | None = None) -> None:
     """Add one flag per field of the dataclass ``cls`` (see module docstring).
 
     Args:
         parser: where the flags go.
         cls: the config dataclass (its annotations must be resolvable with ``typing.get_type_hints``).
         defaults: an instance whose values become the flags' defaults (default: ``cls()``).
+        overrides_only: flags that are not given leave no value (read them with :func:`overrides_from_args`),
+            for configs whose defaults come from elsewhere (a preset).
+        exclude: fields without a flag.
+        dest_prefix: prefix of the parsed attribute names (keeps two configs' fields apart).
+        title: put the flags in an argument group with this title.
     """
     docs = attribute_docs(cls)
     hints = typing.get_type_hints(cls)
-    defaults = defaults if defaults is not None else cls()
+    defaults = defaults if defaults is not None or overrides_only else cls()
+    target = parser.add_argument_group(title) if title else parser
     for f in dataclasses.fields(cls):
-        if not f.metadata.get("cli", True):
+        if not f.metadata.get("cli", True) or f.name in exclude:
             continue
-        default = getattr(defaults, f.name)
+        default = getattr(defaults, f.name) if defaults is not None else None
         text = docs.get(f.name, "")
-        kind, is_list, _ = _base_type(hints[f.name])
-        kwargs: dict[str, Any] = {"dest": f.name, "help": text}
+        kind, nargs, _ = _base_type(hints[f.name])
+        kwargs: dict[str, Any] = {"dest": dest_prefix + f.name, "help": text}
+        if overrides_only:
+            kwargs["default"] = argparse.SUPPRESS
         if kind is bool:
             flag = _flag(f) if not default else f.metadata.get("flag", "--no-" + f.name.replace("_", "-"))
-            parser.add_argument(flag, action="store_false" if default else "store_true", default=default, **kwargs)
+            kwargs.setdefault("default", default)
+            target.add_argument(flag, action="store_false" if default else "store_true", **kwargs)
             continue
         kwargs["type"] = kind if kind in (int, float, Path) else str
         kwargs["metavar"] = _flag(f).lstrip("-").replace("-", "_").upper()
-        if is_list:
-            kwargs["nargs"] = "+"
+        if nargs is not None:
+            kwargs["nargs"] = nargs
         if "choices" in f.metadata:
             kwargs["choices"] = f.metadata["choices"]
             kwargs.pop("metavar")
         if f.metadata.get("required"):
             kwargs["required"] = True
-        else:
+        elif not overrides_only:
             kwargs["default"] = default
             shown = default if not isinstance(default, list) else " ".join(map(str, default))
             if default is not None and default != [] and "default" not in text:
                 kwargs["help"] = f"{text.rstrip('.')} (default: {shown})"
-        parser.add_argument(_flag(f), **kwargs)
+        target.add_argument(_flag(f), **kwargs)
 
 
 def config_from_args(cls: type, args: argparse.Namespace, **extra: Any) -> Any:
@@ -126,3 +142,8 @@ def config_from_args(cls: type, args: argparse.Namespace, **extra: Any) -> Any:
               if f.metadata.get("cli", True) and hasattr(args, f.name)}
     values.update(extra)
     return cls(**values)
+
+
+def overrides_from_args(args: argparse.Namespace, dest_prefix: str) -> dict[str, Any]:
+    """The fields given on the command line for flags added with ``overrides_only`` and ``dest_prefix``."""
+    return {k[len(dest_prefix):]: v for k, v in vars(args).items() if k.startswith(dest_prefix)}

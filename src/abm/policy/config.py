@@ -61,6 +61,7 @@ class PolicyConfig:
         dropout: dropout in attention / MLP.
         workspace_center: workspace cube centre (m), used for action decoding.
         workspace_size: workspace cube edge (m).
+        extra: free-form notes stored with the config (not used by the model, ignored when comparing).
     """
 
     variant: str = "abm"
@@ -84,7 +85,7 @@ class PolicyConfig:
     dropout: float = 0.0
     workspace_center: tuple[float, float, float] = (0.5, 0.0, 0.35)
     workspace_size: float = 1.0
-    extra: dict[str, Any] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict, metadata={"cli": False})
 
     def __post_init__(self) -> None:
         get_variant(self.variant)  # raises on an unknown variant

@@ -17,8 +17,11 @@ import os
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import add_config_arguments, config_from_args
+from abm.configuration import add_config_arguments, config_from_args, overrides_from_args
+from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
+
+POLICY_DEST = "policy__"
 
 
 def parse_override(text: str) -> tuple[str, Any]:
@@ -40,6 +43,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "Launch with `torchrun --nproc_per_node N -m abm.cli train ...` for data-parallel training.",
     )
     add_config_arguments(p, TrainConfig)  # one flag per TrainConfig field, help from its docstring
+    add_config_arguments(p, PolicyConfig, overrides_only=True, exclude=("variant", "preset", "extra"),
+                         dest_prefix=POLICY_DEST, title="policy (overrides of the --preset; saved with the run)")
     p.add_argument("--synthetic", type=int, default=0, metavar="N",
                    help="train on N built-in synthetic block episodes instead of --data (smoke tests)")
     p.add_argument("--clip-model", help="CLIP weights for --grounder/--language clip: hub name, local folder, "
@@ -67,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     if args.data is not None and not Path(args.data).is_dir():
         raise CommandError(f"--data {args.data} is not a folder")
     cfg = config_from_args(
-        TrainConfig, args, policy_overrides=dict(args.overrides),
+        TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **dict(args.overrides)},
         grounder_options={k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v})
     if cfg.grounder == "oracle" and cfg.grounder_options:
         if cfg.language != "clip":
