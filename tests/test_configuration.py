@@ -105,7 +105,7 @@ def test_policy_flags_are_overrides_of_the_preset(tmp_path, monkeypatch) -> None
     monkeypatch.setattr(loop, "train", lambda cfg, episodes=None: seen.setdefault("cfg", cfg) and {
         "steps": 0, "final_loss": {}, "checkpoint": ""})
     assert main(["train", "--method", "abm", "--synthetic", "1", "--steps", "1", "--out", str(tmp_path),
-                 "--patch-size", "6", "--resolution", "48", "--workspace-center", "0.5", "0", "0.15",
+                 "--patch-size", "6", "--view-resolution", "48", "--workspace-center", "0.5", "0", "0.15",
                  "--set", "width=96"]) == 0
     assert seen["cfg"].policy_overrides == {"patch_size": 6, "resolution": 48, "workspace_center": [0.5, 0.0, 0.15],
                                             "width": 96}

@@ -1,5 +1,5 @@
 """Imports flow one way: types (and the small helpers machine, workers, configuration) -> geometry
--> render / grounding / sim -> samples -> policy -> data -> train -> evaluation -> commands (quickstart,
+-> render / grounding / sim -> samples -> data -> policy -> train -> evaluation -> commands (quickstart,
 cli, every ``*.commands`` module).
 
 Checked on the source text (every ``import`` statement, at module level or inside functions), so a
@@ -19,8 +19,8 @@ LAYERS = [
     ("geometry",),
     ("render", "grounding", "sim"),
     ("samples",),
+    ("data",),  # below policy: the dataset yields policy-independent samples
     ("policy",),
-    ("data",),
     ("train",),
     ("evaluation",),
     ("quickstart", "cli", "commands"),
@@ -74,5 +74,5 @@ def test_the_check_sees_a_backwards_import(tmp_path) -> None:
     bad = tmp_path / "bad.py"
     bad.write_text("def f():\n    from abm.train.loop import train\n")
     assert imports(bad) == [("abm.train.loop", 2)]
-    assert layer("abm.train.loop") > layer("abm.data.keyframes") > layer("abm.policy.keyframe_policy")
+    assert layer("abm.train.loop") > layer("abm.policy.keyframe_policy") > layer("abm.data.keyframes")
     assert layer("abm.data.commands") == layer("abm.cli")

@@ -194,7 +194,7 @@ def test_keyframes_outside_the_workspace_are_refused(episodes) -> None:
     from abm.geometry import Workspace
 
     small = Workspace((0.5, 0.0, 0.35), 0.05)  # 5 cm around a point above the table: no keyframe fits
-    with pytest.raises(ValueError, match=r"6 keyframes of 3 episodes lie outside .* workspace_size"):
+    with pytest.raises(ValueError, match=r"6 keyframes of 3 episodes lie outside .*\(--workspace-size M"):
         KeyframeDataset(episodes, small)
 
 

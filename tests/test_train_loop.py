@@ -235,3 +235,13 @@ def test_grounding_is_an_explicit_cached_step(episodes, tmp_path, capsys) -> Non
                          policy_overrides={**TINY, "lang_dim": 512}, language="hash"))
     assert summary["steps"] == 1
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 6  # training used the entries made above
+
+
+def test_overwrite_with_bad_options_keeps_the_old_run(episodes, tmp_path) -> None:
+    train(_cfg(tmp_path, steps=1), episodes)
+    before = list_checkpoints(tmp_path)
+    with pytest.raises(ValueError, match="use --grounder clip"):
+        train(_cfg(tmp_path, steps=1, method="ifd", overwrite=True), episodes)
+    with pytest.raises(ValueError, match="outside the policy's workspace cube"):
+        train(_cfg(tmp_path, steps=1, overwrite=True, policy_overrides={**TINY, "workspace_size": 0.05}), episodes)
+    assert list_checkpoints(tmp_path) == before  # nothing was deleted: the options were checked first

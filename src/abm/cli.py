@@ -45,8 +45,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def configure_logging(level: int = logging.INFO) -> None:
-    """Library messages (``logging``) to stderr as plain lines; a no-op when logging is already set up."""
-    logging.basicConfig(level=level, format="%(message)s", stream=sys.stderr)
+    """abm's own messages (the ``abm`` logger) to stderr as plain lines; other libraries keep their defaults."""
+    logger = logging.getLogger("abm")
+    if not logger.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        logger.addHandler(handler)
+        logger.propagate = False
+    logger.setLevel(level)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

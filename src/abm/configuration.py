@@ -109,15 +109,17 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: type, defaults: A
         if not f.metadata.get("cli", True) or f.name in exclude:
             continue
         default = getattr(defaults, f.name) if defaults is not None else None
-        text = docs.get(f.name, "")
+        text = docs.get(f.name, "").replace("%", "%%")  # argparse formats help with %
         kind, nargs, _ = _base_type(hints[f.name])
         kwargs: dict[str, Any] = {"dest": dest_prefix + f.name, "help": text}
         if overrides_only:
             kwargs["default"] = argparse.SUPPRESS
         if kind is bool:
+            if overrides_only:  # --name / --no-name, absent when not given
+                target.add_argument(_flag(f), action=argparse.BooleanOptionalAction, **kwargs)
+                continue
             flag = _flag(f) if not default else f.metadata.get("flag", "--no-" + f.name.replace("_", "-"))
-            kwargs.setdefault("default", default)
-            target.add_argument(flag, action="store_false" if default else "store_true", **kwargs)
+            target.add_argument(flag, action="store_false" if default else "store_true", default=default, **kwargs)
             continue
         kwargs["type"] = kind if kind in (int, float, Path) else str
         kwargs["metavar"] = _flag(f).lstrip("-").replace("-", "_").upper()

@@ -108,8 +108,11 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     from abm.data.generate import generate
     from abm.evaluation.results import markdown_table
     from abm.evaluation.runner import EvalSettings, evaluate, write_tables
-    from abm.train.loop import TrainConfig, train
+    from abm.policy.config import PolicyConfig
+    from abm.train.config import TrainConfig
+    from abm.train.loop import train
 
+    PolicyConfig.from_preset("small", "abm", **cfg.policy_overrides)  # bad policy settings fail before any work
     start = time.perf_counter()
     out = cfg.out
     data, runs_dir, report = out / "data", out / "runs", out / "report"

@@ -52,7 +52,7 @@ from abm.samples import action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
 
 __all__ = ["EpisodeMeta", "EpisodeSource", "KeyframeDataset", "StepSampler", "augmentation_margin_cube",
-           "collate", "ground_keyframes", "worker_init"]
+           "check_inside_workspace", "collate", "ground_keyframes", "worker_init"]
 
 
 @dataclass
@@ -266,25 +266,13 @@ class KeyframeDataset(Dataset):
                 raise ValueError(
                     f"the grounding cache {self.cache_dir} lacks {missing} of {len(self.items)} keyframes for grounder "
                     f"{self.grounder_spec.get('kind')!r}: fill it first with `abm data ground` (abm train does this "
-                    "itself before training)")
+                    "itself before training). Entries are keyed by the grounder's options (e.g. the CLIP model), "
+                    "the episode, the target, the cameras and the workspace cube (with augmentation's margin), "
+                    "so these must match")
 
     def check_inside_workspace(self) -> None:
-        """Refuse episodes whose keyframes lie outside the workspace cube: the policy could not point at
-        them (their heatmap target would fall off the views)."""
-        outside = []
-        for j, meta in enumerate(self.source.meta):
-            pos = self.source.positions(j)
-            bad = ~self.workspace.contains(pos)
-            if bad.any():
-                outside.append((meta, int(bad.sum()), pos[bad][0]))
-        if outside:
-            meta, count, where = outside[0]
-            lo, hi = np.round(self.workspace.lower, 3).tolist(), np.round(self.workspace.upper, 3).tolist()
-            raise ValueError(
-                f"{sum(c for _, c, _ in outside)} keyframes of {len(outside)} episodes lie outside the policy's "
-                f"workspace cube {lo}..{hi} (m), e.g. {count} of {meta.task} episode {meta.key} such as "
-                f"{np.round(where, 3).tolist()}; enlarge the cube (--set workspace_size=M --set "
-                f"workspace_center=[X,Y,Z]) or leave these tasks out")
+        """See :func:`check_inside_workspace`."""
+        check_inside_workspace(self.source, self.workspace)
 
     # ------------------------------------------------------------------ caching
     @property
@@ -296,7 +284,8 @@ class KeyframeDataset(Dataset):
         assert self.cache_dir is not None
         meta = self.source.meta[j]
         target = self.targets[j] if self.mask else None  # CLIP point features do not depend on the target
-        what = {"grounder": self.grounder_spec, "target": target, "key": meta.key,
+        grounder = {k: v for k, v in self.grounder_spec.items() if k not in ("device", "cache")}  # not results
+        what = {"grounder": grounder, "target": target, "key": meta.key,
                 "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}
         digest = hashlib.sha1(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
         return self.cache_dir / f"{digest}_k{k:03d}.npz"
@@ -351,7 +340,7 @@ class KeyframeDataset(Dataset):
             return self._scene(j, obs, self._oracle, self.mask, False)
         path = self._cache_file(j, k)
         if not path.exists():
-            raise FileNotFoundError(f"grounding cache entry {path} is missing; run precompute() first")
+            raise FileNotFoundError(f"grounding cache entry {path} is missing; fill the cache with abm data ground")
         scene = self._scene(j, obs, None, False, False)
         with np.load(path) as data:
             pm = None
@@ -378,6 +367,25 @@ class KeyframeDataset(Dataset):
         return sample
 
 
+def check_inside_workspace(source: EpisodeSource, workspace: Workspace) -> None:
+    """Refuse episodes whose keyframes lie outside the workspace cube: a policy could not point at them
+    (their heatmap target would fall off the views). Reads only the keyframe positions."""
+    outside = []
+    for j, meta in enumerate(source.meta):
+        pos = source.positions(j)
+        bad = ~workspace.contains(pos)
+        if bad.any():
+            outside.append((meta, int(bad.sum()), pos[bad][0]))
+    if outside:
+        meta, count, where = outside[0]
+        lo, hi = np.round(workspace.lower, 3).tolist(), np.round(workspace.upper, 3).tolist()
+        raise ValueError(
+            f"{sum(c for _, c, _ in outside)} keyframes of {len(outside)} episodes lie outside the policy's "
+            f"workspace cube {lo}..{hi} (m), e.g. {count} of {meta.task} episode {meta.key} such as "
+            f"{np.round(where, 3).tolist()}; enlarge the cube (--workspace-size M --workspace-center X Y Z) or "
+            "leave these tasks out")
+
+
 def ground_keyframes(
     source: EpisodeSource | Sequence[Episode] | Any,
     workspace: Workspace,
@@ -394,7 +402,7 @@ def ground_keyframes(
     per-point mask fields (``mask``) and CLIP features (``features``) that a :class:`KeyframeDataset`
     with the same arguments reads. Resumable (existing entries are kept); returns how many keyframes
     were computed. The oracle grounder needs no cache (it returns 0)."""
-    ds = KeyframeDataset(source, workspace, grounder, mask=mask, features=features, augment=augment,
+    ds = KeyframeDataset(source, workspace, grounder, split=mask, mask=mask, features=features, augment=augment,
                          cache_dir=cache_dir, camera_names=camera_names, require_cache=False)
     return ds.precompute(show_progress)
 

@@ -4,8 +4,8 @@ The training data (:mod:`abm.data.keyframes`) and the policy at run time (:mod:`
 through :func:`condition_scene`, so the two see the same points, mask and texts. Grounding results are
 normalised to :class:`PointMask`.
 
-Grounders are described by a JSON-compatible spec stored in checkpoints: ``{"kind": "oracle"}`` or
-``{"kind": "clip", ...options passed to make_grounder}``.
+Grounders are described by a JSON-compatible spec stored in checkpoints: ``{"kind": "oracle"}``,
+``{"kind": "clip", ...options passed to make_grounder}`` or ``{"kind": "tracking", "inner": {...}}``.
 """
 
 from __future__ import annotations

@@ -5,9 +5,10 @@ identified target can jump to another object between steps. :class:`TrackingGrou
 grounder on the first step of an episode (or when the target changes, or when tracking is lost) and
 afterwards carries the target's points forward:
 
-1. **Motion.** When the gripper was closed at the previous step (holding), the target is assumed to
-   have moved with it: the tracked points are moved by the gripper's rigid motion ``T_now @ inv(T_prev)``
-   (so a grasped object is followed, up to its release). Otherwise the target is assumed static.
+1. **Motion.** The target either stayed where it was or, when the gripper was closed at the previous
+   step, moved with the gripper (the tracked points moved by ``T_now @ inv(T_prev)``, so a grasped object
+   is followed up to its release). Both hypotheses are fitted and the one that finds more of the target
+   is kept, so a target that is not the held object (the jar while the lid is carried) stays put.
 2. **Correction.** A few translation-only ICP iterations (median offset to the nearest new points, within
    ``2 * radius``) absorb small unmodelled motion: an object dropped onto its support, a slip.
 3. **Association.** A point of the new cloud belongs to the target when it lies within ``radius`` (m)
@@ -77,6 +78,25 @@ class TrackingGrounder:
             raise AttributeError(name)
         return getattr(self.inner, name)
 
+    def _found(self, tree: cKDTree, cloud: PointCloud, points: np.ndarray, colors: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """Which tracked points have a same-coloured new point within ``2 * radius``, and its index."""
+        dist, index = tree.query(points, distance_upper_bound=2 * self.radius)
+        found = np.isfinite(dist)
+        found[found] &= np.abs(cloud.rgb[index[found]] - colors[found]).max(-1) <= self.color_tol
+        return found, index
+
+    def _fit(self, tree: cKDTree, cloud: PointCloud, points: np.ndarray, colors: np.ndarray
+             ) -> tuple[float, np.ndarray]:
+        """Translation-only ICP of the tracked points onto the new cloud: ``(share found, moved points)``."""
+        for _ in range(3):
+            found, index = self._found(tree, cloud, points, colors)
+            if found.mean() < self.min_kept:
+                break
+            points = points + np.median(cloud.xyz[index[found]] - points[found], axis=0)
+        found, _ = self._found(tree, cloud, points, colors)
+        return float(found.mean()), points
+
     def ground(
         self,
         observation: Observation,
@@ -88,19 +108,13 @@ class TrackingGrounder:
         pose = np.asarray(observation.gripper_pose, np.float64)
         track = self._track
         if track is not None and track.target == target and len(track.points) and len(cloud):
-            predicted = track.points
-            if track.gripper_closed:  # held during the motion: the target moved with the gripper
-                motion = pose @ np.linalg.inv(track.gripper_pose)
-                predicted = predicted @ motion[:3, :3].T + motion[:3, 3]
             tree = cKDTree(cloud.xyz)
-            for _ in range(3):  # translation-only ICP
-                dist, index = tree.query(predicted, distance_upper_bound=2 * self.radius)
-                found = np.isfinite(dist)
-                found[found] &= np.abs(cloud.rgb[index[found]] - track.colors[found]).max(-1) <= self.color_tol
-                if found.mean() < self.min_kept:
-                    break
-                predicted = predicted + np.median(cloud.xyz[index[found]] - predicted[found], axis=0)
-            if found.mean() >= self.min_kept:
+            hypotheses = [track.points]  # the target stayed where it was
+            if track.gripper_closed:  # or it moved with the gripper (if the gripper held it, not another object)
+                motion = pose @ np.linalg.inv(track.gripper_pose)
+                hypotheses.append(track.points @ motion[:3, :3].T + motion[:3, 3])
+            share, predicted = max((self._fit(tree, cloud, h, track.colors) for h in hypotheses), key=lambda r: r[0])
+            if share >= self.min_kept:
                 near, _ = cKDTree(predicted).query(cloud.xyz, distance_upper_bound=self.radius)
                 mask = np.isfinite(near).astype(np.float32)
                 self._track = _Track(target, predicted, track.colors, pose, closed)

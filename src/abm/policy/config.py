@@ -67,7 +67,7 @@ class PolicyConfig:
     variant: str = "abm"
     preset: str = "small"
     views: tuple[str, ...] = ("front", "back", "left", "right", "top")
-    resolution: int = 96
+    resolution: int = field(default=96, metadata={"flag": "--view-resolution"})
     patch_size: int = 8
     width: int = 128
     layers_within: int = 2
@@ -76,11 +76,11 @@ class PolicyConfig:
     mlp_ratio: float = 2.0
     stem_channels: int = 32
     decoder_channels: int = 16
-    image_channels: int = 10
-    lang_tokens: int = 77
+    image_channels: int = field(default=10, metadata={"cli": False})  # fixed by the renderer
+    lang_tokens: int = field(default=77, metadata={"cli": False})  # set by the language encoder
     lang_dim: int = 512
     ifd_feature_dim: int = 512
-    proprio_dim: int = 4
+    proprio_dim: int = field(default=4, metadata={"cli": False})  # fixed by the policy
     rotation_bins: int = 72
     dropout: float = 0.0
     workspace_center: tuple[float, float, float] = (0.5, 0.0, 0.35)

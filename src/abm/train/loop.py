@@ -38,6 +38,7 @@ from abm.data.keyframes import (
     EpisodeSource,
     KeyframeDataset,
     StepSampler,
+    check_inside_workspace,
     collate,
     ground_keyframes,
     worker_init,
@@ -223,8 +224,6 @@ _RUN_FILES = ("config.json", "log.csv", "summary.json")
 
 def _claim_run_folder(run: Path, cfg: TrainConfig, dinfo: DistInfo) -> None:
     """Refuse to train into a folder that holds another run, unless resuming or told to overwrite."""
-    if cfg.resume and cfg.overwrite:
-        raise ValueError("--resume and --overwrite contradict each other: choose one")
     existing = list_checkpoints(run)
     occupied = bool(existing) or any((run / name).exists() for name in _RUN_FILES)
     if occupied and not cfg.resume:
@@ -273,7 +272,8 @@ class Trainer:
             if dinfo.enabled:
                 self.device = device = torch.device("cuda", dinfo.local_rank)
             torch.cuda.set_device(device)
-        _claim_run_folder(self.run, cfg, dinfo)
+        if cfg.resume and cfg.overwrite:
+            raise ValueError("--resume and --overwrite contradict each other: choose one")
         ckpt = self._resume_checkpoint()
 
         torch.manual_seed(cfg.seed)
@@ -294,7 +294,10 @@ class Trainer:
         if ckpt is not None:
             check_compatible(PolicyConfig.from_dict(ckpt["policy_config"]), self.policy_config)
         self.policy = KeyframePolicy(self.policy_config, encoder, gspec, cfg.camera_names).to(device)
-        self.dataset = self._dataset()
+        source = _episode_source(cfg, self.episodes)
+        check_inside_workspace(source, self.policy.workspace)  # every rank, before anything is written
+        _claim_run_folder(self.run, cfg, dinfo)  # options are valid: now the folder may be written
+        self.dataset = self._dataset(source)
 
         world = dinfo.world_size
         self.lr = cfg.lr if cfg.lr is not None else 1e-4 * cfg.batch * world
@@ -334,9 +337,8 @@ class Trainer:
                              f"with --steps {ckpt['step']} or more")
         return ckpt
 
-    def _dataset(self) -> KeyframeDataset:
+    def _dataset(self, source: EpisodeSource) -> KeyframeDataset:
         cfg, dinfo = self.cfg, self.dinfo
-        source = _episode_source(cfg, self.episodes)
         cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else self.run / "cache"
         opts = self.policy.sample_options()
         if dinfo.main and ((opts["mask"] and self.grounder_spec["kind"] != "oracle") or opts["features"]):
