@@ -1,5 +1,5 @@
 """Imports flow one way: types (and the small helpers machine, workers, configuration) -> geometry
--> render / grounding / sim -> samples -> data -> policy -> train -> evaluation -> commands (quickstart,
+-> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot -> commands (quickstart,
 cli, every ``*.commands`` module).
 
 Checked on the source text (every ``import`` statement, at module level or inside functions), so a
@@ -22,7 +22,7 @@ LAYERS = [
     ("data",),  # below policy: the dataset yields policy-independent samples
     ("policy",),
     ("train",),
-    ("evaluation",),
+    ("evaluation", "robot"),
     ("quickstart", "cli", "commands"),
 ]
 RANK = {name: i for i, names in enumerate(LAYERS) for name in names}

@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "abm.grounding.commands",
     "abm.train.commands",
     "abm.evaluation.commands",
+    "abm.robot.commands",
     "abm.quickstart",
 )
 

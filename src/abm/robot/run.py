@@ -1,0 +1,128 @@
+"""The deployment loop: observe -> ground -> predict -> check limits -> move, logged step by step.
+
+A robot is described by a YAML file::
+
+    cameras: {kind: replay, path: recordings/demo}     # or {kind: sim}
+    arm: {kind: dry-run}                               # or {kind: sim, task: pick_block, split: seen, seed: 0}
+    limits: {workspace_lower: [0.2, -0.45, -0.02], workspace_upper: [0.85, 0.45, 0.6],
+             max_step_m: 0.6, max_tilt_deg: 90}
+
+``kind: sim`` uses one MuJoCo scene as both camera and arm (``cameras: {kind: sim}`` then shares the
+arm's scene). Every step writes a line to ``LOG/steps.jsonl`` (the predicted keyframe, the limit
+check, the arm's status, timings) and ``LOG/step_XXX.npz`` (the camera images, the policy's five
+virtual views and its mask channel), so a run can be reviewed afterwards.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot
+from abm.robot.limits import LimitError, MotionLimits
+from abm.samples import collate
+from abm.types import Observation
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RobotConfig:
+    """The ``--robot`` YAML file: camera source, arm and motion limits (see module docstring)."""
+
+    cameras: dict[str, Any] = field(default_factory=lambda: {"kind": "sim"})
+    arm: dict[str, Any] = field(default_factory=lambda: {"kind": "dry-run"})
+    limits: MotionLimits = field(default_factory=MotionLimits)
+
+    @classmethod
+    def load(cls, path: str | Path) -> RobotConfig:
+        import yaml
+
+        data = yaml.safe_load(Path(path).read_text()) or {}
+        unknown = set(data) - {"cameras", "arm", "limits"}
+        if unknown:
+            raise ValueError(f"{path}: unknown sections {sorted(unknown)} (expected cameras, arm, limits)")
+        limits = dict(data.get("limits") or {})
+        for key in ("workspace_lower", "workspace_upper"):
+            if key in limits:
+                limits[key] = tuple(float(v) for v in limits[key])
+        try:
+            return cls(dict(data.get("cameras") or {"kind": "sim"}), dict(data.get("arm") or {"kind": "dry-run"}),
+                       MotionLimits(**limits))
+        except TypeError as err:
+            raise ValueError(f"{path}: bad limits section ({err})") from None
+
+    def build(self, dry_run: bool = False) -> tuple[Any, Any]:
+        """``(camera, arm)``; ``dry_run`` replaces the arm by :class:`DryRunArm`."""
+        sim = None
+        arm_kind = "dry-run" if dry_run else self.arm.get("kind", "dry-run")
+        if arm_kind == "sim" or self.cameras.get("kind") == "sim":
+            opts = {k: v for k, v in {**self.cameras, **self.arm}.items() if k != "kind"}
+            sim = SimRobot(**opts)
+        kind = self.cameras.get("kind")
+        if kind == "replay":
+            camera = ReplayCamera(self.cameras["path"])
+        elif kind == "sim":
+            camera = sim
+        else:
+            raise ValueError(f"unknown camera kind {kind!r}; use replay or sim (real cameras: issue 15)")
+        if arm_kind == "dry-run":
+            pose, opening = camera.recorded_gripper() if isinstance(camera, ReplayCamera) else camera.state()
+            arm = DryRunArm(pose, opening)
+        elif arm_kind == "sim":
+            arm = sim
+        else:
+            raise ValueError(f"unknown arm kind {arm_kind!r}; use dry-run or sim")
+        return camera, arm
+
+
+def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path
+              ) -> list[dict[str, Any]]:
+    """Run the loop for ``steps`` keyframes (or until a simulated arm reports success).
+
+    Raises:
+        LimitError: a predicted keyframe violates ``limits``; the arm is not moved (the step is logged).
+    """
+    log_dir = Path(log_dir)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    records: list[dict[str, Any]] = []
+    names = getattr(camera, "object_names", None) or None
+    policy.reset()
+    with (log_dir / "steps.jsonl").open("w") as out:
+        for k in range(steps):
+            t0 = time.perf_counter()
+            pose, opening = arm.state()
+            obs = Observation(camera.read(), opening, pose, k)
+            action = policy.act(obs, instruction, names)
+            views = policy.model_inputs(collate([policy.observe(obs, instruction, names)]))
+            arrays = {f"camera/{n}": f.rgb for n, f in obs.cameras.items()}
+            arrays["views"] = views["images"][0, :, :3].cpu().numpy()
+            if "mask" in views:
+                arrays["mask"] = views["mask"][0, :, 0].cpu().numpy()
+            np.savez_compressed(log_dir / f"step_{k:03d}.npz", **arrays)
+            record = {"step": k, "position": action.position.round(4).tolist(),
+                      "quaternion": action.quaternion.round(4).tolist(), "gripper_open": action.gripper_open,
+                      "ignore_collision": action.ignore_collision, "timings": policy.last_timings}
+            try:
+                limits.check(pose, action)
+            except LimitError as err:
+                record.update(status="refused", reason=str(err))
+                out.write(json.dumps(record) + "\n")
+                raise
+            record["status"] = arm.move(action)
+            record["seconds"] = time.perf_counter() - t0
+            if hasattr(arm, "success"):
+                record["success"] = bool(arm.success())
+            out.write(json.dumps(record) + "\n")
+            out.flush()
+            records.append(record)
+            log.info("step %d: %s -> %s", k, record["position"], record["status"])
+            if record.get("success"):
+                break
+    return records

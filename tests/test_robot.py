@@ -1,0 +1,120 @@
+"""The deployment loop (abm run): recorded camera, dry-run and MuJoCo arms, motion limits, logs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from abm.cli import main as cli_main
+from abm.robot import DryRunArm, LimitError, MotionLimits, ReplayCamera, record_observations, run_robot
+from abm.sim.env import TaskEnv, run_expert
+from abm.types import KeyframeAction
+
+# an untrained policy points anywhere in its 1 m workspace cube: limits that allow all of it
+OPEN = MotionLimits(workspace_lower=(0.0, -0.5, -0.15), workspace_upper=(1.0, 0.5, 0.85), max_step_m=2.0,
+                    max_tilt_deg=180.0)
+OPEN_YAML = ("limits: {workspace_lower: [0, -0.5, -0.15], workspace_upper: [1, 0.5, 0.85], max_step_m: 2.0, "
+             "max_tilt_deg: 180}\n")
+TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
+        "decoder_channels": 4, "lang_dim": 16}
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A pick_block expert episode recorded from the simulator (48-pixel cameras)."""
+    with TaskEnv("pick_block", "seen", 0, resolution=48) as env:
+        episode = run_expert(env)
+    folder = tmp_path_factory.mktemp("rec")
+    record_observations([obs for obs, _ in episode.steps], folder, episode.object_names, episode.instruction)
+    return folder, episode
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    from abm.train import TrainConfig, train
+    from abm.train.synthetic import synthetic_episodes
+
+    run = tmp_path_factory.mktemp("run")
+    train(TrainConfig(out=run, steps=1, batch=2, policy_overrides=TINY, progress=False), synthetic_episodes(2, 32))
+    return run
+
+
+def test_replay_camera_gives_back_the_recorded_frames(recording) -> None:
+    folder, episode = recording
+    camera = ReplayCamera(folder)
+    assert camera.steps == len(episode.steps) and camera.object_names == episode.object_names
+    for obs, _ in episode.steps:
+        frames = camera.read()
+        for name, frame in obs.cameras.items():
+            np.testing.assert_array_equal(frames[name].rgb, frame.rgb)
+            np.testing.assert_array_equal(frames[name].segmentation, frame.segmentation)
+    camera.read()  # past the end: the last frame again
+    pose, opening = camera.recorded_gripper()
+    np.testing.assert_allclose(pose, episode.steps[0][0].gripper_pose)
+    with pytest.raises(FileNotFoundError, match="meta.json"):
+        ReplayCamera(folder / "nothing")
+
+
+def test_limits_refuse_with_the_reason() -> None:
+    limits = MotionLimits(workspace_lower=(0.2, -0.3, 0.0), workspace_upper=(0.8, 0.3, 0.5), max_step_m=0.3,
+                          max_tilt_deg=30)
+    here = np.eye(4)
+    here[:3, 3] = [0.5, 0.0, 0.2]
+    down = np.array([1.0, 0.0, 0.0, 0.0])  # x, y, z, w: 180 deg about x, gripper pointing down
+    limits.check(here, KeyframeAction([0.55, 0.05, 0.1], down, True))
+    with pytest.raises(LimitError, match="outside the workspace box"):
+        limits.check(here, KeyframeAction([0.55, 0.5, 0.1], down, True))
+    with pytest.raises(LimitError, match="exceeds max_step_m"):
+        limits.check(here, KeyframeAction([0.79, 0.25, 0.45], down, True))
+    with pytest.raises(LimitError, match="tilted 90 deg"):
+        limits.check(here, KeyframeAction([0.55, 0.05, 0.1], [0.0, 0.7071068, 0.0, 0.7071068], True))
+
+
+def test_run_on_a_recording_with_a_dry_run_arm(recording, checkpoint, tmp_path) -> None:
+    from abm.policy import KeyframePolicy
+
+    folder, episode = recording
+    policy = KeyframePolicy.from_checkpoint(checkpoint)
+    camera = ReplayCamera(folder)
+    arm = DryRunArm(*camera.recorded_gripper())
+    records = run_robot(policy, camera, arm, episode.instruction, OPEN, 3, tmp_path / "log")
+    assert len(records) == len(arm.commands) == 3
+    lines = [json.loads(line) for line in (tmp_path / "log/steps.jsonl").read_text().splitlines()]
+    assert [r["status"] for r in lines] == ["dry-run"] * 3
+    step = np.load(tmp_path / "log/step_000.npz")
+    assert step["views"].shape == (5, 3, 32, 32) and step["mask"].shape == (5, 32, 32)
+    assert "camera/front" in step.files
+    # a keyframe outside the limits stops the loop before the arm moves
+    arm = DryRunArm(*camera.recorded_gripper())
+    with pytest.raises(LimitError):
+        run_robot(policy, ReplayCamera(folder), arm, episode.instruction,
+                  MotionLimits(workspace_lower=(0.0, 0.0, 0.9), workspace_upper=(0.1, 0.1, 1.0)), 3, tmp_path / "l2")
+    assert arm.commands == []
+    refused = json.loads((tmp_path / "l2/steps.jsonl").read_text().splitlines()[0])
+    assert refused["status"] == "refused" and "outside the workspace box" in refused["reason"]
+
+
+def test_abm_run_cli_with_sim_and_dry_run(recording, checkpoint, tmp_path, capsys) -> None:
+    folder, _ = recording
+    replay = tmp_path / "replay.yaml"
+    replay.write_text(f"cameras: {{kind: replay, path: {folder}}}\narm: {{kind: dry-run}}\n" + OPEN_YAML)
+    assert cli_main(["run", "--robot", str(replay), "--run", str(checkpoint), "--steps", "2",
+                     "--log", str(tmp_path / "a")]) == 0
+    assert "abm run: 2 keyframes" in capsys.readouterr().out
+    sim = tmp_path / "sim.yaml"
+    sim.write_text("arm: {kind: sim, task: pick_block, split: seen, seed: 1, resolution: 48}\n" + OPEN_YAML)
+    assert cli_main(["run", "--robot", str(sim), "--run", str(checkpoint), "--steps", "2",
+                     "--log", str(tmp_path / "b")]) == 0
+    statuses = [json.loads(line)["status"] for line in (tmp_path / "b/steps.jsonl").read_text().splitlines()]
+    assert len(statuses) == 2 and set(statuses) <= {"reached", "unreachable", "collided"}
+    tight = tmp_path / "tight.yaml"
+    tight.write_text(f"cameras: {{kind: replay, path: {folder}}}\n"
+                     "limits: {workspace_lower: [0, 0, 0.9], workspace_upper: [0.1, 0.1, 1.0]}\n")
+    assert cli_main(["run", "--robot", str(tight), "--run", str(checkpoint), "--log", str(tmp_path / "c")]) == 2
+    assert "refused before moving" in capsys.readouterr().err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("limbs: {}\n")
+    assert cli_main(["run", "--robot", str(bad), "--run", str(checkpoint)]) == 2
+    assert "unknown sections ['limbs']" in capsys.readouterr().err
