@@ -118,3 +118,46 @@ def test_abm_run_cli_with_sim_and_dry_run(recording, checkpoint, tmp_path, capsy
     bad.write_text("limbs: {}\n")
     assert cli_main(["run", "--robot", str(bad), "--run", str(checkpoint)]) == 2
     assert "unknown sections ['limbs']" in capsys.readouterr().err
+
+
+def _rotation(rng, max_deg: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(rng.normal(size=3) * np.radians(max_deg) / 2).as_matrix()
+
+
+def test_hand_eye_calibration_recovers_a_known_camera(tmp_path, capsys) -> None:
+    """Synthetic board images from known poses: the camera-to-base transform within 5 mm and 1 degree."""
+    from abm.robot.calibration import BoardSpec, load_calibration, render_board_image
+    from abm.types import CameraFrame, Observation
+
+    rng = np.random.default_rng(0)
+    spec = BoardSpec()
+    k = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
+    base_cam = np.eye(4)  # the truth: a camera 1.2 m in front of the robot, looking back at it
+    base_cam[:3, :3] = _rotation(rng, 10) @ np.array([[0, 0, -1], [-1, 0, 0], [0, 1, 0]]).T.T
+    base_cam[:3, 3] = [1.2, 0.1, 0.4]
+    grip_board = np.eye(4)  # the board on the gripper, at an offset the calibration does not know
+    grip_board[:3, :3] = _rotation(rng, 20)
+    grip_board[:3, 3] = [0.02, -0.03, 0.08]
+    observations = []
+    for _ in range(12):
+        cam_board = np.eye(4)  # the board facing the camera, tilted, near the optical axis
+        cam_board[:3, :3] = _rotation(rng, 40)
+        cam_board[:3, 3] = [-0.1 + rng.normal(0, 0.03), -0.14 + rng.normal(0, 0.03), 0.6 + rng.normal(0, 0.05)]
+        base_grip = base_cam @ cam_board @ np.linalg.inv(grip_board)
+        image = render_board_image(spec, k, cam_board)
+        frame = CameraFrame(rgb=image, depth=np.ones(image.shape[:2], np.float32), intrinsics=k, extrinsics=np.eye(4))
+        observations.append(Observation({"front": frame}, 0.0, base_grip))
+    record_observations(observations, tmp_path / "rec")
+    out = tmp_path / "calibration.yaml"
+    assert cli_main(["calibrate", "--recording", str(tmp_path / "rec"), "--camera", "front", "--out", str(out)]) == 0
+    assert "from 12 views" in capsys.readouterr().out
+    got = load_calibration(out)["front"]["extrinsics"]
+    position_mm = 1000 * np.linalg.norm(got[:3, 3] - base_cam[:3, 3])
+    angle_deg = np.degrees(np.arccos(np.clip((np.trace(got[:3, :3].T @ base_cam[:3, :3]) - 1) / 2, -1, 1)))
+    assert position_mm < 5 and angle_deg < 1, (position_mm, angle_deg)
+    assert cli_main(["calibrate", "--recording", str(tmp_path / "rec"), "--camera", "top", "--out", str(out)]) == 2
+    assert "not in the recording" in capsys.readouterr().err
+    assert cli_main(["calibrate", "--recording", str(tmp_path / "rec"), "--camera", "front", "--out", str(out),
+                     "--board", "5x7"]) == 2

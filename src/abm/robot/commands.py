@@ -1,4 +1,5 @@
-"""``abm run``: a trained policy on a (recorded, simulated or dry-run) robot."""
+"""``abm run`` (a trained policy on a recorded, simulated or dry-run robot) and ``abm calibrate``
+(hand-eye calibration of a fixed camera with a gripper-mounted ChArUco board)."""
 
 from __future__ import annotations
 
@@ -21,6 +22,45 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default="cpu", help="torch device of the policy")
     p.add_argument("--log", type=Path, default=Path("runs/robot_log"), help="log folder (default: runs/robot_log)")
     p.set_defaults(func=run)
+
+    c = subparsers.add_parser(
+        "calibrate", help="hand-eye calibration of a fixed camera from a recording of a gripper-held ChArUco board",
+        description="Reads a recording (abm.robot.record_observations) in which the arm showed a ChArUco board "
+        "fixed to the gripper in several poses, finds the board in each image, solves the hand-eye problem and "
+        "writes the camera's intrinsics and camera-to-base transform into the calibration file (other cameras "
+        "in it are kept).")
+    c.add_argument("--recording", type=Path, required=True, help="recording folder")
+    c.add_argument("--camera", required=True, help="camera name (or serial) in the recording")
+    c.add_argument("--out", type=Path, required=True, help="calibration YAML to write or update")
+    c.add_argument("--board", default="5x7:0.04:0.03:DICT_4X4_50",
+                   help="squares XxY : square m : marker m : ArUco dictionary (default: 5x7:0.04:0.03:DICT_4X4_50)")
+    c.set_defaults(func=calibrate)
+
+
+def parse_board(text: str):
+    """``"5x7:0.04:0.03:DICT_4X4_50"`` -> :class:`abm.robot.calibration.BoardSpec`."""
+    from abm.robot.calibration import BoardSpec
+
+    try:
+        squares, square, marker, dictionary = text.split(":")
+        sx, sy = (int(v) for v in squares.lower().split("x"))
+        return BoardSpec((sx, sy), float(square), float(marker), dictionary)
+    except ValueError:
+        raise ValueError(f"--board {text!r}: expected XxY:SQUARE_M:MARKER_M:DICTIONARY, e.g. "
+                         "5x7:0.04:0.03:DICT_4X4_50") from None
+
+
+def calibrate(args: argparse.Namespace) -> int:
+    from abm.robot.calibration import calibrate_from_recording, load_calibration, save_calibration
+
+    spec = parse_board(args.board)
+    intrinsics, extrinsics, stats = calibrate_from_recording(args.recording, args.camera, spec)
+    cameras = load_calibration(args.out) if args.out.is_file() else {}
+    cameras[args.camera] = {"intrinsics": intrinsics, "extrinsics": extrinsics}
+    save_calibration(args.out, cameras)
+    print(f"abm calibrate: {args.camera} from {stats['views']} views (reprojection {stats['reprojection_px']:.2f} px)"
+          f" -> {args.out}")
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:

@@ -89,6 +89,9 @@ class DryRunArm:
     def state(self) -> tuple[np.ndarray, float]:
         return self.pose.copy(), self.gripper_open
 
+    def stop(self) -> None:
+        log.info("dry run: stop")
+
     def move(self, action: KeyframeAction) -> str:
         self.commands.append(action)
         log.info("dry run: would move to %s, gripper %s", np.round(action.position, 3).tolist(),

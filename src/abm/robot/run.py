@@ -88,6 +88,7 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
 
     Raises:
         LimitError: a predicted keyframe violates ``limits``; the arm is not moved (the step is logged).
+        KeyboardInterrupt: Ctrl-C during a motion; the arm's ``stop()`` is called first (the step is logged).
     """
     log_dir = Path(log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -115,7 +116,14 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
                 record.update(status="refused", reason=str(err))
                 out.write(json.dumps(record) + "\n")
                 raise
-            record["status"] = arm.move(action)
+            try:
+                record["status"] = arm.move(action)
+            except KeyboardInterrupt:  # Ctrl-C: stop the arm where it is, keep the log
+                if hasattr(arm, "stop"):
+                    arm.stop()
+                record["status"] = "interrupted"
+                out.write(json.dumps(record) + "\n")
+                raise
             record["seconds"] = time.perf_counter() - t0
             if hasattr(arm, "success"):
                 record["success"] = bool(arm.success())
