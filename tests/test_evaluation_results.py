@@ -167,3 +167,31 @@ def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch
     assert cli_main(base + ["--split", "seen", "--tasks", "pick_block"]) == 2
     err = capsys.readouterr().err
     assert "every episode crashed" in err and "last error: RuntimeError: policy exploded" in err
+
+
+def test_failure_reasons_and_the_html_report(tmp_path) -> None:
+    from abm.evaluation.html_report import gif_name, write_html_report
+    from abm.evaluation.results import EpisodeOutcome, OutcomeLog, failure_reason
+
+    assert failure_reason(True, "", ["unreachable"], False) == ""
+    assert failure_reason(False, "boom", ["reached"], True) == "crashed"
+    assert failure_reason(False, "", ["reached", "unreachable", "collided"], True) == "IK unreachable"
+    assert failure_reason(False, "", ["reached", "collided"], True) == "collision"
+    assert failure_reason(False, "", ["reached"] * 3, False) == "grasp missed"
+    assert failure_reason(False, "", ["reached"] * 3, True) == "timeout"
+    outcomes = [EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, True, 5),
+                EpisodeOutcome("abm", "pick_block", "seen", 0, 1, 2, False, 8, failure="grasp missed"),
+                EpisodeOutcome("rvt", "pick_block", "seen", 0, 0, 1, False, 8, failure="timeout")]
+    log = OutcomeLog(tmp_path / "outcomes.jsonl")
+    log.path.write_text('{"method": "abm", "task": "t", "split": "seen", "repeat": 0, "episode": 0, "seed": 1, '
+                        '"success": false}\n')  # a line written before failures were recorded
+    assert log.read()[0].failure == ""
+    gifs = tmp_path / "gifs"
+    gifs.mkdir()
+    for o in outcomes[:2]:
+        (gifs / gif_name(o)).write_bytes(b"GIF89a")
+    page = write_html_report(outcomes, tmp_path / "report.html", gifs).read_text()
+    assert "<td>abm</td><td>pick_block</td><td>seen</td><td>50.0 ± 0.0</td>" in page
+    assert "<th>grasp missed</th>" in page and "<th>timeout</th>" in page
+    assert page.count("<img ") == 2 and "src='gifs/abm_pick_block_seen_001.gif'" in page
+    assert "http" not in page  # nothing fetched from the network

@@ -18,9 +18,10 @@ def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys):
     report = run_quickstart(cfg)
     out = capsys.readouterr()
     assert "using the ORACLE grounder" in out.err  # no CLIP weights on the test machine
-    for name in ("README.md", "results.md", "training_curves.png", "virtual_views.png"):
+    for name in ("README.md", "results.md", "training_curves.png", "virtual_views.png", "report.html"):
         assert (report / name).is_file(), name
     assert len(list(report.glob("*.gif"))) == 4  # 2 methods x 2 splits, one episode each
+    assert (report / "report.html").read_text().count("<img ") == 4
     logs = [tmp_path / "qs/eval" / split / "outcomes.jsonl" for split in ("seen", "unseen")]
     outcomes = [json.loads(line) for log in logs for line in log.read_text().splitlines()]
     assert sorted((o["method"], o["split"]) for o in outcomes) == [

@@ -181,7 +181,9 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
                  grounder: str) -> None:
     """Table, curves, example views and GIFs in one folder with a README that links them."""
     from abm.data.episode_store import EpisodeStore
+    from abm.evaluation.html_report import write_html_report
     from abm.evaluation.report import plot_training_curves, views_figure
+    from abm.evaluation.results import OutcomeLog
     from abm.policy import KeyframePolicy
     from abm.samples import collate
 
@@ -202,6 +204,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
     gifs = sorted(eval_dir.glob("*/gifs/*.gif"))
     for gif in gifs:
         shutil.copy(gif, report / gif.name)
+    outcomes = [o for log in sorted(eval_dir.glob("*/outcomes.jsonl")) for o in OutcomeLog(log).read()]
+    write_html_report(outcomes, report / "report.html", report, "abm quickstart")
     lines = [
         "# abm quickstart report", "",
         f"Tasks: {', '.join(cfg.tasks)}; {cfg.episodes} demonstrations per task (seen objects); "
@@ -211,7 +215,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
         "## Success rate (%)", "", (report / "results.md").read_text(), "",
         "## Training curves", "", "![training curves](training_curves.png)", "",
         "## What the policy sees", "", *figures, "",
-        "## Rollouts", "", *[f"![{g.stem}]({g.name})" for g in gifs], "",
+        "## Rollouts", "", "Failure reasons and the GIFs side by side: [report.html](report.html)", "",
+        *[f"![{g.stem}]({g.name})" for g in gifs], "",
     ]
     (report / "README.md").write_text("\n".join(lines))
 

@@ -43,6 +43,7 @@ class EpisodeOutcome:
         error: the exception text when the rollout crashed (counted as a failure), else ``""``.
         checkpoint: the checkpoint file that was evaluated.
         settings: the evaluation settings (grounder, resolution, step limit, ...) as compact JSON.
+        failure: why a failed rollout failed (:func:`failure_reason`; ``""`` on success or in older logs).
     """
 
     method: str
@@ -57,11 +58,33 @@ class EpisodeOutcome:
     error: str = ""
     checkpoint: str = ""
     settings: str = ""
+    failure: str = ""
 
     @property
     def key(self) -> tuple[str, str, str, int, int, str, str]:
         """Identity of the rollout: protocol position plus the checkpoint and evaluation settings used."""
         return (self.method, self.task, self.split, self.repeat, self.episode, self.checkpoint, self.settings)
+
+
+FAILURES = ("crashed", "IK unreachable", "collision", "grasp missed", "timeout")
+
+
+def failure_reason(success: bool, error: str, motions: Sequence[str], held_target: bool) -> str:
+    """Why a rollout failed, in :data:`FAILURES` order of precedence (``""`` when it succeeded).
+
+    ``crashed``: the rollout raised; ``IK unreachable`` / ``collision``: a keyframe's motion; ``grasp
+    missed``: the gripper never held the target; ``timeout``: it held it but the task was not done
+    within the step limit (e.g. placed wrong).
+    """
+    if success:
+        return ""
+    if error:
+        return "crashed"
+    if "unreachable" in motions:
+        return "IK unreachable"
+    if "collided" in motions:
+        return "collision"
+    return "timeout" if held_target else "grasp missed"
 
 
 class OutcomeLog:

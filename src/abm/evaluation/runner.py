@@ -27,6 +27,7 @@ from abm.evaluation.results import (
     SuccessRate,
     aggregate,
     eval_seed,
+    failure_reason,
     markdown_table,
     write_csv,
     write_json,
@@ -105,15 +106,18 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
             steps = len(episode.steps)
             if job.gif_path:
                 save_rollout_gif(episode, job.gif_path)
+        meta = episode.metadata
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
                               bool(episode.success), steps, time.perf_counter() - start,
-                              checkpoint=job.checkpoint, settings=job.settings)
+                              checkpoint=job.checkpoint, settings=job.settings,
+                              failure=failure_reason(bool(episode.success), "", meta.get("motions", []),
+                                                     bool(meta.get("held_target"))))
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
         text = f"{type(err).__name__}: {err}"
         tb = traceback.format_exc(limit=3).strip().splitlines()
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, False,
                               steps, time.perf_counter() - start, error=f"{text} | {tb[-3] if len(tb) > 2 else ''}",
-                              checkpoint=job.checkpoint, settings=job.settings)
+                              checkpoint=job.checkpoint, settings=job.settings, failure="crashed")
 
 
 def _worker_init() -> None:
@@ -236,9 +240,15 @@ def checkpoint_of(run: str | Path) -> str:
 
 
 def write_reports(outcomes: Sequence[EpisodeOutcome], out_dir: Path) -> list[SuccessRate]:
-    """Aggregate outcomes into ``out_dir``/results.json, results.csv and results.md."""
+    """Aggregate outcomes into ``out_dir``/results.json, results.csv, results.md and report.html (the
+    per-episode view: failure reasons and rollout GIFs from ``out_dir``/gifs)."""
+    from abm.evaluation.html_report import write_html_report
+
     rates = aggregate(outcomes)
     write_tables(rates, out_dir)
+    write_html_report(outcomes, out_dir / "report.html", out_dir / "gifs")
+    with (out_dir / "results.md").open("a") as f:
+        f.write("\nPer-episode report (failure reasons, rollout GIFs): [report.html](report.html)\n")
     return rates
 
 

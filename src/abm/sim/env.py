@@ -167,16 +167,23 @@ def run_expert(env: TaskEnv, record: bool = True) -> Episode:
 
 
 def run_policy(env: TaskEnv, policy: Policy, max_steps: int | None = None) -> Episode:
-    """Roll out ``policy`` (Observation -> KeyframeAction) until success or the step budget."""
+    """Roll out ``policy`` (Observation -> KeyframeAction) until success or the step budget.
+
+    The episode's metadata records each keyframe's motion status (``motions``) and whether the gripper
+    ever held the target object (``held_target``), from which evaluation names the failure.
+    """
     obs = env.reset()
     steps: list[tuple[Observation, KeyframeAction]] = []
     success = False
     motions = []
+    target = env.instance.info.get("target")
+    held = False
     for _ in range(max_steps or env.max_steps):
         action = policy(obs)
         steps.append((obs, action))
         obs, success, info = env.step(action)
         motions.append(info["motion"].status)
+        held = held or (target is not None and target in env._require_sim().held_objects())
         if info["done"]:
             break
-    return _episode(env, steps, success, {"motions": motions})
+    return _episode(env, steps, success, {"motions": motions, "held_target": held})
