@@ -105,7 +105,8 @@ def test_text_features_and_tokens(clip):
         enc = clip.tokenize(prompts)
         out = clip.model.text_model(**enc)
         manual = F.normalize(clip.model.text_projection(out.pooler_output), dim=-1)
-    torch.testing.assert_close(feats, manual)
+    torch.testing.assert_close(feats, manual)  # padded to 77 tokens there, to the longest prompt here
+    torch.testing.assert_close(clip.text_features(prompts[:1])[0], feats[0])  # another padding length
     tokens = clip.text_tokens(["put X in the plate", "close X"])
     assert tokens.shape == (2, TEXT_CONTEXT, clip.text_width)
     torch.testing.assert_close(clip.text_tokens(["close X"])[0], tokens[1])
@@ -147,3 +148,22 @@ def test_presets_have_the_real_architectures():
             l14.vision_config.num_hidden_layers, l14.projection_dim) == (336, 14, 1024, 24, 768)
     with pytest.raises(ValueError, match="unknown CLIP preset"):
         build_config("vit-h14")
+
+
+@pytest.mark.parametrize("act", ["quick_gelu", "gelu"])
+def test_fast_encoder_layer_matches_the_library_layer(act):
+    """The encoder layer that folds quick_gelu's 1.702 into the matmuls computes the library's layer."""
+    from transformers import CLIPVisionConfig
+    from transformers.models.clip.modeling_clip import CLIPEncoderLayer
+
+    from abm.grounding.clip import _run_layer
+
+    torch.manual_seed(0)
+    cfg = CLIPVisionConfig(hidden_size=32, intermediate_size=64, num_attention_heads=4, hidden_act=act)
+    layer = CLIPEncoderLayer(cfg).eval()
+    x = torch.randn(2, 5, 32)
+    with torch.no_grad():
+        ref = layer(x, None)
+        ref = ref[0] if isinstance(ref, tuple) else ref
+        got = _run_layer(layer, x.clone())
+    torch.testing.assert_close(got, ref, atol=1e-5, rtol=1e-5)

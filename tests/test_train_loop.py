@@ -245,3 +245,24 @@ def test_overwrite_with_bad_options_keeps_the_old_run(episodes, tmp_path) -> Non
     with pytest.raises(ValueError, match="outside the policy's workspace cube"):
         train(_cfg(tmp_path, steps=1, overwrite=True, policy_overrides={**TINY, "workspace_size": 0.05}), episodes)
     assert list_checkpoints(tmp_path) == before  # nothing was deleted: the options were checked first
+
+
+def test_export_drops_training_state_and_loads_like_a_checkpoint(episodes, tmp_path) -> None:
+    train(_cfg(tmp_path / "run", steps=2), episodes)
+    obs, _ = episodes[0].steps[0]
+    args = (obs, episodes[0].instruction, episodes[0].object_names)
+    reference = KeyframePolicy.from_checkpoint(tmp_path / "run").act(*args)
+    [(_, ckpt)] = list_checkpoints(tmp_path / "run")
+    assert cli_main(["export", "--run", str(tmp_path / "run"), "--out", str(tmp_path / "fp32.pt")]) == 0
+    assert cli_main(["export", "--run", str(ckpt), "--out", str(tmp_path / "bf16.pt"), "--dtype", "bfloat16"]) == 0
+    full, fp32, bf16 = (p.stat().st_size for p in (ckpt, tmp_path / "fp32.pt", tmp_path / "bf16.pt"))
+    assert bf16 < 0.6 * fp32 < 0.6 * full  # no optimizer moments; then half-size weights
+    data = torch.load(tmp_path / "bf16.pt", weights_only=True)
+    assert not {"optimizer", "scheduler", "rng"} & set(data)
+    assert data["exported_dtype"] == "bfloat16"
+    assert all(v.dtype == torch.bfloat16 for v in data["model"].values() if v.is_floating_point())
+    exact = KeyframePolicy.from_checkpoint(tmp_path / "fp32.pt").act(*args)
+    np.testing.assert_allclose(exact.position, reference.position, atol=1e-6)
+    half = KeyframePolicy.from_checkpoint(tmp_path / "bf16.pt")
+    assert all(p.dtype == torch.float32 for p in half.parameters())
+    assert half.renderer.workspace.contains(half.act(*args).position)

@@ -20,7 +20,6 @@ speed measurements (same cost as the real ones).
 
 from __future__ import annotations
 
-import inspect
 import json
 import os
 from collections.abc import Sequence
@@ -194,19 +193,24 @@ class ClipBackbone:
         return x.reshape(x.shape[0], gh, gw, x.shape[-1])
 
     # ---- text -----------------------------------------------------------------------------------
-    def tokenize(self, texts: Sequence[str]) -> dict[str, torch.Tensor]:
-        """Token ids and attention mask ``(B, 77)``, padded / truncated to CLIP's context length."""
+    def tokenize(self, texts: Sequence[str], full_length: bool = True) -> dict[str, torch.Tensor]:
+        """Token ids and attention mask ``(B, 77)``, padded / truncated to CLIP's context length, or
+        ``(B, L)`` padded to the longest text only (``full_length=False``)."""
         if isinstance(texts, str):
             texts = [texts]
-        enc = self.tokenizer(list(texts), padding="max_length", max_length=TEXT_CONTEXT, truncation=True,
-                             return_tensors="pt")
+        enc = self.tokenizer(list(texts), padding="max_length" if full_length else "longest", max_length=TEXT_CONTEXT,
+                             truncation=True, return_tensors="pt")
         return {"input_ids": enc["input_ids"].to(self.device),
                 "attention_mask": enc["attention_mask"].to(self.device)}
 
     @torch.no_grad()
     def text_features(self, texts: Sequence[str]) -> torch.Tensor:
-        """Projected, L2-normalised text features ``(B, D)`` float32."""
-        out = self.model.text_model(**self.tokenize(texts))
+        """Projected, L2-normalised text features ``(B, D)`` float32.
+
+        Texts are padded to the longest one, not to 77 tokens: CLIP's causal attention and end-of-text
+        pooling make the padding irrelevant to the result, and a short prompt costs ~4x less.
+        """
+        out = self.model.text_model(**self.tokenize(texts, full_length=False))
         feats = self.model.text_projection(out.pooler_output)
         return F.normalize(feats.float(), dim=-1)
 
@@ -217,13 +221,32 @@ class ClipBackbone:
         return out.last_hidden_state.float()
 
 
+QUICK_GELU_SCALE = 1.702
+"""CLIP's ``quick_gelu(x) = x * sigmoid(1.702 x)``; equal to ``silu(1.702 x) / 1.702``."""
+
+
 def _run_layer(layer: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
-    """Run one CLIP encoder layer without masks (transformers 4.x returns a tuple, 5.x a tensor)."""
-    if "causal_attention_mask" in inspect.signature(layer.forward).parameters:
-        out = layer(x, None, None)
-    else:
-        out = layer(x, None)
-    return out[0] if isinstance(out, tuple) else out
+    """One CLIP encoder layer without masks, ``(B, N, W) -> (B, N, W)``: the layer's own attention and
+    layer norms, and an MLP that computes ``quick_gelu`` as one ``silu`` kernel.
+
+    ``fc2(quick_gelu(fc1 x)) = (W2 silu(1.702 (W1 x + b1))) / 1.702 + b2``; both scale factors ride on the
+    matrix multiplications (``addmm``'s ``alpha``/``beta``), so the three elementwise passes of
+    ``x * sigmoid(1.702 x)`` become one in-place ``silu``: ~10 % of a ViT-B/16 forward on a 2-core CPU,
+    same result up to float rounding. Other activations run the layer's own MLP.
+    """
+    attn = layer.self_attn(hidden_states=layer.layer_norm1(x))
+    x = x + (attn[0] if isinstance(attn, tuple) else attn)
+    h = layer.layer_norm2(x)
+    mlp = layer.mlp
+    act = getattr(getattr(mlp, "config", None), "hidden_act", None)
+    if act != "quick_gelu":
+        return x + mlp(h)
+    flat = h.reshape(-1, h.shape[-1])
+    s = QUICK_GELU_SCALE
+    hidden = torch.addmm(mlp.fc1.bias * s, flat, mlp.fc1.weight.t(), alpha=s)
+    F.silu(hidden, inplace=True)
+    out = torch.addmm(mlp.fc2.bias, hidden, mlp.fc2.weight.t(), alpha=1.0 / s)
+    return x.add_(out.view_as(x))
 
 
 def _resolve_device(device: str | torch.device | None) -> torch.device:

@@ -103,6 +103,25 @@ def load_checkpoint(run_or_ckpt: str | Path, map_location: str | torch.device = 
     return data
 
 
+TRAINING_STATE_KEYS = ("optimizer", "scheduler", "rng")
+
+
+def export_checkpoint(run_or_ckpt: str | Path, out: str | Path, dtype: torch.dtype | None = None) -> Path:
+    """Write an inference checkpoint: the weights and what loading needs, without the training state.
+
+    The optimizer's moments are about twice the weights, so this is ~3x smaller; ``dtype`` (e.g.
+    ``torch.bfloat16``) halves it again by casting the floating-point weights. Loading casts them back to
+    the model's dtype, so an exported file is used exactly like a training checkpoint
+    (``abm eval --run FILE``, ``KeyframePolicy.from_checkpoint``).
+    """
+    data = load_checkpoint(run_or_ckpt)
+    payload = {k: v for k, v in data.items() if k not in (*TRAINING_STATE_KEYS, "path", "format", "version")}
+    if dtype is not None:
+        payload["model"] = {k: v.to(dtype) if v.is_floating_point() else v for k, v in data["model"].items()}
+        payload["exported_dtype"] = str(dtype).removeprefix("torch.")
+    return save_checkpoint(out, payload)
+
+
 def prune_checkpoints(run_dir: str | Path, keep: int) -> None:
     """Delete all but the ``keep`` newest checkpoints (``keep <= 0`` keeps all)."""
     if keep <= 0:
