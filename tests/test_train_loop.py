@@ -127,6 +127,17 @@ def test_policy_load_and_act(episodes, tmp_path) -> None:
                                action.position, atol=1e-6)
     with pytest.raises(ValueError, match="object_names"):
         policy.act(obs, episodes[0].instruction)
+    # explain = act plus what the network saw and where it looked
+    seen = policy.explain(obs, episodes[0].instruction, episodes[0].object_names)
+    np.testing.assert_allclose(seen.action.position, action.position, atol=1e-6)
+    v, r = policy.renderer.num_views, policy.renderer.resolution
+    assert seen.view_rgb.shape == (v, r, r, 3) and seen.heatmaps.shape == seen.view_occupied.shape == (v, r, r)
+    np.testing.assert_allclose(seen.heatmaps.reshape(v, -1).sum(-1), 1.0, atol=1e-4)
+    assert seen.view_mask is not None and seen.view_mask.shape == (v, r, r)
+    assert 0 < seen.view_occupied.mean() < 1
+    # the predicted point projects onto each view's heatmap mode only approximately; it must be in-frame
+    uv, _ = policy.renderer.project(torch.as_tensor(seen.action.position, dtype=torch.float32))
+    assert ((uv >= -0.5) & (uv <= r - 0.5)).all()
 
 
 def test_grounder_override_of_the_same_kind_keeps_trained_options(episodes, tmp_path) -> None:

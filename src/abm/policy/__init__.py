@@ -14,12 +14,12 @@ Main entry points:
 from abm.policy.action_coding import EncodedAction, decode_action, encode_action
 from abm.policy.config import PRESETS, PolicyConfig, check_compatible
 from abm.policy.heads import LossTerms, decode_output, decode_translation, policy_loss, translation_targets
-from abm.policy.keyframe_policy import KeyframePolicy
+from abm.policy.keyframe_policy import KeyframePolicy, PolicyExplanation
 from abm.policy.mvt import MultiViewTransformer, PolicyOutput
 from abm.policy.variants import VARIANTS, VariantSpec, get_variant, mask_channel
 
 __all__ = [
     "PRESETS", "VARIANTS", "EncodedAction", "KeyframePolicy", "LossTerms", "MultiViewTransformer", "PolicyConfig",
-    "PolicyOutput", "VariantSpec", "check_compatible", "decode_action", "decode_output", "decode_translation",
-    "encode_action", "get_variant", "mask_channel", "policy_loss", "translation_targets",
+    "PolicyExplanation", "PolicyOutput", "VariantSpec", "check_compatible", "decode_action", "decode_output",
+    "decode_translation", "encode_action", "get_variant", "mask_channel", "policy_loss", "translation_targets",
 ]

@@ -5,7 +5,8 @@ the action coding and the network, for training and for acting.
   (:mod:`abm.samples`), renders them into the virtual views on the policy's device, builds the
   targets and returns ``(loss, metrics)``;
 * :meth:`KeyframePolicy.predict` decodes a batch into keyframe actions;
-* :meth:`KeyframePolicy.act` runs the whole per-step pipeline on one observation;
+* :meth:`KeyframePolicy.act` runs the whole per-step pipeline on one observation, and
+  :meth:`KeyframePolicy.explain` also returns the views, mask and heatmaps it used;
 * :meth:`KeyframePolicy.save` / :meth:`KeyframePolicy.from_checkpoint` write and read checkpoints.
 
 Example::
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +43,30 @@ from abm.samples import collate, scene_sample
 from abm.types import KeyframeAction, Observation
 
 LOSS_TERMS = ("total", "translation", "rotation", "gripper", "collision")
+
+
+@dataclass
+class PolicyExplanation:
+    """One :meth:`KeyframePolicy.explain` step (``V`` virtual views of ``H x W`` pixels).
+
+    Attributes:
+        action: the predicted keyframe.
+        sample: the policy's input sample (``points`` ``(N, 3)`` m, ``colors`` ``(N, 3)`` in ``[0, 1]``,
+            ``point_mask`` / ``point_heatmap`` ``(N,)`` for mask variants), see :mod:`abm.samples`.
+        view_names: names of the ``V`` views.
+        view_rgb: ``(V, H, W, 3)`` float32 in ``[0, 1]``, the rendered colour of each view.
+        view_occupied: ``(V, H, W)`` bool, where a point is visible.
+        view_mask: ``(V, H, W)`` float32, the mask channel the network saw (``None`` for rvt / ifd).
+        heatmaps: ``(V, H, W)`` float32, the predicted translation distribution of each view (sums to 1).
+    """
+
+    action: KeyframeAction
+    sample: dict[str, Any]
+    view_names: list[str]
+    view_rgb: np.ndarray
+    view_occupied: np.ndarray
+    view_mask: np.ndarray | None
+    heatmaps: np.ndarray
 
 
 class KeyframePolicy(nn.Module):
@@ -254,9 +280,31 @@ class KeyframePolicy(nn.Module):
         Seconds per stage of the last call are in :attr:`last_timings`: ``condition_s`` (fusion, instruction
         split, grounding), ``render_s`` (virtual views, language tokens), ``model_s`` and ``decode_s``.
         """
+        return self._step(observation, instruction, object_names)[3]
+
+    def explain(self, observation: Observation, instruction: str,
+                object_names: Mapping[int, str] | None = None) -> PolicyExplanation:
+        """:meth:`act` plus what the policy saw and where it looked (for viewers and reports)."""
+        sample, inputs, out, action = self._step(observation, instruction, object_names)
+        images = inputs["images"][0].float().cpu()
+        heat = torch.softmax(out.heatmap[0].float().flatten(1), -1).view_as(out.heatmap[0]).cpu().numpy()
+        mask = inputs.get("mask")
+        return PolicyExplanation(
+            action=action,
+            sample=sample,
+            view_names=list(self.renderer.views),
+            view_rgb=images[:, :3].permute(0, 2, 3, 1).clamp(0, 1).numpy(),
+            view_occupied=(images[:, 3] < float(self.renderer.workspace.size) - 1e-6).numpy(),
+            view_mask=None if mask is None else mask[0, :, 0].float().cpu().numpy(),
+            heatmaps=heat.astype(np.float32),
+        )
+
+    def _step(self, observation: Observation, instruction: str, object_names: Mapping[int, str] | None
+              ) -> tuple[dict[str, Any], dict[str, torch.Tensor], PolicyOutput, KeyframeAction]:
         sync = torch.cuda.synchronize if self.device.type == "cuda" else (lambda *_: None)
         t0 = time.perf_counter()
-        batch = collate([self.observe(observation, instruction, object_names)])
+        sample = self.observe(observation, instruction, object_names)
+        batch = collate([sample])
         t1 = time.perf_counter()
         with torch.no_grad():
             inputs = self.model_inputs(batch)
@@ -268,7 +316,7 @@ class KeyframePolicy(nn.Module):
         action = decode_output(out, self.renderer)[0]
         self.last_timings = {"condition_s": t1 - t0, "render_s": t2 - t1, "model_s": t3 - t2,
                              "decode_s": time.perf_counter() - t3}
-        return action
+        return sample, inputs, out, action
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_payload(self) -> dict[str, Any]:
