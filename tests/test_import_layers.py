@@ -22,7 +22,7 @@ LAYERS = [
     ("data",),  # below policy: the dataset yields policy-independent samples
     ("policy",),
     ("train",),
-    ("evaluation", "robot"),
+    ("evaluation", "robot", "viewer"),
     ("quickstart", "cli", "commands"),
 ]
 RANK = {name: i for i, names in enumerate(LAYERS) for name in names}

@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "abm.train.commands",
     "abm.evaluation.commands",
     "abm.robot.commands",
+    "abm.viewer.commands",
     "abm.quickstart",
 )
 

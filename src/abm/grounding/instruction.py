@@ -7,8 +7,18 @@ the policy conditions on (e.g. ``"put X in the plate"``). The split is done by t
 rewrites free-form text into a known template) plugs in through the :class:`InstructionParser`
 protocol; :class:`RewritingParser` shows the shape of such a parser without shipping a network client.
 
-Matching is done on a *normalised* instruction: lower case, punctuation removed, whitespace collapsed,
-polite prefixes/suffixes ("please", "could you", ...) and the articles a/an/the dropped. Compositional
+Parsing is deterministic and explainable, in three steps, all driven by ``templates.yaml``:
+
+1. *normalise*: lower case, punctuation removed, whitespace collapsed, polite prefixes/suffixes
+   ("could you please", "... for me") stripped, determiners (a/an/the/this/that/...) and filler adverbs
+   ("gently") dropped;
+2. *fold* a two-clause form "<grasp verb> X [up] and [then] <clause with 'it'>" into that clause with X
+   for "it" ("pick up the red block and put it on the target" -> "put red block on target");
+3. *match* the skill patterns, whose verbs, prepositions and place names are synonym groups.
+
+What cannot be one skill on one named object is refused with an :class:`InstructionError` naming the
+reason and listing accepted phrasings: several steps or objects (:class:`MultiStepInstructionError`),
+a pronoun instead of an object, a grasp without a goal, or text no pattern matches. Compositional
 instructions reuse trained skills because colour words and nouns such as "block" all stay inside X:
 "put the red block in the plate" -> ("red block", "put X in the plate").
 """
@@ -16,11 +26,12 @@ instructions reuse trained skills because colour words and nouns such as "block"
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from types import MappingProxyType
+from typing import NoReturn, Protocol, runtime_checkable
 
 import yaml
 
@@ -30,11 +41,12 @@ _VOWELS = "aeiou"
 
 
 class InstructionError(ValueError):
-    """An instruction that no template matches (the message lists the known skills)."""
+    """An instruction the parser refuses (the message says why and lists the known skills with phrasings)."""
 
 
 class MultiStepInstructionError(InstructionError):
-    """An instruction that asks for several skills in a row; abm runs one skill per instruction."""
+    """An instruction that asks for several skills in a row, or for one skill on several objects ("all
+    blocks", "the red block and the blue block"); abm runs one skill on one object per instruction."""
 
 
 @dataclass(frozen=True)
@@ -78,65 +90,113 @@ class InstructionParser(Protocol):
     def parse(self, instruction: str) -> ParsedInstruction: ...
 
 
+Synonyms = Mapping[str, tuple[str, ...]]
+GRASP_GROUP = "grasp"
+"""The synonym group whose verbs start a two-clause form ("pick up X and put it ...")."""
+
+_TOKEN = re.compile(r"\{x\}|\([^)]*\)|\[[^\]]*\]|<[^>]*>|[^\s()\[\]{}<>]+")
+
+
 @dataclass(frozen=True)
 class SkillTemplate:
-    """One skill and the patterns that recognise it (see ``templates.yaml`` for the syntax)."""
+    """One skill and the patterns that recognise it (see ``templates.yaml`` for the syntax).
+
+    Attributes:
+        skill: the skill text with the placeholder word ``X``.
+        patterns: pattern texts; ``<name>`` refers to a group of ``synonyms``.
+        tasks: benchmark tasks that use this skill (informative only).
+        examples: instructions shown in refusal messages as accepted phrasings of this skill.
+        synonyms: the synonym groups the patterns may use.
+    """
 
     skill: str
     patterns: tuple[str, ...]
     tasks: tuple[str, ...] = ()
+    examples: tuple[str, ...] = ()
+    synonyms: Synonyms = field(default_factory=dict, repr=False, compare=False)
     _compiled: tuple[tuple[re.Pattern[str], int], ...] = field(default=(), repr=False, compare=False)
+    _lead_words: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if PLACEHOLDER not in self.skill.split():
             raise ValueError(f"skill {self.skill!r} must contain the placeholder word {PLACEHOLDER!r}")
         if not self.patterns:
             raise ValueError(f"skill {self.skill!r} has no patterns")
-        object.__setattr__(self, "_compiled", tuple(_compile_pattern(p) for p in self.patterns))
+        compiled = tuple(_compile_pattern(p, self.synonyms) for p in self.patterns)
+        object.__setattr__(self, "_compiled", tuple((regex, literals) for regex, literals, _ in compiled))
+        object.__setattr__(self, "_lead_words", frozenset(w for _, _, lead in compiled for w in lead))
 
-    def match(self, normalized: str) -> tuple[str, int] | None:
-        """``(X, specificity)`` of the most specific pattern matching ``normalized``, else ``None``."""
+    @property
+    def lead_words(self) -> frozenset[str]:
+        """Words a pattern of this skill can start with (the verbs that begin a step)."""
+        return self._lead_words
+
+    def match(self, normalized: str, accept: Callable[[str], bool] | None = None) -> tuple[str, int] | None:
+        """``(X, specificity)`` of the most specific pattern matching ``normalized``, else ``None``.
+
+        ``accept`` (optional) vetoes a captured X; the next most specific pattern is then used.
+        """
         best: tuple[str, int] | None = None
         for regex, literals in self._compiled:
             m = regex.fullmatch(" " + normalized)
-            if m and (best is None or literals > best[1]):
-                best = (m.group("X").strip(), literals)
+            if m is None or (best is not None and literals <= best[1]):
+                continue
+            target = m.group("X").strip()
+            if accept is None or accept(target):
+                best = (target, literals)
         return best
 
 
-def _compile_pattern(pattern: str) -> tuple[re.Pattern[str], int]:
-    """Pattern text -> (regex over ``" " + normalised text``, number of required literal tokens)."""
-    tokens = re.findall(r"\{x\}|\([^)]*\)|\[[^\]]*\]|[^\s()\[\]{}]+", pattern.lower())
+def _expand_option(option: str, synonyms: Synonyms, pattern: str) -> list[str]:
+    """One alternative of a pattern token -> its phrases (a ``<group>`` expands to the group)."""
+    option = option.strip()
+    if option.startswith("<") and option.endswith(">"):
+        name = option[1:-1].strip()
+        if name not in synonyms:
+            known = ", ".join(f"<{g}>" for g in sorted(synonyms)) or "none"
+            raise ValueError(f"pattern {pattern!r} uses unknown synonym group <{name}> (known: {known})")
+        return list(synonyms[name])
+    return [option]
+
+
+def _compile_pattern(
+    pattern: str, synonyms: Synonyms = MappingProxyType({})
+) -> tuple[re.Pattern[str], int, frozenset[str]]:
+    """Pattern text -> (regex over ``" " + normalised text``, required literal tokens, leading words)."""
+    tokens = _TOKEN.findall(pattern.lower())
     if tokens.count("{x}") != 1:
         raise ValueError(f"pattern {pattern!r} must contain {{X}} exactly once")
     regex = ""
     literals = 0
+    lead: set[str] = set()
+    leading = True  # still collecting the words a match can start with
     for tok in tokens:
         if tok == "{x}":
             regex += r" (?P<X>\S+(?: \S+)*?)"
+            leading = False
             continue
         optional = tok.startswith("[")
         raw = tok[1:-1].split("|") if tok.startswith(("(", "[")) else [tok]
-        options = sorted({o for o in (_drop_articles(r) for r in raw) if o}, key=len, reverse=True)
+        phrases = [p for option in raw for p in _expand_option(option, synonyms, pattern)]
+        options = sorted({o for o in (_drop_words(p, ARTICLES) for p in phrases) if o}, key=len, reverse=True)
         if not options:
             continue
+        if leading:
+            lead.update(o.split()[0] for o in options)
+            leading = optional
         alternatives = "|".join(re.escape(o) for o in options)
         regex += f"(?: (?:{alternatives}))?" if optional else f" (?:{alternatives})"
         literals += 0 if optional else 1
-    return re.compile(regex), literals
+    return re.compile(regex), literals, frozenset(lead)
 
 
-def _drop_articles(text: str) -> str:
-    return " ".join(w for w in text.split() if w not in ARTICLES)
+def _drop_words(text: str, words: Collection[str]) -> str:
+    """``text`` without the given words."""
+    return " ".join(w for w in text.split() if w not in words)
 
 
-def normalize_instruction(
-    text: str, prefixes: Sequence[str] = (), suffixes: Sequence[str] = ()
-) -> str:
-    """Lower-case, strip punctuation, polite prefixes/suffixes and articles; collapse spaces.
-
-    ``"Please, put the Cream Cheese in a plate!"`` -> ``"put cream cheese in plate"``.
-    """
+def _clean_words(text: str, prefixes: Sequence[str] = (), suffixes: Sequence[str] = ()) -> list[str]:
+    """Lower case, punctuation removed, polite prefixes/suffixes stripped (repeatedly); determiners kept."""
     if not isinstance(text, str):
         raise TypeError(f"instruction must be a string, got {type(text).__name__}")
     s = text.lower().replace("\u2019", "'").replace("_", " ")
@@ -150,75 +210,225 @@ def normalize_instruction(
         changed = False
         for p in prefix_words:
             if p and words[: len(p)] == p and len(words) > len(p):
-                words = words[len(p):]
+                words = words[len(p) :]
                 changed = True
                 break
         for p in suffix_words:
-            if p and words[-len(p):] == p and len(words) > len(p):
+            if p and words[-len(p) :] == p and len(words) > len(p):
                 words = words[: -len(p)]
                 changed = True
                 break
-    return " ".join(w for w in words if w not in ARTICLES)
+    return words
+
+
+def normalize_instruction(
+    text: str,
+    prefixes: Sequence[str] = (),
+    suffixes: Sequence[str] = (),
+    determiners: Collection[str] = ARTICLES,
+) -> str:
+    """Lower-case, strip punctuation, polite prefixes/suffixes and determiners; collapse spaces.
+
+    ``"Please, put the Cream Cheese in a plate!"`` -> ``"put cream cheese in plate"``.
+    """
+    return " ".join(w for w in _clean_words(text, prefixes, suffixes) if w not in determiners)
+
+
+def _union(*groups: Sequence[str]) -> tuple[str, ...]:
+    """The entries of all groups, in order, without repeats."""
+    return tuple(dict.fromkeys(w for g in groups for w in g))
+
+
+def _merge_synonyms(base: Synonyms, extra: Synonyms) -> dict[str, tuple[str, ...]]:
+    """``base`` with ``extra``'s groups added; a group in both gets the union of the phrases."""
+    merged = {name: tuple(phrases) for name, phrases in base.items()}
+    for name, phrases in extra.items():
+        merged[name] = _union(merged.get(name, ()), phrases)
+    return merged
 
 
 @dataclass(frozen=True)
 class TemplateSet:
-    """Skill templates plus the polite prefixes/suffixes dropped before matching."""
+    """Skill templates plus the vocabulary used around them (all read from ``templates.yaml``).
+
+    Attributes:
+        skills: the skills, in matching order (ties between equally specific patterns go to the first).
+        polite_prefixes / polite_suffixes: phrases stripped from the start / end before matching.
+        synonyms: phrase groups patterns refer to as ``<name>``; ``grasp`` drives the two-clause fold.
+        determiners: words dropped everywhere (articles, "this", "that", ...).
+        fillers: other words dropped everywhere (adverbs such as "gently", "carefully").
+        pronouns: words standing for an already named object ("it"); replaced by the two-clause fold,
+            refused as X.
+        quantifiers: words asking for several or unspecified objects ("all", "every"); refused.
+        clause_joins: joins of the two-clause fold ("and", "and then", "then").
+        step_words: sequencing words ("then", "after that"); an unmatched instruction containing one
+            is refused as a multi-step request.
+    """
 
     skills: tuple[SkillTemplate, ...]
     polite_prefixes: tuple[str, ...] = ()
     polite_suffixes: tuple[str, ...] = ()
+    synonyms: Synonyms = field(default_factory=dict, repr=False, compare=False)
+    determiners: tuple[str, ...] = tuple(sorted(ARTICLES))
+    fillers: tuple[str, ...] = ()
+    pronouns: tuple[str, ...] = ()
+    quantifiers: tuple[str, ...] = ()
+    clause_joins: tuple[str, ...] = ()
+    step_words: tuple[str, ...] = ()
 
     def merged(self, other: TemplateSet) -> TemplateSet:
-        """A new set with ``other``'s skills tried first (patterns of the same skill text are merged)."""
-        by_skill: dict[str, SkillTemplate] = {}
+        """A new set with ``other``'s skills tried first (patterns of the same skill text are merged).
+
+        Word lists are united, synonym groups of the same name get both sets' phrases, and every
+        skill is recompiled with the merged synonyms.
+        """
+        synonyms = _merge_synonyms(self.synonyms, other.synonyms)
+        by_skill: dict[str, tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]] = {}
         for t in (*other.skills, *self.skills):
-            if t.skill in by_skill:
-                old = by_skill[t.skill]
-                by_skill[t.skill] = SkillTemplate(
-                    t.skill, tuple(dict.fromkeys((*old.patterns, *t.patterns))),
-                    tuple(dict.fromkeys((*old.tasks, *t.tasks))),
-                )
-            else:
-                by_skill[t.skill] = t
+            old = by_skill.get(t.skill, ((), (), ()))
+            by_skill[t.skill] = (_union(old[0], t.patterns), _union(old[1], t.tasks), _union(old[2], t.examples))
+        skills = tuple(
+            SkillTemplate(skill, patterns, tasks, examples, synonyms)
+            for skill, (patterns, tasks, examples) in by_skill.items()
+        )
         return TemplateSet(
-            tuple(by_skill.values()),
-            tuple(dict.fromkeys((*self.polite_prefixes, *other.polite_prefixes))),
-            tuple(dict.fromkeys((*self.polite_suffixes, *other.polite_suffixes))),
+            skills,
+            _union(self.polite_prefixes, other.polite_prefixes),
+            _union(self.polite_suffixes, other.polite_suffixes),
+            synonyms,
+            _union(self.determiners, other.determiners),
+            _union(self.fillers, other.fillers),
+            _union(self.pronouns, other.pronouns),
+            _union(self.quantifiers, other.quantifiers),
+            _union(self.clause_joins, other.clause_joins),
+            _union(self.step_words, other.step_words),
         )
 
 
-def parse_templates(data: dict) -> TemplateSet:
-    """Build a :class:`TemplateSet` from the YAML structure (``skills``, optional polite words)."""
+_WORD_LISTS = (
+    "polite_prefixes",
+    "polite_suffixes",
+    "determiners",
+    "fillers",
+    "pronouns",
+    "quantifiers",
+    "clause_joins",
+    "step_words",
+)
+
+
+def _string_list(data: dict, key: str) -> tuple[str, ...]:
+    """The word list ``data[key]`` (lower case, spaces collapsed); empty when absent."""
+    value = data.get(key, [])
+    if not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(v, str | int | float) for v in value):
+        raise ValueError(
+            f"templates {key!r} must be a list of words or phrases, got {value!r} (YAML reads bare "
+            "on/off/yes/no as booleans: quote them)"
+        )
+    return tuple(" ".join(str(v).lower().split()) for v in value)
+
+
+def parse_templates(data: dict, base_synonyms: Synonyms | None = None) -> TemplateSet:
+    """Build a :class:`TemplateSet` from the YAML structure (``skills`` and the optional word lists).
+
+    ``base_synonyms`` are synonym groups the patterns may use besides the file's own ``synonyms``
+    (a group in both gets the union of the phrases).
+    """
     if not isinstance(data, dict) or not isinstance(data.get("skills", []), list):
         raise ValueError("templates must be a mapping with a 'skills' list")
+    raw_synonyms = data.get("synonyms", {}) or {}
+    if not isinstance(raw_synonyms, dict) or not all(isinstance(v, list) for v in raw_synonyms.values()):
+        raise ValueError("templates 'synonyms' must map group names to lists of phrases")
+    odd = [
+        k
+        for k, v in raw_synonyms.items()
+        for w in (k, *v)
+        if not isinstance(w, str | int | float) or isinstance(w, bool)
+    ]
+    if odd:
+        raise ValueError(
+            f"templates synonym groups {sorted(set(map(str, odd)))} hold a non-text entry (YAML reads "
+            "bare on/off/yes/no as booleans: quote them)"
+        )
+    own = {str(k).lower(): tuple(" ".join(str(p).lower().split()) for p in v) for k, v in raw_synonyms.items()}
+    synonyms = _merge_synonyms(base_synonyms or {}, own)
     skills = []
     for i, entry in enumerate(data.get("skills", [])):
         if not isinstance(entry, dict) or "skill" not in entry or "patterns" not in entry:
             raise ValueError(f"templates skills[{i}] needs 'skill' and 'patterns', got {entry!r}")
-        skills.append(SkillTemplate(str(entry["skill"]), tuple(str(p) for p in entry["patterns"]),
-                                    tuple(str(t) for t in entry.get("tasks", []))))
-    return TemplateSet(tuple(skills), tuple(data.get("polite_prefixes", [])),
-                       tuple(data.get("polite_suffixes", [])))
+        skills.append(
+            SkillTemplate(
+                str(entry["skill"]),
+                tuple(str(p) for p in entry["patterns"]),
+                tuple(str(t) for t in entry.get("tasks", [])),
+                tuple(str(e) for e in entry.get("examples", [])),
+                synonyms,
+            )
+        )
+    lists = {key: _string_list(data, key) for key in _WORD_LISTS}
+    if "determiners" not in data:
+        lists["determiners"] = tuple(sorted(ARTICLES))
+    return TemplateSet(tuple(skills), synonyms=synonyms, **lists)
 
 
-def load_templates(path: str | Path | None = None) -> TemplateSet:
-    """Load templates from a YAML file; ``None`` loads the built-in ``templates.yaml``."""
+def _builtin_data() -> dict:
+    """The parsed YAML of the built-in ``templates.yaml``."""
+    text = resources.files("abm.grounding").joinpath("templates.yaml").read_text(encoding="utf-8")
+    return yaml.safe_load(text) or {}
+
+
+def load_templates(path: str | Path | None = None, base_synonyms: Synonyms | None = None) -> TemplateSet:
+    """Load templates from a YAML file; ``None`` loads the built-in ``templates.yaml``.
+
+    A user file may use the synonym groups of ``base_synonyms`` (default: the built-in groups, ``<put>``,
+    ``<grasp>``, ...) besides its own.
+    """
     if path is None:
-        text = resources.files("abm.grounding").joinpath("templates.yaml").read_text(encoding="utf-8")
-    else:
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"template file not found: {path}")
-        text = path.read_text(encoding="utf-8")
-    return parse_templates(yaml.safe_load(text) or {})
+        return parse_templates(_builtin_data(), base_synonyms)
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"template file not found: {path}")
+    if base_synonyms is None:
+        builtin = _builtin_data().get("synonyms", {}) or {}
+        base_synonyms = {str(k): tuple(str(p) for p in v) for k, v in builtin.items()}
+    return parse_templates(yaml.safe_load(path.read_text(encoding="utf-8")) or {}, base_synonyms)
+
+
+def _phrase_regex(phrases: Collection[str], lookahead: str = "") -> re.Pattern[str] | None:
+    """`` (phrase1|phrase2|...) `` between words (longest first), optionally followed by ``lookahead``."""
+    options = sorted({" ".join(p.split()) for p in phrases if p.strip()}, key=len, reverse=True)
+    if not options:
+        return None
+    return re.compile(rf" (?:{'|'.join(re.escape(o) for o in options)}) {lookahead}")
+
+
+def _starts_with(words: list[str], phrases: Collection[str]) -> int:
+    """Length (in words) of the longest phrase ``words`` starts with; 0 if none."""
+    lengths = [len(p.split()) for p in phrases if p.split() and words[: len(p.split())] == p.split()]
+    return max(lengths, default=0)
 
 
 class TemplateParser:
-    """Template-based :class:`InstructionParser` (the default)."""
+    """Template-based :class:`InstructionParser` (the default).
+
+    Parsing is deterministic: normalise (:func:`normalize_instruction`), fold a two-clause form
+    ("pick up X and put it on the target" -> "put X on target"), match the skill patterns, and refuse
+    what cannot be one skill on one named object: several steps, several objects ("all", "X and the
+    Y"), a pronoun instead of an object, a grasp without a goal, or text no pattern matches. Refusals
+    are :class:`InstructionError` (:class:`MultiStepInstructionError` for several steps or objects)
+    whose message says what was not understood and lists accepted phrasings.
+    """
 
     def __init__(self, templates: TemplateSet | None = None) -> None:
         self.templates = templates if templates is not None else load_templates()
+        t = self.templates
+        self._lead_words = frozenset(w for s in t.skills for w in s.lead_words) | frozenset(
+            p.split()[0] for p in t.synonyms.get(GRASP_GROUP, ()) if p.split()
+        )
+        lead = "|".join(re.escape(w) for w in sorted(self._lead_words, key=len, reverse=True))
+        self._step_split = _phrase_regex(t.step_words)
+        joins = [j for j in t.clause_joins if j not in t.step_words]
+        self._join_split = _phrase_regex(joins, rf"(?=(?:{lead})(?: |$))") if lead else None
 
     @classmethod
     def from_files(cls, *paths: str | Path, include_builtin: bool = True) -> TemplateParser:
@@ -231,9 +441,9 @@ class TemplateParser:
     def with_templates(self, extra: TemplateSet | dict | str | Path) -> TemplateParser:
         """A new parser whose templates are extended by ``extra`` (tried first)."""
         if isinstance(extra, dict):
-            extra = parse_templates(extra)
+            extra = parse_templates(extra, self.templates.synonyms)
         elif isinstance(extra, str | Path):
-            extra = load_templates(extra)
+            extra = load_templates(extra, self.templates.synonyms)
         return TemplateParser(self.templates.merged(extra))
 
     @property
@@ -242,48 +452,214 @@ class TemplateParser:
         return [t.skill for t in self.templates.skills]
 
     def normalize(self, instruction: str) -> str:
-        return normalize_instruction(instruction, self.templates.polite_prefixes,
-                                     self.templates.polite_suffixes)
+        """The text the patterns are matched against (see :func:`normalize_instruction`)."""
+        t = self.templates
+        return normalize_instruction(instruction, t.polite_prefixes, t.polite_suffixes, {*t.determiners, *t.fillers})
 
     def parse(self, instruction: str) -> ParsedInstruction:
-        """Decompose ``instruction``; raises :class:`InstructionError` when no template matches."""
-        normalized = self.normalize(instruction)
-        steps = self._steps(normalized)
-        if len(steps) > 1:
-            listed = "; ".join(f"{p.skill.replace(PLACEHOLDER, p.target)!r}" for p in steps)
-            raise MultiStepInstructionError(
-                f"instruction {instruction!r} asks for {len(steps)} steps ({listed}); abm runs one skill per "
-                "instruction: give the steps one at a time"
-            )
-        best: tuple[SkillTemplate, str, int] | None = None
-        for template in self.templates.skills:
-            m = template.match(normalized)
-            if m is not None and m[0] and (best is None or m[1] > best[2]):
-                best = (template, m[0], m[1])
-        if best is None:
-            known = "\n  ".join(self.skills)
-            raise InstructionError(
-                f"instruction {instruction!r} (normalised: {normalized!r}) matches no template; "
-                f"known skills:\n  {known}\nAdd a template with abm.grounding.load_templates / "
-                "TemplateParser.with_templates."
-            )
-        template, target, _ = best
-        return ParsedInstruction(instruction, target, template.skill, template.tasks)
+        """Decompose ``instruction`` into X and a skill.
+
+        Raises:
+            MultiStepInstructionError: several steps, or several / unspecified objects.
+            InstructionError: anything else that is not one known skill on one named object.
+        """
+        t = self.templates
+        words = _clean_words(instruction, t.polite_prefixes, t.polite_suffixes)
+        dropped = {*t.determiners, *t.fillers}
+        normalized = " ".join(w for w in words if w not in dropped)
+        if not normalized or normalized in {*t.polite_prefixes, *t.polite_suffixes}:
+            raise self._refusal(instruction, normalized, "nothing is left once polite words and articles are removed")
+        candidates = [*self._folds(normalized), normalized]
+        for candidate in (normalized, *candidates[:-1]):
+            steps = self._steps(candidate)
+            if len(steps) > 1:
+                listed = "; ".join(f"{s.replace(PLACEHOLDER, x)!r}" for s, x in steps)
+                one_by_one = "', then '".join(s.replace(PLACEHOLDER, f"the {x}") for s, x in steps)
+                raise self._refusal(
+                    instruction,
+                    normalized,
+                    f"it asks for {len(steps)} steps ({listed}), but abm runs one skill per instruction: give "
+                    f"them one at a time, e.g. '{one_by_one}'",
+                    MultiStepInstructionError,
+                )
+        for candidate in candidates:
+            best = self._match(candidate)
+            if best is None:
+                continue
+            template, target = best
+            if target in t.pronouns:
+                example = template.examples[0] if template.examples else template.skill
+                raise self._refusal(
+                    instruction,
+                    normalized,
+                    f"{target!r} does not say which object to use; name the object, e.g. {example!r}",
+                )
+            quantifiers = [w for w in target.split() if w in t.quantifiers]
+            if quantifiers:
+                raise self._quantifier_refusal(instruction, normalized, quantifiers[0])
+            if self._several_objects(words, target):
+                raise self._refusal(
+                    instruction,
+                    normalized,
+                    f"{target!r} names several objects; abm moves one "
+                    "object per instruction: give one instruction per object",
+                    MultiStepInstructionError,
+                )
+            return ParsedInstruction(instruction, target, template.skill, template.tasks)
+        self._refuse_unmatched(instruction, normalized)
 
     __call__ = parse
 
-    def _steps(self, normalized: str) -> list[ParsedInstruction]:
-        """The skills of a multi-step request ("put X in the plate and then close Y"), if every part parses."""
-        parts = [p for p in re.split(r"\s+(?:and then|then|and|after that|afterwards)\s+", normalized) if p]
+    # -- matching ------------------------------------------------------------------------------------
+
+    def _match(self, text: str) -> tuple[SkillTemplate, str] | None:
+        """The most specific ``(template, X)`` matching ``text`` whose X is a plausible object.
+
+        X may be a bare pronoun ("put it in the plate": a step of a multi-step request; :meth:`parse`
+        refuses it on its own), but not contain one ("butter and put it": a mis-split two-clause form),
+        nor a sequencing word or a further step ("red peg and then close jar").
+        """
+        pronouns = set(self.templates.pronouns)
+
+        def plausible(target: str) -> bool:
+            if target in pronouns:
+                return True
+            if pronouns.intersection(target.split()):
+                return False
+            if self._step_split is not None and self._step_split.search(f" {target} "):
+                return False
+            return not any(self._match(p) for p in self._split(target)[1:])
+
+        best: tuple[SkillTemplate, str, int] | None = None
+        for template in self.templates.skills:
+            m = template.match(text, plausible)
+            if m is not None and m[0] and (best is None or m[1] > best[2]):
+                best = (template, m[0], m[1])
+        return None if best is None else (best[0], best[1])
+
+    def _folds(self, normalized: str) -> list[str]:
+        """Two-clause forms read as one clause: "pick up X [up] and put it on target" -> "put X on target"."""
+        t = self.templates
+        words = normalized.split()
+        start = _starts_with(words, t.synonyms.get(GRASP_GROUP, ()))
+        if not start:
+            return []
+        folds = []
+        joins = [j.split() for j in t.clause_joins if j.split()]
+        for k in range(start + 1, len(words)):
+            for join in sorted(joins, key=len, reverse=True):
+                if words[k : k + len(join)] != join:
+                    continue
+                obj = words[start:k]
+                if obj and obj[-1] == "up":
+                    obj = obj[:-1]
+                rest = words[k + len(join) :]
+                at = next((i for i, w in enumerate(rest) if w in t.pronouns), None)
+                if obj and at is not None:
+                    folds.append(" ".join([*rest[:at], *obj, *rest[at + 1 :]]))
+                break
+        return folds
+
+    def _split(self, text: str) -> list[str]:
+        """``text`` cut at sequencing words, and at clause joins followed by a skill's leading verb."""
+        parts = [text]
+        for regex in (self._step_split, self._join_split):
+            if regex is not None:
+                parts = [q.strip() for p in parts for q in regex.split(f" {p} ")]
+        return [p for p in parts if p]
+
+    def _steps(self, normalized: str) -> list[tuple[str, str]]:
+        """``(skill, X)`` of each step of a multi-step request, if it has several and every one parses."""
+        parts = self._split(normalized)
         if len(parts) < 2:
             return []
-        parsed = []
+        steps = []
         for part in parts:
-            try:
-                parsed.append(self.parse(part))
-            except InstructionError:
+            m = self._match(part)
+            if m is None:
                 return []
-        return parsed
+            steps.append((m[0].skill, m[1]))
+        return steps
+
+    def _several_objects(self, words: list[str], target: str) -> bool:
+        """Whether X joins two noun phrases, each with its own determiner ("the red block and the blue block")."""
+        x = target.split()
+        dets = set(self.templates.determiners)
+        for i, w in enumerate(x[:-1]):
+            if w != "and":
+                continue
+            after = x[i + 1]
+            if any(
+                a == "and" and b in dets and c == after for a, b, c in zip(words, words[1:], words[2:], strict=False)
+            ):
+                return True
+        return False
+
+    # -- refusals ------------------------------------------------------------------------------------
+
+    def _refuse_unmatched(self, instruction: str, normalized: str) -> NoReturn:
+        """Raise the most specific refusal for an instruction that no pattern matches."""
+        t = self.templates
+        folds = self._folds(normalized)
+        if folds and len(self._split(folds[0])) == 1:  # one action in two clauses, just not a known one
+            raise self._refusal(instruction, normalized, f"it reads as {folds[0]!r}, which no skill template matches")
+        parts = self._split(normalized)
+        if len(parts) > 1 and self._step_split is not None and self._step_split.search(f" {normalized} "):
+            unknown = [p for p in parts if self._match(p) is None]
+            listed = "; ".join(repr(p) for p in parts)
+            verb = "is" if len(unknown) == 1 else "are"
+            raise self._refusal(
+                instruction,
+                normalized,
+                f"it asks for {len(parts)} steps ({listed}), but abm runs one skill per instruction (and "
+                f"{', '.join(repr(p) for p in unknown)} {verb} no skill it knows)",
+                MultiStepInstructionError,
+            )
+        words = normalized.split()
+        start = _starts_with(words, t.synonyms.get(GRASP_GROUP, ()))
+        verb = start or (1 if words[0] in self._lead_words else 0)
+        if verb and words[verb:] and words[verb] in t.quantifiers:  # "stack all blocks", "pick up every jar"
+            raise self._quantifier_refusal(instruction, normalized, words[verb])
+        obj = words[start:-1] if words[-1:] == ["up"] else words[start:]
+        if start and obj and len(parts) == 1:
+            x = " ".join(obj)
+            goals = [s.skill.replace(PLACEHOLDER, f"the {x}") for s in t.skills if s.skill.split()[1:2] == ["X"]]
+            suggested = ", ".join(repr(g) for g in goals[:3])
+            raise self._refusal(
+                instruction,
+                normalized,
+                f"it reads as picking up {x!r} without saying what to do with it; say where it goes, e.g. {suggested}",
+            )
+        raise self._refusal(instruction, normalized, "no skill template matches it")
+
+    def _quantifier_refusal(self, instruction: str, normalized: str, word: str) -> InstructionError:
+        """The refusal of a request for several or unspecified objects ("all", "every", "something")."""
+        reason = f"{word!r} asks for several or unspecified objects; abm moves one named object per instruction"
+        return self._refusal(instruction, normalized, reason, MultiStepInstructionError)
+
+    def _refusal(
+        self, instruction: str, normalized: str, reason: str, kind: type[InstructionError] = InstructionError
+    ) -> InstructionError:
+        """An error naming what was not understood, the known skills with example phrasings, and remedies."""
+        lines = []
+        for s in self.templates.skills:
+            examples = "; ".join(repr(e) for e in s.examples[:2])
+            lines.append(f"  {s.skill}" + (f"  (e.g. {examples})" if examples else ""))
+        known = "\n".join(lines)
+        if issubclass(kind, MultiStepInstructionError):  # a rewriter must not merge steps: RewritingParser re-raises
+            remedy = "Give one skill on one named object per instruction, one instruction after the other."
+        else:
+            remedy = (
+                "Rephrase it like one of these, add templates (load_templates / TemplateParser.with_templates), "
+                "or use RewritingParser with a language-model rewriter."
+            )
+        return kind(
+            f"cannot understand instruction {instruction!r} (normalised: {normalized!r}): {reason}.\n"
+            f"Known skills, one object per instruction:\n{known}\n"
+            "Also accepted: polite wrappers ('could you ...', 'please', '... for me'), missing articles, verb "
+            "synonyms (grab/take/lift, place/set/drop, shut) and two clauses such as 'pick up the red block and "
+            f"put it on the target'.\n{remedy}"
+        )
 
 
 class RewritingParser:
@@ -324,9 +700,7 @@ def default_parser() -> TemplateParser:
     return _DEFAULT_PARSER
 
 
-def decompose_instruction(
-    instruction: str, parser: InstructionParser | None = None
-) -> tuple[str, str]:
+def decompose_instruction(instruction: str, parser: InstructionParser | None = None) -> tuple[str, str]:
     """``instruction`` -> ``(X, skill)``.
 
     ``"put the tomato in the plate"`` -> ``("tomato", "put X in the plate")``; raises

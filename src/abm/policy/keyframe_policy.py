@@ -56,7 +56,9 @@ class PolicyExplanation:
         view_names: names of the ``V`` views.
         view_rgb: ``(V, H, W, 3)`` float32 in ``[0, 1]``, the rendered colour of each view.
         view_occupied: ``(V, H, W)`` bool, where a point is visible.
-        view_mask: ``(V, H, W)`` float32, the mask channel the network saw (``None`` for rvt / ifd).
+        view_mask: ``(V, H, W)`` float32, the mask channel the network saw (``None`` for rvt / ifd); abm's
+            marks only the target's centre pixel.
+        view_target: ``(V, H, W)`` bool, where the target's masked points are visible (``None`` for rvt / ifd).
         heatmaps: ``(V, H, W)`` float32, the predicted translation distribution of each view (sums to 1).
     """
 
@@ -66,6 +68,7 @@ class PolicyExplanation:
     view_rgb: np.ndarray
     view_occupied: np.ndarray
     view_mask: np.ndarray | None
+    view_target: np.ndarray | None
     heatmaps: np.ndarray
 
 
@@ -289,6 +292,13 @@ class KeyframePolicy(nn.Module):
         images = inputs["images"][0].float().cpu()
         heat = torch.softmax(out.heatmap[0].float().flatten(1), -1).view_as(out.heatmap[0]).cpu().numpy()
         mask = inputs.get("mask")
+        target = None
+        if "point_mask" in sample:  # the whole target as the views show it (the mask channel may mark less)
+            with torch.no_grad():
+                views = self.renderer.render(sample["points"][None].to(self.device),
+                                             sample["colors"][None].to(self.device),
+                                             extra=sample["point_mask"][None, :, None].to(self.device))
+            target = (views.extra[0, :, 0] > 0.5).cpu().numpy()
         return PolicyExplanation(
             action=action,
             sample=sample,
@@ -296,6 +306,7 @@ class KeyframePolicy(nn.Module):
             view_rgb=images[:, :3].permute(0, 2, 3, 1).clamp(0, 1).numpy(),
             view_occupied=(images[:, 3] < float(self.renderer.workspace.size) - 1e-6).numpy(),
             view_mask=None if mask is None else mask[0, :, 0].float().cpu().numpy(),
+            view_target=target,
             heatmaps=heat.astype(np.float32),
         )
 

@@ -1,6 +1,8 @@
 """Running a trained policy outside ``abm eval``: camera and arm interfaces, motion limits and the
-deployment loop (``abm run``). Real-hardware adapters (RealSense, UR) are issue 15's remaining work;
-the loop is tested with a recorded camera, a dry-run arm and the MuJoCo arm."""
+deployment loop (``abm run``), tested with a recorded camera, a dry-run arm and the MuJoCo arm. Real
+hardware: :mod:`abm.robot.realsense` (RealSense cameras), :mod:`abm.robot.ur` (UR arm, grippers) and
+:mod:`abm.robot.demonstrations` (demonstrations recorded on a robot, stored as episodes); imported on
+demand, as their SDKs are optional (docs/real-robot.md)."""
 
 from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot, record_observations
 from abm.robot.limits import LimitError, MotionLimits

@@ -2,8 +2,10 @@
 
 A robot is described by a YAML file::
 
-    cameras: {kind: replay, path: recordings/demo}     # or {kind: sim}
-    arm: {kind: dry-run}                               # or {kind: sim, task: pick_block, split: seen, seed: 0}
+    cameras: {kind: replay, path: recordings/demo}     # or {kind: sim}, or {kind: realsense, serials: [...],
+                                                       #   calibration: calibration.yaml} (abm.robot.realsense)
+    arm: {kind: dry-run}                               # or {kind: sim, task: pick_block, split: seen, seed: 0},
+                                                       #   or {kind: ur, host: 192.168.1.10, ...} (abm.robot.ur)
     limits: {workspace_lower: [0.2, -0.45, -0.02], workspace_upper: [0.85, 0.45, 0.6],
              max_step_m: 0.6, max_tilt_deg: 90}
 
@@ -63,23 +65,53 @@ class RobotConfig:
         sim = None
         arm_kind = "dry-run" if dry_run else self.arm.get("kind", "dry-run")
         if arm_kind == "sim" or self.cameras.get("kind") == "sim":
-            opts = {k: v for k, v in {**self.cameras, **self.arm}.items() if k != "kind"}
+            arm_opts = self.arm if self.arm.get("kind") == "sim" else {}
+            opts = {k: v for k, v in {**self.cameras, **arm_opts}.items() if k != "kind"}
             sim = SimRobot(**opts)
-        kind = self.cameras.get("kind")
-        if kind == "replay":
-            camera = ReplayCamera(self.cameras["path"])
-        elif kind == "sim":
-            camera = sim
-        else:
-            raise ValueError(f"unknown camera kind {kind!r}; use replay or sim (real cameras: issue 15)")
+        camera = self.build_camera(sim)
         if arm_kind == "dry-run":
-            pose, opening = camera.recorded_gripper() if isinstance(camera, ReplayCamera) else camera.state()
-            arm = DryRunArm(pose, opening)
+            arm = DryRunArm(*self._dry_run_start(camera))
         elif arm_kind == "sim":
             arm = sim
+        elif arm_kind == "ur":
+            from abm.robot.ur import URArm
+
+            arm = URArm.from_config(self.arm, limits=self.limits)
         else:
-            raise ValueError(f"unknown arm kind {arm_kind!r}; use dry-run or sim")
+            raise ValueError(f"unknown arm kind {arm_kind!r}; use dry-run, sim or ur")
         return camera, arm
+
+    def build_camera(self, sim: SimRobot | None = None) -> Any:
+        """The camera source alone (``sim``: the scene a ``kind: sim`` camera shares with the arm)."""
+        kind = self.cameras.get("kind")
+        if kind == "replay":
+            return ReplayCamera(self.cameras["path"])
+        if kind == "sim":
+            if sim is None:
+                raise ValueError("cameras: kind sim shares the arm's scene; use it with arm kind sim or dry-run")
+            return sim
+        if kind == "realsense":
+            from abm.robot.realsense import RealSenseCamera
+
+            return RealSenseCamera.from_config(self.cameras)
+        raise ValueError(f"unknown camera kind {kind!r}; use replay, sim or realsense")
+
+    def _dry_run_start(self, camera: Any) -> tuple[np.ndarray, float]:
+        """A dry-run arm's start state: the recording's, the simulator's, or the real arm's (read only)."""
+        if isinstance(camera, ReplayCamera):
+            return camera.recorded_gripper()
+        if hasattr(camera, "state"):
+            return camera.state()
+        if self.arm.get("kind") == "ur":
+            from abm.robot.ur import URArm
+
+            ur = URArm.from_config(self.arm, read_only=True)  # rtde_receive only: nothing can move
+            try:
+                return ur.state()
+            finally:
+                ur.close()
+        raise ValueError(f"a dry run on camera kind {self.cameras.get('kind')!r} needs the arm's start pose: "
+                         "configure the real arm (kind ur; a dry run only reads its pose)")
 
 
 def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path

@@ -1,0 +1,10 @@
+"""See what the policy sees: a local 3-D web viewer (``abm view``) of episodes and rollouts.
+
+:mod:`abm.viewer.scene` turns an episode, a policy's explanations or a rollout into plain arrays;
+:mod:`abm.viewer.server` draws them with viser; :mod:`abm.viewer.browser` takes headless-Chromium
+screenshots of the page (docs, browser tests).
+"""
+
+from abm.viewer.scene import ViewerScene, ViewerStep, overlay_views, rollout_scene, scene_from_episode, view_camera_pose
+
+__all__ = ["ViewerScene", "ViewerStep", "overlay_views", "rollout_scene", "scene_from_episode", "view_camera_pose"]

@@ -1,0 +1,242 @@
+"""What the viewer shows, as plain arrays: built from an episode or a rollout, independent of the browser.
+
+A :class:`ViewerScene` holds, for each keyframe step, the fused point cloud with its colours and its
+Object Mask Field scores, the target's points, the five virtual views (rendered colour with the mask
+tinted and the predicted translation heatmap on top) and the expert's and the predicted keyframes.
+:mod:`abm.viewer.server` draws it with viser; tests check it without a browser.
+
+Three sources:
+
+* :func:`scene_from_episode` with a grounder only: grounding as the policy would see it, no predictions;
+* :func:`scene_from_episode` with a policy: what the policy saw and predicted at each demonstration step;
+* :func:`rollout_scene`: the policy rolled out in the simulator (``abm eval``'s scenes), step by step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from abm.geometry import Workspace
+from abm.grounding.conditioning import condition_scene, make_grounder_from_spec, split_instruction
+from abm.grounding.visualize import blend, colormap, mark_pixels
+from abm.render import OrthographicRenderer
+from abm.render.orthographic import VIEW_AXES
+from abm.types import Episode, KeyframeAction, Observation
+
+MASK_TINT = np.array([0, 220, 255], np.uint8)  # cyan: where the mask channel marks the target
+EXPERT_COLOR = (40, 170, 60)  # green
+PREDICTED_COLOR = (240, 120, 0)  # orange
+MARK_COLOR = (255, 0, 200)  # magenta: the pixels abm's mask channel marks
+MAX_MARKS = 16
+
+
+@dataclass
+class ViewerStep:
+    """One keyframe step (``N`` points, ``V`` views of ``R x R`` pixels).
+
+    Attributes:
+        index: step number within the episode.
+        points: ``(N, 3)`` float32 world metres.
+        colors: ``(N, 3)`` uint8 RGB.
+        scores: ``(N,)`` float32 Object Mask Field scores in ``[0, 1]`` (``None`` without a grounder).
+        target: ``(N,)`` bool, the thresholded mask (the points the policy attends to).
+        views: ``V`` images ``(R, R, 3)`` uint8: rendered colour, mask tint, heatmap overlay.
+        expert: the demonstration's keyframe from this step (``None`` for rollouts).
+        predicted: the policy's keyframe (``None`` without a policy).
+        gripper_pose: ``(4, 4)`` the gripper's pose when the step was observed.
+    """
+
+    index: int
+    points: np.ndarray
+    colors: np.ndarray
+    scores: np.ndarray | None
+    target: np.ndarray | None
+    views: list[np.ndarray]
+    expert: KeyframeAction | None
+    predicted: KeyframeAction | None
+    gripper_pose: np.ndarray
+
+
+@dataclass
+class ViewerScene:
+    """Everything :func:`abm.viewer.server.serve` draws.
+
+    Attributes:
+        title: one line saying where the scene comes from.
+        instruction: the episode's instruction.
+        target_name: the object the instruction names (``None`` if unknown).
+        workspace: the policy's workspace cube (drawn as a wire box; the virtual cameras sit on its faces).
+        view_names: names of the virtual views, in ``ViewerStep.views`` order.
+        steps: the keyframe steps.
+        success: whether the episode succeeded (``None`` if unknown).
+    """
+
+    title: str
+    instruction: str
+    target_name: str | None
+    workspace: Workspace
+    view_names: list[str]
+    steps: list[ViewerStep] = field(default_factory=list)
+    success: bool | None = None
+
+
+def view_camera_pose(workspace: Workspace, view: str, distance: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
+    """Where a virtual camera is drawn: ``(position (3,), wxyz (4,))``, looking at the cube's centre.
+
+    The orthographic view looks along its forward axis (see :data:`abm.render.orthographic.VIEW_AXES`);
+    the camera is placed ``distance`` metres outside the cube face it looks through, with OpenCV axes
+    (x = image right, y = image down, z = forward), which is viser's camera convention.
+    """
+    right, down, forward = (np.asarray(a, np.float64) for a in VIEW_AXES[view])
+    rotation = np.stack([right, down, forward], axis=1)  # columns: the camera's axes in the world
+    position = np.asarray(workspace.center, np.float64) - forward * (workspace.half + distance)
+    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
+    return position, np.array([w, x, y, z])
+
+
+def overlay_views(rgb: np.ndarray, target: np.ndarray | None = None, heatmaps: np.ndarray | None = None,
+                  marks: np.ndarray | None = None) -> list[np.ndarray]:
+    """Virtual views as pictures ``(R, R, 3)`` uint8.
+
+    Args:
+        rgb: ``(V, R, R, 3)`` rendered colour in ``[0, 1]``.
+        target: ``(V, R, R)``, the target's visible pixels (> 0.5), tinted cyan.
+        heatmaps: ``(V, R, R)`` predicted translation distributions, each normalised to its maximum and
+            blended in with the jet colour map (opacity grows with the square root of the value).
+        marks: ``(V, R, R)``, pixels the mask channel marks (> 0.5; abm marks the target's centre), drawn
+            as magenta rings (when there are at most ``MAX_MARKS`` of them).
+    """
+    out = []
+    for v in range(rgb.shape[0]):
+        img = (np.clip(rgb[v], 0, 1) * 255).astype(np.uint8)
+        if target is not None:
+            img = blend(img, np.broadcast_to(MASK_TINT, img.shape), 0.55 * (target[v] > 0.5)[..., None])
+        if heatmaps is not None:
+            h = heatmaps[v] / max(float(heatmaps[v].max()), 1e-12)
+            img = blend(img, colormap(h), (0.85 * np.sqrt(h))[..., None])
+        rows, cols = np.nonzero(marks[v] > 0.5) if marks is not None else ((), ())
+        if 0 < len(rows) <= MAX_MARKS:  # a full mask (the ablations' channel) is already the cyan tint
+            img = mark_pixels(img, list(zip(rows.tolist(), cols.tolist(), strict=True)), radius=2, color=MARK_COLOR)
+        out.append(np.ascontiguousarray(img))
+    return out
+
+
+def _step_from_sample(index: int, sample: Mapping[str, Any], views: list[np.ndarray], obs: Observation,
+                      expert: KeyframeAction | None, predicted: KeyframeAction | None) -> ViewerStep:
+    def arr(key: str) -> np.ndarray | None:
+        value = sample.get(key)
+        return None if value is None else np.asarray(value.numpy() if torch.is_tensor(value) else value)
+
+    heat, mask = arr("point_heatmap"), arr("point_mask")
+    return ViewerStep(index=index, points=arr("points").astype(np.float32),
+                      colors=(np.clip(arr("colors"), 0, 1) * 255).astype(np.uint8),
+                      scores=None if heat is None else heat.astype(np.float32),
+                      target=None if mask is None else mask > 0.5, views=views, expert=expert, predicted=predicted,
+                      gripper_pose=np.asarray(obs.gripper_pose, np.float64))
+
+
+def _target_name(episode: Episode) -> str | None:
+    try:
+        return split_instruction(episode.instruction, episode.object_names)[0]
+    except ValueError:
+        return None
+
+
+def _select(steps: Sequence[int] | None, count: int) -> list[int]:
+    chosen = list(range(count)) if steps is None else list(steps)
+    bad = [k for k in chosen if not 0 <= k < count]
+    if bad:
+        raise ValueError(f"step {bad[0]} does not exist: the episode has steps 0..{count - 1}")
+    return chosen
+
+
+def scene_from_episode(
+    episode: Episode,
+    policy: Any | None = None,
+    grounder: Mapping[str, Any] | Any | None = None,
+    workspace: Workspace | None = None,
+    view_resolution: int = 128,
+    steps: Sequence[int] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> ViewerScene:
+    """The viewer scene of a demonstration (or any stored episode).
+
+    Args:
+        episode: the episode; its actions are shown as the expert's keyframes.
+        policy: a :class:`abm.policy.KeyframePolicy`; when given, each step shows what it saw
+            (:meth:`~abm.policy.KeyframePolicy.explain`) and predicted, in its workspace and views.
+        grounder: without a policy, the grounder spec or object that computes the mask field
+            (default the oracle: the simulator's segmentation of the named object).
+        workspace: without a policy, the crop cube (default :class:`Workspace`'s default).
+        view_resolution: without a policy, the side of the rendered virtual views.
+        steps: the step indices to include (default all).
+        progress: called with ``(done, total)`` after each step.
+    """
+    chosen = _select(steps, len(episode.steps))
+    if policy is not None:
+        names = list(policy.renderer.views)
+        scene = ViewerScene(f"{episode.task}/{episode.split} seed {episode.seed}, policy {policy.config.variant}",
+                            episode.instruction, None, policy.workspace, names, success=episode.success)
+    else:
+        ws = workspace or Workspace()
+        renderer = OrthographicRenderer(ws, view_resolution)
+        names = list(renderer.views)
+        g = make_grounder_from_spec(grounder or {"kind": "oracle"}) if not hasattr(grounder, "ground") else grounder
+        scene = ViewerScene(f"{episode.task}/{episode.split} seed {episode.seed}, grounding only",
+                            episode.instruction, None, ws, names, success=episode.success)
+    for done, k in enumerate(chosen, 1):
+        obs, expert = episode.steps[k]
+        if policy is not None:
+            seen = policy.explain(obs, episode.instruction, episode.object_names)
+            views = overlay_views(seen.view_rgb, seen.view_target, seen.heatmaps, seen.view_mask)
+            scene.steps.append(_step_from_sample(k, seen.sample, views, obs, expert, seen.action))
+        else:
+            cond = condition_scene(obs, episode.instruction, scene.workspace, grounder=g,
+                                   object_names=episode.object_names, mask=True)
+            scene.target_name = cond.target
+            sample = {"points": cond.cloud.xyz, "colors": cond.cloud.rgb,
+                      "point_mask": cond.point_mask.mask, "point_heatmap": cond.point_mask.heatmap}
+            rendered = renderer.render(torch.from_numpy(cond.cloud.xyz)[None], torch.from_numpy(cond.cloud.rgb)[None],
+                                       extra=torch.from_numpy(cond.point_mask.mask[:, None])[None])
+            rgb = rendered.rgb[0].permute(0, 2, 3, 1).numpy()
+            views = overlay_views(rgb, rendered.extra[0, :, 0].numpy())
+            scene.steps.append(_step_from_sample(k, sample, views, obs, expert, None))
+        if progress is not None:
+            progress(done, len(chosen))
+    if policy is not None and scene.target_name is None:
+        scene.target_name = _target_name(episode)
+    return scene
+
+
+def rollout_scene(policy: Any, task: str, split: str = "seen", seed: int = 1_000_000, resolution: int = 128,
+                  max_steps: int = 10) -> ViewerScene:
+    """Roll ``policy`` out on one seeded ABM-Bench scene (as ``abm eval`` does) and keep every step's view.
+
+    ``seed`` is the scene seed (``abm eval`` writes it into its outcome log); the scene, the instruction
+    and the objects are the same as in that evaluation episode.
+    """
+    from abm.sim.env import make_env, run_policy
+
+    explained: list[Any] = []
+    with make_env(task, split, seed, resolution, max_steps=max_steps) as env:
+        policy.reset()
+
+        def act(obs: Observation) -> KeyframeAction:
+            explained.append(policy.explain(obs, env.instruction, env.object_names))
+            return explained[-1].action
+
+        episode = run_policy(env, act)
+    scene = ViewerScene(f"rollout of {policy.config.variant} on {task}/{split} seed {seed}: "
+                        f"{'success' if episode.success else 'failure'}", episode.instruction, None,
+                        policy.workspace, list(policy.renderer.views), success=episode.success)
+    for k, ((obs, _), seen) in enumerate(zip(episode.steps, explained, strict=True)):
+        views = overlay_views(seen.view_rgb, seen.view_target, seen.heatmaps, seen.view_mask)
+        scene.steps.append(_step_from_sample(k, seen.sample, views, obs, None, seen.action))
+    scene.target_name = _target_name(episode)
+    return scene
