@@ -170,7 +170,7 @@ def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch
 
 
 def test_failure_reasons_and_the_html_report(tmp_path) -> None:
-    from abm.evaluation.html_report import gif_name, write_html_report
+    from abm.evaluation.html_report import gif_name, views_name, write_html_report
     from abm.evaluation.results import EpisodeOutcome, OutcomeLog, failure_reason
 
     assert failure_reason(True, "", ["unreachable"], False) == ""
@@ -190,8 +190,10 @@ def test_failure_reasons_and_the_html_report(tmp_path) -> None:
     gifs.mkdir()
     for o in outcomes[:2]:
         (gifs / gif_name(o)).write_bytes(b"GIF89a")
+    (gifs / views_name(outcomes[1])).write_bytes(b"PNG")
     page = write_html_report(outcomes, tmp_path / "report.html", gifs).read_text()
+    assert page.count("_views.png") == 2 and "gifs/abm_pick_block_seen_001_views.png" in page  # link + image
     assert "<td>abm</td><td>pick_block</td><td>seen</td><td>50.0 ± 0.0</td>" in page
     assert "<th>grasp missed</th>" in page and "<th>timeout</th>" in page
-    assert page.count("<img ") == 2 and "src='gifs/abm_pick_block_seen_001.gif'" in page
+    assert page.count("<img ") == 3 and "src='gifs/abm_pick_block_seen_001.gif'" in page
     assert "http" not in page  # nothing fetched from the network

@@ -21,7 +21,8 @@ def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys):
     for name in ("README.md", "results.md", "training_curves.png", "virtual_views.png", "report.html"):
         assert (report / name).is_file(), name
     assert len(list(report.glob("*.gif"))) == 4  # 2 methods x 2 splits, one episode each
-    assert (report / "report.html").read_text().count("<img ") == 4
+    assert len(list(report.glob("*_[0-9][0-9][0-9]_views.png"))) == 4  # the heatmap overlays of each GIF's rollout
+    assert (report / "report.html").read_text().count("<img ") == 8
     logs = [tmp_path / "qs/eval" / split / "outcomes.jsonl" for split in ("seen", "unseen")]
     outcomes = [json.loads(line) for log in logs for line in log.read_text().splitlines()]
     assert sorted((o["method"], o["split"]) for o in outcomes) == [

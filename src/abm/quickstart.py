@@ -202,8 +202,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
         figures.append(f"![virtual views]({'virtual_views.png'})\n\n*{episode.instruction}*: the five virtual "
                        "views (top) and the target's centre-pixel mask in magenta (bottom).")
     gifs = sorted(eval_dir.glob("*/gifs/*.gif"))
-    for gif in gifs:
-        shutil.copy(gif, report / gif.name)
+    for picture in [*gifs, *eval_dir.glob("*/gifs/*_views.png")]:  # rollouts and their heatmap overlays
+        shutil.copy(picture, report / picture.name)
     outcomes = [o for log in sorted(eval_dir.glob("*/outcomes.jsonl")) for o in OutcomeLog(log).read()]
     write_html_report(outcomes, report / "report.html", report, "abm quickstart")
     lines = [

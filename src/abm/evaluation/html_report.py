@@ -1,4 +1,4 @@
-"""A self-contained HTML page per evaluation: success table, failure reasons, rollout GIFs.
+"""A self-contained HTML page per evaluation: success table, failure reasons, rollout GIFs and heatmap overlays.
 
 No scripts, fonts or styles are fetched from anywhere (it works offline); GIFs are linked by relative
 path, so the page works wherever the evaluation folder is copied.
@@ -29,6 +29,11 @@ figcaption { font-size: 0.85em; }
 def gif_name(outcome: EpisodeOutcome) -> str:
     """File name of the rollout GIF ``abm eval --gifs`` writes for an outcome (repeat 0 only)."""
     return f"{outcome.method}_{outcome.task}_{outcome.split}_{outcome.episode:03d}.gif".replace(" ", "_")
+
+
+def views_name(outcome: EpisodeOutcome) -> str:
+    """File name of the heatmap overlays written beside the GIF (one row of five views per step)."""
+    return gif_name(outcome).removesuffix(".gif") + "_views.png"
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -70,7 +75,9 @@ def write_html_report(outcomes: Sequence[EpisodeOutcome], path: str | Path, gif_
 
     if gif_dir is not None:
         gif_dir = Path(gif_dir)
-        parts.append("<h2>Rollouts</h2><p>Front camera; each frame shows the keyframe predicted from it.</p>")
+        parts.append("<h2>Rollouts</h2><p>Front camera; each frame shows the keyframe predicted from it. Below "
+                     "each GIF: the policy's five virtual views per step, the target tinted cyan, the mask "
+                     "channel's centre ring in magenta and the predicted translation heatmap (jet).</p>")
         by_task: dict[tuple[str, str], list[EpisodeOutcome]] = defaultdict(list)
         for o in sorted(outcomes, key=lambda o: (o.task, o.split, o.method, o.episode)):
             if o.repeat == 0 and (gif_dir / gif_name(o)).is_file():
@@ -82,9 +89,15 @@ def write_html_report(outcomes: Sequence[EpisodeOutcome], path: str | Path, gif_
                 for o in (o for o in items if o.success == keep):
                     src = os.path.relpath(gif_dir / gif_name(o), path.parent)
                     note = "success" if o.success else (o.failure or "failed")
-                    figs.append(f"<figure><img src='{html.escape(src)}' width='192'><figcaption class='{css}'>"
-                                f"{html.escape(o.method)} · episode {o.episode} · {html.escape(note)}"
-                                "</figcaption></figure>")
+                    views = gif_dir / views_name(o)
+                    overlay = ""
+                    if views.is_file():
+                        rel = html.escape(os.path.relpath(views, path.parent))
+                        overlay = (f"<br><a href='{rel}'><img src='{rel}' width='384' "
+                                   "alt='virtual views with mask and heatmaps'></a>")
+                    figs.append(f"<figure><img src='{html.escape(src)}' width='192'>{overlay}"
+                                f"<figcaption class='{css}'>{html.escape(o.method)} · episode {o.episode} · "
+                                f"{html.escape(note)}</figcaption></figure>")
                 parts.append(f"<div><h4>{label}</h4>{''.join(figs) or '<p>none</p>'}</div>")
             parts.append("</div>")
     parts.append("</body></html>")

@@ -102,10 +102,19 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
         with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
                       splits_path=settings.splits_path) as env:
             policy.reset()
-            episode = run_policy(env, lambda obs: policy.act(obs, env.instruction, env.object_names))
+            explained: list[Any] = []
+
+            def act(obs: Any) -> Any:
+                if not job.gif_path:
+                    return policy.act(obs, env.instruction, env.object_names)
+                explained.append(policy.explain(obs, env.instruction, env.object_names))
+                return explained[-1].action
+
+            episode = run_policy(env, act)
             steps = len(episode.steps)
             if job.gif_path:
                 save_rollout_gif(episode, job.gif_path)
+                save_views_figure(explained, views_path(job.gif_path))
         meta = episode.metadata
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
                               bool(episode.success), steps, time.perf_counter() - start,
@@ -281,6 +290,36 @@ def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seco
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(seconds_per_frame * 1000),
                        loop=0)
+
+
+def views_path(gif_path: str | Path) -> Path:
+    """Where the heatmap overlays of the rollout whose GIF is ``gif_path`` go (``X.gif`` -> ``X_views.png``)."""
+    p = Path(gif_path)
+    return p.with_name(p.stem + "_views.png")
+
+
+def save_views_figure(explanations: Sequence[Any], path: str | Path, max_side: int = 96) -> Path | None:
+    """One row per rollout step: the policy's five virtual views with the target tinted cyan, the mask
+    channel's centre ring and the predicted translation heatmap (:func:`abm.grounding.visualize.overlay_views`).
+
+    ``explanations`` are :class:`abm.policy.PolicyExplanation` s; views are enlarged to about ``max_side`` px.
+    """
+    from PIL import Image
+
+    from abm.grounding.visualize import hstack, label, overlay_views, upscale, vstack
+
+    rows = []
+    for k, seen in enumerate(explanations):
+        views = overlay_views(seen.view_rgb, seen.view_target, seen.heatmaps, seen.view_mask)
+        factor = max(1, max_side // views[0].shape[0])
+        row = hstack([label(upscale(v, factor), name) for v, name in zip(views, seen.view_names, strict=True)])
+        rows.append(label(row, f"step {k}: {'open' if seen.action.gripper_open else 'close'}"))
+    if not rows:
+        return None
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(vstack(rows)).save(path)
+    return path
 
 
 def default_workers() -> int:

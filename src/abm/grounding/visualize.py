@@ -93,3 +93,35 @@ def label(image: np.ndarray, text: str) -> np.ndarray:
     strip = Image.new("RGB", (image.shape[1], 14), (255, 255, 255))
     ImageDraw.Draw(strip).text((2, 1), text, fill=(0, 0, 0))
     return np.concatenate([np.asarray(strip), image], axis=0)
+
+
+MASK_TINT = np.array([0, 220, 255], np.uint8)  # cyan: the target's visible pixels
+MARK_COLOR = (255, 0, 200)  # magenta: the pixels abm's mask channel marks
+MAX_MARKS = 16
+
+
+def overlay_views(rgb: np.ndarray, target: np.ndarray | None = None, heatmaps: np.ndarray | None = None,
+                  marks: np.ndarray | None = None) -> list[np.ndarray]:
+    """Virtual views as pictures ``(R, R, 3)`` uint8.
+
+    Args:
+        rgb: ``(V, R, R, 3)`` rendered colour in ``[0, 1]``.
+        target: ``(V, R, R)``, the target's visible pixels (> 0.5), tinted cyan.
+        heatmaps: ``(V, R, R)`` predicted translation distributions, each normalised to its maximum and
+            blended in with the jet colour map (opacity grows with the square root of the value).
+        marks: ``(V, R, R)``, pixels the mask channel marks (> 0.5; abm marks the target's centre), drawn
+            as magenta rings (when there are at most ``MAX_MARKS`` of them).
+    """
+    out = []
+    for v in range(rgb.shape[0]):
+        img = (np.clip(rgb[v], 0, 1) * 255).astype(np.uint8)
+        if target is not None:
+            img = blend(img, np.broadcast_to(MASK_TINT, img.shape), 0.55 * (target[v] > 0.5)[..., None])
+        if heatmaps is not None:
+            h = heatmaps[v] / max(float(heatmaps[v].max()), 1e-12)
+            img = blend(img, colormap(h), (0.85 * np.sqrt(h))[..., None])
+        rows, cols = np.nonzero(marks[v] > 0.5) if marks is not None else ((), ())
+        if 0 < len(rows) <= MAX_MARKS:  # a full mask (the ablations' channel) is already the cyan tint
+            img = mark_pixels(img, list(zip(rows.tolist(), cols.tolist(), strict=True)), radius=2, color=MARK_COLOR)
+        out.append(np.ascontiguousarray(img))
+    return out

@@ -24,16 +24,13 @@ from scipy.spatial.transform import Rotation
 
 from abm.geometry import Workspace
 from abm.grounding.conditioning import condition_scene, make_grounder_from_spec, split_instruction
-from abm.grounding.visualize import blend, colormap, mark_pixels
+from abm.grounding.visualize import overlay_views
 from abm.render import OrthographicRenderer
 from abm.render.orthographic import VIEW_AXES
 from abm.types import Episode, KeyframeAction, Observation
 
-MASK_TINT = np.array([0, 220, 255], np.uint8)  # cyan: where the mask channel marks the target
 EXPERT_COLOR = (40, 170, 60)  # green
 PREDICTED_COLOR = (240, 120, 0)  # orange
-MARK_COLOR = (255, 0, 200)  # magenta: the pixels abm's mask channel marks
-MAX_MARKS = 16
 
 
 @dataclass
@@ -98,33 +95,6 @@ def view_camera_pose(workspace: Workspace, view: str, distance: float = 0.15) ->
     position = np.asarray(workspace.center, np.float64) - forward * (workspace.half + distance)
     x, y, z, w = Rotation.from_matrix(rotation).as_quat()
     return position, np.array([w, x, y, z])
-
-
-def overlay_views(rgb: np.ndarray, target: np.ndarray | None = None, heatmaps: np.ndarray | None = None,
-                  marks: np.ndarray | None = None) -> list[np.ndarray]:
-    """Virtual views as pictures ``(R, R, 3)`` uint8.
-
-    Args:
-        rgb: ``(V, R, R, 3)`` rendered colour in ``[0, 1]``.
-        target: ``(V, R, R)``, the target's visible pixels (> 0.5), tinted cyan.
-        heatmaps: ``(V, R, R)`` predicted translation distributions, each normalised to its maximum and
-            blended in with the jet colour map (opacity grows with the square root of the value).
-        marks: ``(V, R, R)``, pixels the mask channel marks (> 0.5; abm marks the target's centre), drawn
-            as magenta rings (when there are at most ``MAX_MARKS`` of them).
-    """
-    out = []
-    for v in range(rgb.shape[0]):
-        img = (np.clip(rgb[v], 0, 1) * 255).astype(np.uint8)
-        if target is not None:
-            img = blend(img, np.broadcast_to(MASK_TINT, img.shape), 0.55 * (target[v] > 0.5)[..., None])
-        if heatmaps is not None:
-            h = heatmaps[v] / max(float(heatmaps[v].max()), 1e-12)
-            img = blend(img, colormap(h), (0.85 * np.sqrt(h))[..., None])
-        rows, cols = np.nonzero(marks[v] > 0.5) if marks is not None else ((), ())
-        if 0 < len(rows) <= MAX_MARKS:  # a full mask (the ablations' channel) is already the cyan tint
-            img = mark_pixels(img, list(zip(rows.tolist(), cols.tolist(), strict=True)), radius=2, color=MARK_COLOR)
-        out.append(np.ascontiguousarray(img))
-    return out
 
 
 def _step_from_sample(index: int, sample: Mapping[str, Any], views: list[np.ndarray], obs: Observation,
