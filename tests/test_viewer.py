@@ -163,3 +163,12 @@ def test_centre_marks_are_drawn_but_a_full_mask_is_left_to_the_tint() -> None:
     assert tuple(marked[8, 8]) == (255, 0, 200)
     [full] = overlay_views(rgb, marks=np.ones((1, 16, 16), np.float32))
     assert (full == 0).all()
+
+
+def test_clip_grounder_scene_has_soft_scores(episode) -> None:
+    pytest.importorskip("transformers")
+    scene = scene_from_episode(episode, grounder={"kind": "clip", "model": "tiny", "device": "cpu"}, steps=[0],
+                               view_resolution=16)
+    step = scene.steps[0]
+    assert step.scores is not None and step.scores.shape == (len(step.points),)
+    assert 0.0 <= step.scores.min() < step.scores.max() <= 1.0  # a soft field, unlike the oracle's 0/1
