@@ -46,7 +46,7 @@ from abm.grounding.conditioning import (
     PointMask,
     condition_scene,
     make_grounder_from_spec,
-    split_instruction,
+    split_roles,
 )
 from abm.samples import action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
@@ -241,16 +241,18 @@ class KeyframeDataset(Dataset):
             raise ValueError("the dataset is empty: the selected episodes have no keyframes")
         self.check_inside_workspace()
         self.oracle = self.grounder_spec.get("kind") == "oracle"
-        # per-episode split of the instruction: target X and skill text
-        self.targets: list[str | None] = []
+        # per-episode split of the instruction: the sub-goals' objects (X, or X and Y) and the skill text;
+        # each keyframe grounds the active one (abm.grounding.conditioning.active_role)
+        self.targets: list[str | tuple[str, ...] | None] = []
         self.skills: list[str | None] = []
         for m in self.source.meta:
             target, skill = None, None
             if self.split:
                 hint = m.target_names[0] if m.target_names else None
-                target, skill = split_instruction(m.instruction, m.object_names, hint)
-                if hint is not None and self.oracle:
-                    target = hint  # ground truth for the oracle; X text for learned grounders
+                roles, skill = split_roles(m.instruction, m.object_names, hint)
+                if self.oracle and len(m.target_names) >= len(roles):
+                    roles = tuple(m.target_names[: len(roles)])  # ground truth for the oracle; text for CLIP
+                target = roles[0] if len(roles) == 1 else roles
             self.targets.append(target)
             self.skills.append(skill)
         self._oracle = None
@@ -284,6 +286,7 @@ class KeyframeDataset(Dataset):
         assert self.cache_dir is not None
         meta = self.source.meta[j]
         target = self.targets[j] if self.mask else None  # CLIP point features do not depend on the target
+        target = list(target) if isinstance(target, tuple) else target  # sub-goal objects: one entry per step
         grounder = {k: v for k, v in self.grounder_spec.items() if k not in ("device", "cache")}  # not results
         what = {"grounder": grounder, "target": target, "key": meta.key,
                 "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}

@@ -12,7 +12,7 @@ from collections import Counter, defaultdict
 from collections.abc import Sequence
 from pathlib import Path
 
-from abm.evaluation.results import FAILURES, EpisodeOutcome, aggregate
+from abm.evaluation.results import FAILURES, EpisodeOutcome, aggregate, subgoal_rates
 
 _STYLE = """
 body { font-family: sans-serif; margin: 2em; color: #222; }
@@ -61,6 +61,14 @@ def write_html_report(outcomes: Sequence[EpisodeOutcome], path: str | Path, gif_
     rows = [[html.escape(r.method), html.escape(r.task), html.escape(r.split), f"{r.mean:.1f} ± {r.std:.1f}",
              str(r.episodes), str(r.errors)] for r in aggregate(outcomes)]
     parts.append(_table(["method", "task", "split", "success", "episodes", "crashed"], rows))
+
+    sub = subgoal_rates(outcomes)
+    if sub:
+        parts.append("<h2>Success per sub-goal (%)</h2><p>Two-target instructions: sub-goal 1 = X grasped, "
+                     "sub-goal 2 = X placed in Y (the task's success).</p>")
+        rows = [[html.escape(m), html.escape(t), html.escape(s), *[f"{r:.1f}" for r in rates], str(n)]
+                for m, t, s, rates, n in sub]
+        parts.append(_table(["method", "task", "split", "sub-goal 1", "sub-goal 2", "episodes"], rows))
 
     parts.append("<h2>Why episodes failed</h2>")
     counts: dict[tuple[str, str, str], Counter] = defaultdict(Counter)

@@ -13,7 +13,7 @@ import json
 import math
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 # Evaluation seeds live far from the data-generation seeds (which start at 0), so evaluation scenes
@@ -44,6 +44,8 @@ class EpisodeOutcome:
         checkpoint: the checkpoint file that was evaluated.
         settings: the evaluation settings (grounder, resolution, step limit, ...) as compact JSON.
         failure: why a failed rollout failed (:func:`failure_reason`; ``""`` on success or in older logs).
+        subgoals: whether each sub-goal was reached, for two-target instructions (``[grasped X, X placed in
+            Y]``, :func:`subgoal_results`); empty for one-target instructions and in older logs.
     """
 
     method: str
@@ -59,6 +61,7 @@ class EpisodeOutcome:
     checkpoint: str = ""
     settings: str = ""
     failure: str = ""
+    subgoals: list[bool] = field(default_factory=list)
 
     @property
     def key(self) -> tuple[str, str, str, int, int, str, str]:
@@ -143,6 +146,26 @@ class SuccessRate:
         """Population standard deviation over repeats (0 for a single repeat)."""
         m = self.mean
         return math.sqrt(sum((x - m) ** 2 for x in self.per_repeat) / len(self.per_repeat))
+
+
+def subgoal_results(roles: int, held_target: bool, success: bool) -> list[bool]:
+    """Per-sub-goal success of a rollout: ``[]`` for one-target instructions; for two-target ones
+    ``[the gripper held X at some point, the task succeeded]`` (placing X in Y is the task's predicate)."""
+    return [] if roles < 2 else [bool(held_target or success), bool(success)]
+
+
+def subgoal_rates(outcomes: Iterable[EpisodeOutcome]) -> list[tuple[str, str, str, list[float], int]]:
+    """``(method, task, split, [% reaching each sub-goal], episodes)`` for groups with two-target rollouts."""
+    groups: dict[tuple[str, str, str], list[list[bool]]] = defaultdict(list)
+    for o in outcomes:
+        if o.subgoals:
+            groups[(o.method, o.task, o.split)].append(list(o.subgoals))
+    rows = []
+    for key, results in sorted(groups.items()):
+        n = max(len(r) for r in results)
+        rates = [100.0 * sum(r[i] for r in results if len(r) > i) / len(results) for i in range(n)]
+        rows.append((*key, rates, len(results)))
+    return rows
 
 
 def aggregate(outcomes: Iterable[EpisodeOutcome]) -> list[SuccessRate]:

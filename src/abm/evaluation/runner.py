@@ -29,6 +29,8 @@ from abm.evaluation.results import (
     eval_seed,
     failure_reason,
     markdown_table,
+    subgoal_rates,
+    subgoal_results,
     write_csv,
     write_json,
 )
@@ -116,11 +118,12 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                 save_rollout_gif(episode, job.gif_path)
                 save_views_figure(explained, views_path(job.gif_path))
         meta = episode.metadata
+        held = bool(meta.get("held_target"))
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
                               bool(episode.success), steps, time.perf_counter() - start,
                               checkpoint=job.checkpoint, settings=job.settings,
-                              failure=failure_reason(bool(episode.success), "", meta.get("motions", []),
-                                                     bool(meta.get("held_target"))))
+                              failure=failure_reason(bool(episode.success), "", meta.get("motions", []), held),
+                              subgoals=subgoal_results(_roles(episode), held, bool(episode.success)))
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
         text = f"{type(err).__name__}: {err}"
         tb = traceback.format_exc(limit=3).strip().splitlines()
@@ -257,6 +260,13 @@ def write_reports(outcomes: Sequence[EpisodeOutcome], out_dir: Path) -> list[Suc
     write_tables(rates, out_dir)
     write_html_report(outcomes, out_dir / "report.html", out_dir / "gifs")
     with (out_dir / "results.md").open("a") as f:
+        sub = subgoal_rates(outcomes)
+        if sub:
+            f.write("\nSuccess per sub-goal (%), two-target instructions (1: X grasped, 2: X placed in Y):\n\n"
+                    "| method | task | split | sub-goal 1 | sub-goal 2 | episodes |\n|---|---|---|---|---|---|\n")
+            for method, task, split, rates_, n in sub:
+                f.write(f"| {method} | {task} | {split} | " + " | ".join(f"{r:.1f}" for r in rates_[:2])
+                        + f" | {n} |\n")
         f.write("\nPer-episode report (failure reasons, rollout GIFs): [report.html](report.html)\n")
     return rates
 
@@ -290,6 +300,16 @@ def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seco
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(seconds_per_frame * 1000),
                        loop=0)
+
+
+def _roles(episode: Any) -> int:
+    """How many sub-goals the episode's instruction has (1 when it cannot be split)."""
+    from abm.grounding.conditioning import split_roles
+
+    try:
+        return len(split_roles(episode.instruction, episode.object_names)[0])
+    except ValueError:
+        return 1
 
 
 def views_path(gif_path: str | Path) -> Path:

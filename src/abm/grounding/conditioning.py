@@ -4,6 +4,12 @@ The training data (:mod:`abm.data.keyframes`) and the policy at run time (:mod:`
 through :func:`condition_scene`, so the two see the same points, mask and texts. Grounding results are
 normalised to :class:`PointMask`.
 
+**Sub-goals.** A two-target instruction ("put the ketchup in the bowl" -> X = ketchup, Y = bowl) is one
+skill with two sub-goals: grasp X, then place it in Y. The policy always conditions on *one* mask, the
+active sub-goal's: X while the gripper is open, Y once it has closed (:func:`active_role`). The rule
+needs no extra label, so demonstrations and rollouts pick the same target at the same moments, and
+one-target policies and checkpoints are unchanged.
+
 Grounders are described by a JSON-compatible spec stored in checkpoints: ``{"kind": "oracle"}``,
 ``{"kind": "clip", ...options passed to make_grounder}`` or ``{"kind": "tracking", "inner": {...}}``.
 """
@@ -45,24 +51,24 @@ def _replace_target(instruction: str, target: str) -> str | None:
     return pattern.sub(PLACEHOLDER, instruction, count=1)
 
 
-def split_instruction(instruction: str, object_names: Mapping[int, str] | None = None,
-                      target: str | None = None) -> tuple[str, str]:
-    """Split an instruction into ``(target X, skill text with X replaced by "X")``.
+def split_roles(instruction: str, object_names: Mapping[int, str] | None = None,
+                target: str | None = None) -> tuple[tuple[str, ...], str]:
+    """Split an instruction into its sub-goals' objects and the skill text: ``((X,), "put X in the plate")``
+    or, for a two-target skill, ``((X, Y), "put X in Y")``.
 
-    Uses ``abm.grounding.instruction.decompose_instruction`` (the templates); when no template
-    matches, replaces a known ``target`` name, or the longest scene object name found in the text, by
-    ``X``. Training and inference call this the same
-    way, so the skill text the policy sees is the same in both.
+    Uses ``abm.grounding.instruction`` (the templates); when no template matches, replaces a known
+    ``target`` name, or the longest scene object name found in the text, by ``X`` (one sub-goal).
+    Training and inference call this the same way, so the skill text the policy sees is the same in both.
 
     Raises:
         ValueError: no target can be identified, or the instruction asks for several skills
             (:class:`abm.grounding.instruction.MultiStepInstructionError`).
     """
-    from abm.grounding.instruction import MultiStepInstructionError, decompose_instruction
+    from abm.grounding.instruction import MultiStepInstructionError, default_parser
 
     try:
-        obj, skill = decompose_instruction(instruction)
-        return str(obj), str(skill)
+        parsed = default_parser().parse(instruction)
+        return parsed.targets, parsed.skill
     except MultiStepInstructionError:
         raise  # several skills in one instruction: never run just one of them silently
     except ValueError:  # no template matches: fall back to a scene object name
@@ -71,8 +77,21 @@ def split_instruction(instruction: str, object_names: Mapping[int, str] | None =
     for name in names:
         skill = _replace_target(instruction, name)
         if skill is not None:
-            return name, skill
+            return (name,), skill
     raise ValueError(f"cannot find the target object in instruction {instruction!r}")
+
+
+def split_instruction(instruction: str, object_names: Mapping[int, str] | None = None,
+                      target: str | None = None) -> tuple[str, str]:
+    """``(X, skill text)``: :func:`split_roles` for the first sub-goal's object."""
+    targets, skill = split_roles(instruction, object_names, target)
+    return targets[0], skill
+
+
+def active_role(gripper_open: float, roles: int) -> int:
+    """Index of the active sub-goal: the first (grasp X) while the gripper is open (``>= 0.5``), the second
+    (place in Y) once it has closed; always 0 for one-target instructions."""
+    return 0 if roles < 2 or float(gripper_open) >= 0.5 else 1
 
 
 def make_grounder_from_spec(spec: Mapping[str, Any]) -> Any:
@@ -103,10 +122,12 @@ class ConditionedScene:
     Attributes:
         cloud: the fused, workspace-cropped point cloud (``N`` points).
         instruction: the full instruction.
-        target: the object X the instruction names (``None`` when not split).
+        target: the active sub-goal's object (X, or Y once the gripper has closed on X; ``None`` when not
+            split).
         skill: the skill text with X replaced by ``"X"`` (``None`` when not split).
         point_mask: the mask field over the cloud's points (``None`` unless asked for).
         features: ``(N, F)`` float32 per-point CLIP features (``None`` unless asked for).
+        role: index of the active sub-goal (:func:`active_role`).
     """
 
     cloud: PointCloud
@@ -115,6 +136,7 @@ class ConditionedScene:
     skill: str | None
     point_mask: PointMask | None
     features: np.ndarray | None
+    role: int = 0
 
 
 def condition_scene(
@@ -125,7 +147,7 @@ def condition_scene(
     grounder: Any | None = None,
     object_names: Mapping[int, str] | None = None,
     split: bool = True,
-    target: str | None = None,
+    target: str | tuple[str, ...] | None = None,
     skill: str | None = None,
     mask: bool = False,
     features: bool = False,
@@ -141,7 +163,8 @@ def condition_scene(
         object_names: segmentation id -> object name (the oracle grounder needs them).
         split: split the instruction into ``(X, skill text)`` with :func:`split_instruction` unless
             ``target`` and ``skill`` are given (a dataset splits each episode's instruction once).
-        target / skill: the already known split.
+        target / skill: the already known split; ``target`` may be the tuple of the sub-goals' objects,
+            of which the active one (:func:`active_role`) is grounded.
         mask: compute the mask field of X over the cloud.
         features: compute per-point CLIP features.
         camera_names: cameras to fuse (default all).
@@ -152,9 +175,13 @@ def condition_scene(
     """
     cloud = fuse_cameras(observation, workspace, camera_names)
     if (split or mask) and (target is None or skill is None):
-        target, skill = split_instruction(instruction, object_names)
+        target, skill = split_roles(instruction, object_names)
+    role = 0
+    if isinstance(target, tuple):
+        role = active_role(observation.gripper_open, len(target))
+        target = target[role]
     if (mask or features) and grounder is None:
         raise ValueError("a grounder is needed for the mask field and CLIP point features")
     point_mask = ground_points(grounder, observation, cloud, target, object_names or {}) if mask else None
     feats = np.asarray(grounder.point_features(observation, cloud), np.float32) if features else None
-    return ConditionedScene(cloud, instruction, target, skill, point_mask, feats)
+    return ConditionedScene(cloud, instruction, target, skill, point_mask, feats, role)

@@ -31,11 +31,12 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
-from typing import NoReturn, Protocol, runtime_checkable
+from typing import NamedTuple, NoReturn, Protocol, runtime_checkable
 
 import yaml
 
 PLACEHOLDER = "X"
+SECOND_PLACEHOLDER = "Y"  # the second object of a two-target skill ("put X in Y": X is grasped, then placed in Y)
 ARTICLES: frozenset[str] = frozenset({"a", "an", "the"})
 _VOWELS = "aeiou"
 
@@ -56,14 +57,23 @@ class ParsedInstruction:
     Attributes:
         instruction: the original text.
         target: the object description X (lower case, no articles), e.g. ``"red block"``.
-        skill: the skill text with the placeholder, e.g. ``"put X in the plate"``.
+        skill: the skill text with the placeholder, e.g. ``"put X in the plate"``; a two-target skill has a
+            second placeholder ``Y`` (``"put X in Y"``).
         tasks: benchmark tasks that use this skill (informative only).
+        second: the second object description Y of a two-target skill (``None`` otherwise).
     """
 
     instruction: str
     target: str
     skill: str
     tasks: tuple[str, ...] = ()
+    second: str | None = None
+
+    @property
+    def targets(self) -> tuple[str, ...]:
+        """The objects of the instruction's sub-goals, in order: ``(X,)``, or ``(X, Y)`` for a two-target
+        skill (grasp X, then place it in / on Y)."""
+        return (self.target,) if self.second is None else (self.target, self.second)
 
     @property
     def prompt(self) -> str:
@@ -94,7 +104,15 @@ Synonyms = Mapping[str, tuple[str, ...]]
 GRASP_GROUP = "grasp"
 """The synonym group whose verbs start a two-clause form ("pick up X and put it ...")."""
 
-_TOKEN = re.compile(r"\{x\}|\([^)]*\)|\[[^\]]*\]|<[^>]*>|[^\s()\[\]{}<>]+")
+_TOKEN = re.compile(r"\{[xy]\}|\([^)]*\)|\[[^\]]*\]|<[^>]*>|[^\s()\[\]{}<>]+")
+
+
+class SlotMatch(NamedTuple):
+    """A pattern match: the object X, the number of required literal tokens, and Y (two-target skills)."""
+
+    target: str
+    specificity: int
+    second: str | None = None
 
 
 @dataclass(frozen=True)
@@ -123,6 +141,10 @@ class SkillTemplate:
         if not self.patterns:
             raise ValueError(f"skill {self.skill!r} has no patterns")
         compiled = tuple(_compile_pattern(p, self.synonyms) for p in self.patterns)
+        two = SECOND_PLACEHOLDER in self.skill.split()
+        if any(("Y" in regex.groupindex) != two for regex, _, _ in compiled):
+            raise ValueError(f"skill {self.skill!r}: every pattern must contain {{Y}} exactly when the skill text "
+                             f"contains the second placeholder {SECOND_PLACEHOLDER!r}")
         object.__setattr__(self, "_compiled", tuple((regex, literals) for regex, literals, _ in compiled))
         object.__setattr__(self, "_lead_words", frozenset(w for _, _, lead in compiled for w in lead))
 
@@ -131,19 +153,21 @@ class SkillTemplate:
         """Words a pattern of this skill can start with (the verbs that begin a step)."""
         return self._lead_words
 
-    def match(self, normalized: str, accept: Callable[[str], bool] | None = None) -> tuple[str, int] | None:
-        """``(X, specificity)`` of the most specific pattern matching ``normalized``, else ``None``.
+    def match(self, normalized: str, accept: Callable[[str], bool] | None = None) -> SlotMatch | None:
+        """``(X, specificity, Y)`` of the most specific pattern matching ``normalized``, else ``None``
+        (``Y`` is ``None`` for one-target skills).
 
-        ``accept`` (optional) vetoes a captured X; the next most specific pattern is then used.
+        ``accept`` (optional) vetoes a captured X or Y; the next most specific pattern is then used.
         """
-        best: tuple[str, int] | None = None
+        best: SlotMatch | None = None
         for regex, literals in self._compiled:
             m = regex.fullmatch(" " + normalized)
             if m is None or (best is not None and literals <= best[1]):
                 continue
             target = m.group("X").strip()
-            if accept is None or accept(target):
-                best = (target, literals)
+            second = m.group("Y").strip() if "Y" in regex.groupindex else None
+            if accept is None or (accept(target) and (second is None or accept(second))):
+                best = SlotMatch(target, literals, second)
         return best
 
 
@@ -166,13 +190,15 @@ def _compile_pattern(
     tokens = _TOKEN.findall(pattern.lower())
     if tokens.count("{x}") != 1:
         raise ValueError(f"pattern {pattern!r} must contain {{X}} exactly once")
+    if tokens.count("{y}") > 1:
+        raise ValueError(f"pattern {pattern!r} may contain {{Y}} at most once")
     regex = ""
     literals = 0
     lead: set[str] = set()
     leading = True  # still collecting the words a match can start with
     for tok in tokens:
-        if tok == "{x}":
-            regex += r" (?P<X>\S+(?: \S+)*?)"
+        if tok in ("{x}", "{y}"):
+            regex += rf" (?P<{tok[1].upper()}>\S+(?: \S+)*?)"
             leading = False
             continue
         optional = tok.startswith("[")
@@ -486,34 +512,35 @@ class TemplateParser:
             best = self._match(candidate)
             if best is None:
                 continue
-            template, target = best
-            if target in t.pronouns:
-                example = template.examples[0] if template.examples else template.skill
-                raise self._refusal(
-                    instruction,
-                    normalized,
-                    f"{target!r} does not say which object to use; name the object, e.g. {example!r}",
-                )
-            quantifiers = [w for w in target.split() if w in t.quantifiers]
-            if quantifiers:
-                raise self._quantifier_refusal(instruction, normalized, quantifiers[0])
-            if self._several_objects(words, target):
-                raise self._refusal(
-                    instruction,
-                    normalized,
-                    f"{target!r} names several objects; abm moves one "
-                    "object per instruction: give one instruction per object",
-                    MultiStepInstructionError,
-                )
-            return ParsedInstruction(instruction, target, template.skill, template.tasks)
+            template, target, second = best
+            for obj in (target,) if second is None else (target, second):
+                if obj in t.pronouns:
+                    example = template.examples[0] if template.examples else template.skill
+                    raise self._refusal(
+                        instruction,
+                        normalized,
+                        f"{obj!r} does not say which object to use; name the object, e.g. {example!r}",
+                    )
+                quantifiers = [w for w in obj.split() if w in t.quantifiers]
+                if quantifiers:
+                    raise self._quantifier_refusal(instruction, normalized, quantifiers[0])
+                if self._several_objects(words, obj):
+                    raise self._refusal(
+                        instruction,
+                        normalized,
+                        f"{obj!r} names several objects; abm moves one "
+                        "object per instruction: give one instruction per object",
+                        MultiStepInstructionError,
+                    )
+            return ParsedInstruction(instruction, target, template.skill, template.tasks, second)
         self._refuse_unmatched(instruction, normalized)
 
     __call__ = parse
 
     # -- matching ------------------------------------------------------------------------------------
 
-    def _match(self, text: str) -> tuple[SkillTemplate, str] | None:
-        """The most specific ``(template, X)`` matching ``text`` whose X is a plausible object.
+    def _match(self, text: str) -> tuple[SkillTemplate, str, str | None] | None:
+        """The most specific ``(template, X, Y)`` matching ``text`` whose X (and Y) are plausible objects.
 
         X may be a bare pronoun ("put it in the plate": a step of a multi-step request; :meth:`parse`
         refuses it on its own), but not contain one ("butter and put it": a mis-split two-clause form),
@@ -530,12 +557,12 @@ class TemplateParser:
                 return False
             return not any(self._match(p) for p in self._split(target)[1:])
 
-        best: tuple[SkillTemplate, str, int] | None = None
+        best: tuple[SkillTemplate, SlotMatch] | None = None
         for template in self.templates.skills:
             m = template.match(text, plausible)
-            if m is not None and m[0] and (best is None or m[1] > best[2]):
-                best = (template, m[0], m[1])
-        return None if best is None else (best[0], best[1])
+            if m is not None and m.target and m.second != "" and (best is None or m.specificity > best[1].specificity):
+                best = (template, m)
+        return None if best is None else (best[0], best[1].target, best[1].second)
 
     def _folds(self, normalized: str) -> list[str]:
         """Two-clause forms read as one clause: "pick up X [up] and put it on target" -> "put X on target"."""
@@ -578,7 +605,8 @@ class TemplateParser:
             m = self._match(part)
             if m is None:
                 return []
-            steps.append((m[0].skill, m[1]))
+            skill = m[0].skill if m[2] is None else re.sub(rf"\b{SECOND_PLACEHOLDER}\b", m[2], m[0].skill)
+            steps.append((skill, m[1]))
         return steps
 
     def _several_objects(self, words: list[str], target: str) -> bool:
