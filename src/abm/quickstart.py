@@ -59,8 +59,9 @@ class QuickstartConfig:
         workers: parallel processes for data generation and evaluation.
         resolution: camera image side (pixels) of demonstrations and evaluation.
         device: torch device (cpu, cuda).
-        clip_model: CLIP weights (hub name or local folder) for the grounder (default: oracle grounder
-            when none load).
+        clip_model: CLIP weights (hub name or local folder) for the grounder (default: the best found, see
+            ``choose_grounder``: pretrained CLIP, else the benchmark CLIP, else the oracle).
+        offline: never try to download CLIP weights from the model hub.
         seed: seed of the demonstrations.
     """
 
@@ -80,25 +81,65 @@ class QuickstartConfig:
     resolution: int = field(default=128, metadata={"flag": "--camera-resolution"})
     device: str = "cpu"
     clip_model: str | None = None
+    offline: bool = False
     seed: int = 0
 
 
-def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict]:
-    """The CLIP grounder when weights load locally, else the oracle grounder with a printed warning."""
+BENCHMARK_CLIP_ENV = "ABM_BENCHMARK_CLIP"
+DEFAULT_BENCHMARK_CLIP = "~/.cache/abm/benchmark-clip"
+
+
+def benchmark_clip_dir() -> Path:
+    """Where the quickstart looks for the benchmark CLIP (``abm clip train --out DIR``): ``$ABM_BENCHMARK_CLIP``,
+    else ``~/.cache/abm/benchmark-clip``."""
+    return Path(os.environ.get(BENCHMARK_CLIP_ENV) or DEFAULT_BENCHMARK_CLIP).expanduser()
+
+
+def hub_reachable(host: str = "huggingface.co", timeout_s: float = 3.0) -> bool:
+    """Whether the model hub answers a TCP connection within ``timeout_s`` (so a download is worth trying)."""
+    import socket
+
+    try:
+        with socket.create_connection((host, 443), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
+
+
+def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict, str]:
+    """The best grounder this machine has: ``(kind, options, description for the report)``.
+
+    In order: ``--clip-model`` if given (an error if it does not load); the pretrained CLIP (from the local
+    Hugging Face cache, or fetched from the hub when it answers within 3 s, unless ``--offline``); the
+    benchmark CLIP trained on ABM-Bench renders (:func:`benchmark_clip_dir`); else the oracle grounder,
+    with a loud warning.
+    """
     from abm.grounding.clip import ClipWeightsNotFoundError, load_clip
 
-    model = cfg.clip_model or (GPU_CLIP_MODEL if cfg.device.startswith("cuda") else CPU_CLIP_MODEL)
-    try:
-        load_clip(model, device="cpu")
-    except (ClipWeightsNotFoundError, OSError) as err:
-        first = str(err).splitlines()[0]
-        print(f"WARNING: {first}\n"
-              "WARNING: using the ORACLE grounder (simulator segmentation) instead of CLIP; the masks are "
-              "ground truth, so the table measures the policy, not CLIP grounding. Provide weights with "
-              "--clip-model DIR (see docs/grounding.md).", file=sys.stderr)
-        return "oracle", {}
-    print(f"grounder: CLIP {model}")
-    return "clip", {"model": model}
+    online = not cfg.offline and hub_reachable()
+    tried = []
+    pretrained = GPU_CLIP_MODEL if cfg.device.startswith("cuda") else CPU_CLIP_MODEL
+    bench = benchmark_clip_dir()
+    candidates = [(cfg.clip_model, f"CLIP {cfg.clip_model}")] if cfg.clip_model else [
+        (pretrained, f"pretrained CLIP {pretrained}"),
+        (str(bench), f"benchmark CLIP trained on ABM-Bench renders ({bench}; abm clip train)"),
+    ]
+    for model, description in candidates:
+        try:
+            load_clip(model, device="cpu", allow_download=online and model == pretrained)
+        except (ClipWeightsNotFoundError, OSError) as err:
+            if cfg.clip_model:  # asked for by name: say so rather than silently run another grounder
+                raise ValueError(f"--clip-model {cfg.clip_model}: {str(err).splitlines()[0]}") from err
+            tried.append(f"{model}: {str(err).splitlines()[0]}")
+            continue
+        print(f"grounder: {description}")
+        return "clip", {"model": model}, description
+    print("WARNING: no CLIP weights found (" + "; ".join(tried) + ")\n"
+          "WARNING: using the ORACLE grounder (simulator segmentation) instead of CLIP; the masks are "
+          "ground truth, so the table measures the policy, not CLIP grounding. Provide weights with "
+          f"--clip-model DIR, or train the benchmark CLIP once: abm clip train --out {bench} "
+          "(see docs/grounding.md).", file=sys.stderr)
+    return "oracle", {}, "oracle (simulator segmentation; no CLIP weights found)"
 
 
 def run_quickstart(cfg: QuickstartConfig) -> Path:
@@ -117,7 +158,7 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     out = cfg.out
     data, runs_dir, report = out / "data", out / "runs", out / "report"
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    grounder, options = choose_grounder(cfg)
+    grounder, options, grounder_text = choose_grounder(cfg)
 
     print(f"[1/4] demonstrations: {cfg.episodes} per task, seen objects -> {data}")
     for i, task in enumerate(cfg.tasks):
@@ -159,7 +200,7 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     print(f"[4/4] report -> {report}")
     table = markdown_table(rates, splits=["seen", "unseen"])
     write_tables(rates, report)
-    write_report(report, runs, eval_dir, data, cfg, grounder)
+    write_report(report, runs, eval_dir, data, cfg, grounder_text)
     print(table)
     print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
     return report
