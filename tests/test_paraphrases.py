@@ -27,6 +27,7 @@ WATER = "water the plant with X"
 CLOSE = "close X"
 RING = "put the ring on X"
 PAN = "take X off the frypan"
+PUT_IN = "put X in Y"  # two targets: decompose_instruction gives X (the parser's `second` is Y)
 
 PARAPHRASES: list[tuple[str, str, str]] = [
     # put X in the plate
@@ -93,6 +94,11 @@ PARAPHRASES: list[tuple[str, str, str]] = [
     ("take the cream cheese out of the fry pan and put it on the table", PAN, "cream cheese"),
     ("remove the butter from the pan and set it beside the pan", PAN, "butter"),
     ("clear the frypan of the butter", PAN, "butter"),
+    # put X in Y (put_in_container)
+    ("put the butter in the white bowl", PUT_IN, "butter"),
+    ("could you drop the red block into the wooden tray, please", PUT_IN, "red block"),
+    ("pick up the cream cheese and place it inside the basket", PUT_IN, "cream cheese"),
+    ("bring the cookies to the red basket", PUT_IN, "cookies"),
 ]
 
 

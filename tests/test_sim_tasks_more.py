@@ -47,8 +47,8 @@ def _case(task, split, seed):
     return pytest.param(task, split, seed, marks=marks, id=f"{task}-{split}-{seed}")
 
 
-def test_registry_has_all_ten_tasks():
-    assert {"place_food", "pick_block", "place_wine", *NEW_TASKS, *COMPOSITIONAL} == set(TASKS)
+def test_registry_has_all_eleven_tasks():
+    assert {"place_food", "pick_block", "place_wine", *NEW_TASKS, *COMPOSITIONAL, "put_in_container"} == set(TASKS)
     assert all(TASKS[t].evaluation_only for t in COMPOSITIONAL)
     assert not any(TASKS[t].evaluation_only for t in NEW_TASKS)
 
@@ -170,7 +170,7 @@ def test_compositional_tasks_are_evaluation_only(tmp_path, capsys):
 
 
 def test_task_all_expands_to_the_trainable_tasks():
-    expected = sorted({"place_food", "pick_block", "place_wine", *NEW_TASKS})
+    expected = sorted({"place_food", "pick_block", "place_wine", *NEW_TASKS, "put_in_container"})
     assert expand_tasks("all") == trainable_tasks() == expected
     assert expand_tasks("close_jar, insert_peg") == ["close_jar", "insert_peg"]
     with pytest.raises(KeyError, match="unknown task"):
@@ -229,8 +229,12 @@ def test_every_task_instruction_parses_to_a_skill_of_that_task():
     parser, splits = TemplateParser(), load_splits()
     for name, cls in TASKS.items():
         for split, objects in splits.tasks.get(name, {}).items():
+            # a two-target task's second slot (put_in_container: Y) must come out as the parser's `second`
+            seconds = splits.slots.get(name, {}).get("containers", {}).get(split, [None])
             for template in cls.templates:
                 for obj in objects:
-                    parsed = parser.parse(template.format(target=obj))
-                    assert name in parsed.tasks, (name, split, template, parsed)
-                    assert parsed.target == obj, (name, template, obj, parsed.target)
+                    for second in seconds:
+                        parsed = parser.parse(template.format(target=obj, container=second))
+                        assert name in parsed.tasks, (name, split, template, parsed)
+                        assert parsed.target == obj, (name, template, obj, parsed.target)
+                        assert parsed.second == second, (name, template, second, parsed.second)

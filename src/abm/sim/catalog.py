@@ -87,6 +87,18 @@ _ENTRIES: list[CatalogEntry] = [
     _grocery("alphabet soup", "alphabet_soup"),
     _grocery("chocolate pudding", "chocolate_pudding"),
     CatalogEntry("plate", "container", "libero", "stable_scanned_objects/plate/plate.xml", movable=False),
+    # put_in_container's other containers (fixed like the plate), scaled to hold a grocery or a block:
+    # white bowl 14 cm wide, 6 cm high; baskets 13.5 x 12.5 cm, 11.7 cm high; tray 21 x 12 cm, 4 cm walls.
+    CatalogEntry("white bowl", "container", "libero", "stable_scanned_objects/white_bowl/white_bowl.xml",
+                 movable=False, scale=1.7),
+    CatalogEntry("basket", "container", "libero", "stable_scanned_objects/basket/basket.xml", movable=False,
+                 scale=0.8),
+    CatalogEntry("red basket", "container", "libero", "stable_scanned_objects/red_basket/red_basket.xml",
+                 movable=False, scale=0.8),
+    CatalogEntry("wooden tray", "container", "libero", "turbosquid_objects/wooden_tray/wooden_tray.xml",
+                 movable=False, scale=0.7),
+    CatalogEntry("yellow plate", "container", "libero", "stable_scanned_objects/yellow_plate/yellow_plate.xml",
+                 movable=False),
     CatalogEntry("wine bottle", "bottle", "libero", "turbosquid_objects/wine_bottle/wine_bottle.xml",
                  grasp_height=0.118, yaw_symmetry=0),
     CatalogEntry("white bottle", "bottle", "libero", "turbosquid_objects/white_bottle/white_bottle.xml",

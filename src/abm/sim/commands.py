@@ -33,9 +33,13 @@ def _tasks(args: argparse.Namespace) -> int:
         kind = "evaluation only (compositional)" if cls.evaluation_only else "trainable"
         print(f"\n{name}  [{kind}]")
         for template in cls.templates:
-            print(f"  template: {template.format(target='X')}")
+            print(f"  template: {template.format(target='X', container='Y')}")  # Y: two-target tasks
         for split, objects in splits.tasks.get(name, {}).items():
             print(f"  {split + ':':<15}{', '.join(objects)}")
+        for slot, lists in splits.slots.get(name, {}).items():
+            print(f"  {slot} (Y):")
+            for split, objects in lists.items():
+                print(f"    {split + ':':<15}{', '.join(objects)}")
         if name not in splits.tasks:
             print("  (no objects in this split file)")
     return 0

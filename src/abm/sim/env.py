@@ -147,23 +147,32 @@ def executed_action(action: KeyframeAction, flipped: bool) -> KeyframeAction:
 
 
 def run_expert(env: TaskEnv, record: bool = True) -> Episode:
-    """Roll out the scripted expert; returns the episode of (observation, keyframe) pairs."""
+    """Roll out the scripted expert; returns the episode of (observation, keyframe) pairs.
+
+    The metadata holds each executed keyframe's motion status (``motions``), the wall time
+    (``seconds``) and, for tasks that label them (:meth:`Task.keyframe_subgoal`, e.g. put_in_container),
+    ``subgoals``: per executed keyframe the index into ``target_names`` of the object it works on.
+    """
     start = time.perf_counter()
     env.reset()
     sim = env._require_sim()
     steps: list[tuple[Observation, KeyframeAction]] = []
     motions = []
+    subgoals: list[int | None] = []
     for action in env.expert_actions():
         obs = sim.observe() if record else None
         motion = sim.execute(action)
         motions.append(motion.status)
+        subgoals.append(env.task.keyframe_subgoal(action))
         if record:
             steps.append((obs, executed_action(action, motion.flipped)))
         if motion.status == "unreachable":
             break
     success = env.success()
-    return _episode(env, steps, success, {"motions": motions,
-                                          "seconds": round(time.perf_counter() - start, 3)})
+    extra: dict[str, Any] = {"motions": motions, "seconds": round(time.perf_counter() - start, 3)}
+    if any(g is not None for g in subgoals):
+        extra["subgoals"] = subgoals
+    return _episode(env, steps, success, extra)
 
 
 def run_policy(env: TaskEnv, policy: Policy, max_steps: int | None = None) -> Episode:

@@ -7,6 +7,16 @@ define other held-out sets without code changes. Format::
     tasks:
       <task name>:
         <split name>: [<canonical object name>, ...]
+        <slot name>:                     # only for a task that declares a second object slot
+          <split name>: [<canonical object name>, ...]
+
+The lists directly under a task are its first slot (the target X). A task whose instructions name a
+second object (``put_in_container``: "put the X in the Y") declares that slot in
+:attr:`abm.sim.tasks.base.Task.slots` (YAML key -> catalog categories, e.g. ``containers: (container,)``)
+and lists its objects per split under that key; the slot must define the same splits as the first one.
+Both slots get the same checks (known objects of the right categories, nothing both seen and unseen),
+and a task may add its own checks of the whole file (:meth:`abm.sim.tasks.base.Task.check_splits`,
+e.g. put_in_container's pairing rule). Split files without second slots read exactly as before.
 
 A malformed file, an unknown task, split or object raises :class:`SplitFileError` naming the file and
 the problem.
@@ -14,7 +24,7 @@ the problem.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
@@ -35,12 +45,15 @@ class ObjectSplits:
     """Task -> split -> list of canonical object names.
 
     Attributes:
-        tasks: the parsed mapping.
+        tasks: the parsed mapping of every task's first slot (its target objects X).
         path: where it came from.
+        slots: task -> slot name (e.g. ``"containers"``) -> split -> objects, for the tasks that declare a
+            second slot (:attr:`abm.sim.tasks.base.Task.slots`); empty for every other task.
     """
 
     tasks: dict[str, dict[str, list[str]]]
     path: Path
+    slots: dict[str, dict[str, dict[str, list[str]]]] = field(default_factory=dict)
 
     def objects(self, task: str, split: str) -> list[str]:
         """Objects of one task and split, with a clear error if either is missing."""
@@ -50,6 +63,15 @@ class ObjectSplits:
             raise SplitFileError(f"{self.path}: task {task!r} has no split {split!r} "
                                  f"(has {sorted(self.tasks[task])})")
         return list(self.tasks[task][split])
+
+    def slot_objects(self, task: str, slot: str, split: str) -> list[str]:
+        """Objects of a task's second slot (e.g. ``"containers"``) in one split, with a clear error if missing."""
+        lists = self.slots.get(task, {}).get(slot)
+        if lists is None:
+            raise SplitFileError(f"{self.path}: task {task!r} has no {slot!r} lists")
+        if split not in lists:
+            raise SplitFileError(f"{self.path}: task {task!r} has no {slot}/{split} list (has {sorted(lists)})")
+        return list(lists[split])
 
 
 def load_splits(path: str | Path | None = None) -> ObjectSplits:
@@ -71,27 +93,70 @@ def load_splits(path: str | Path | None = None) -> ObjectSplits:
     from abm.sim.tasks import TASKS
 
     out: dict[str, dict[str, list[str]]] = {}
+    slots: dict[str, dict[str, dict[str, list[str]]]] = {}
     for task, splits in tasks.items():
         if task not in TASKS:
             raise SplitFileError(f"{path}: unknown task {task!r}; known tasks: {sorted(TASKS)}")
         if not isinstance(splits, dict) or not splits:
             raise SplitFileError(f"{path}: task {task!r} must map split names to object lists")
+        declared = TASKS[task].slots
         out[task] = {}
         for split, names in splits.items():
+            if split in declared:
+                slots.setdefault(task, {})[split] = _slot_lists(path, task, split, names, declared[split])
+                continue
             if split not in SPLITS:
-                raise SplitFileError(f"{path}: task {task!r} has unknown split {split!r}; use one of {SPLITS}")
-            if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
-                raise SplitFileError(f"{path}: {task}/{split} must be a non-empty list of object names")
-            unknown = [n for n in names if n not in CATALOG]
-            if unknown:
-                raise SplitFileError(f"{path}: {task}/{split} names unknown objects {unknown}; "
-                                     f"known objects: {sorted(CATALOG)}")
+                extra = f" or its object slots {sorted(declared)}" if declared else ""
+                raise SplitFileError(f"{path}: task {task!r} has unknown split {split!r}; use one of {SPLITS}{extra}")
+            out[task][split] = _object_list(path, f"{task}/{split}", names)
             problem = TASKS[task].check_objects(names)
             if problem:
                 raise SplitFileError(f"{path}: {task}/{split}: {problem}")
-            out[task][split] = list(names)
-        both = sorted(set(out[task].get("seen", [])) & set(out[task].get("unseen", [])))
-        if both:
-            raise SplitFileError(f"{path}: {task}: {both} listed as both seen and unseen; an unseen object "
-                                 "must never appear in training")
-    return ObjectSplits(out, path)
+        if not out[task]:
+            raise SplitFileError(f"{path}: task {task!r} lists no split of its target objects")
+        _check_disjoint(path, task, out[task])
+        for slot in declared:
+            have = sorted(slots.get(task, {}).get(slot, {}))
+            if have != sorted(out[task]):
+                raise SplitFileError(f"{path}: task {task!r} needs {slot!r} lists for exactly its splits "
+                                     f"{sorted(out[task])} (has {have})")
+    result = ObjectSplits(out, path, slots)
+    for task in out:
+        problem = TASKS[task].check_splits(result)
+        if problem:
+            raise SplitFileError(f"{path}: {task}: {problem}")
+    return result
+
+
+def _object_list(path: Path, where: str, names) -> list[str]:
+    """``names`` as a list of known canonical object names, else a :class:`SplitFileError` about ``where``."""
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise SplitFileError(f"{path}: {where} must be a non-empty list of object names")
+    unknown = [n for n in names if n not in CATALOG]
+    if unknown:
+        raise SplitFileError(f"{path}: {where} names unknown objects {unknown}; known objects: {sorted(CATALOG)}")
+    return list(names)
+
+
+def _slot_lists(path: Path, task: str, slot: str, lists, categories: tuple[str, ...]) -> dict[str, list[str]]:
+    """The ``split -> objects`` mapping of a task's second slot, checked like the first slot's lists."""
+    if not isinstance(lists, dict) or not lists:
+        raise SplitFileError(f"{path}: {task}/{slot} must map split names to object lists")
+    out: dict[str, list[str]] = {}
+    for split, names in lists.items():
+        if split not in SPLITS:
+            raise SplitFileError(f"{path}: {task}/{slot} has unknown split {split!r}; use one of {SPLITS}")
+        out[split] = _object_list(path, f"{task}/{slot}/{split}", names)
+        bad = [n for n in names if CATALOG[n].category not in categories]
+        if bad:
+            raise SplitFileError(f"{path}: {task}/{slot}/{split}: objects {bad} are not of the categories "
+                                 f"this slot uses ({list(categories)})")
+    _check_disjoint(path, f"{task}/{slot}", out)
+    return out
+
+
+def _check_disjoint(path: Path, where: str, lists: dict[str, list[str]]) -> None:
+    both = sorted(set(lists.get("seen", [])) & set(lists.get("unseen", [])))
+    if both:
+        raise SplitFileError(f"{path}: {where}: {both} listed as both seen and unseen; an unseen object "
+                             "must never appear in training")

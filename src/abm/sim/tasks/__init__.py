@@ -7,6 +7,7 @@ from abm.sim.tasks import (  # noqa: F401  (registration)
     pick_block,
     place_food,
     place_wine,
+    put_in_container,
     put_in_shelf,
     take_off_pan,
     water_plants,

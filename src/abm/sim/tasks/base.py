@@ -10,6 +10,11 @@ A task is one small class registered with :func:`register_task`. It declares:
 * ``distractors``: how many other objects of the task's own split join the scene, and
   ``borrowed_distractors``: ``(task, count)`` objects taken from another task's split;
 * ``fixed_yaw``: yaw ranges (rad) of objects that must face the robot;
+* ``slots`` (optional): a second object slot listed in the split file beside the targets, YAML key ->
+  catalog categories (put_in_container: ``{"containers": ("container",)}``), checked when splits load,
+  and :meth:`Task.check_splits` for a task's own checks of the whole split file;
+* :meth:`Task.keyframe_subgoal` (optional): which object of ``target_names`` an expert keyframe works
+  on, stored per keyframe in the episode metadata as ``"subgoals"`` by :func:`abm.sim.env.run_expert`;
 
 and fills two methods: :meth:`Task.success` (predicate on the simulator state) and :meth:`Task.expert`
 (scripted expert, a generator of :class:`abm.types.KeyframeAction` that may read the simulator between
@@ -88,6 +93,8 @@ class Task(ABC):
     fixed_yaw: ClassVar[dict[str, tuple[float, float]]] = {}
     #: Evaluation-only tasks (the compositional ones) are never offered for demonstration generation.
     evaluation_only: ClassVar[bool] = False
+    #: Second object slots: split-file key -> catalog categories of its objects (see abm.sim.splits).
+    slots: ClassVar[dict[str, tuple[str, ...]]] = {}
 
     def __init__(self, splits=None) -> None:
         from abm.sim.splits import load_splits
@@ -100,6 +107,17 @@ class Task(ABC):
         bad = [n for n in names if catalog_entry(n).category not in cls.categories]
         if bad:
             return f"objects {bad} are not of the categories this task uses ({list(cls.categories)})"
+        return None
+
+    @classmethod
+    def check_splits(cls, splits) -> str | None:
+        """A problem with this task's lists in a loaded split file (:class:`abm.sim.splits.ObjectSplits`),
+        else ``None``; called once every task's lists are read. The default has nothing to check."""
+        return None
+
+    def keyframe_subgoal(self, action: KeyframeAction) -> int | None:
+        """Index into ``target_names`` of the object an expert keyframe works on, or ``None`` for a
+        task without sub-goal labels (the default: its episodes carry no ``"subgoals"`` metadata)."""
         return None
 
     def objects(self, split: str) -> list[str]:
