@@ -45,6 +45,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     p.add_argument("--out", type=Path, default=Path("out/ground"), help="output folder (default out/ground)")
     p.set_defaults(func=run)
+    from abm.grounding import clip_commands
+
+    clip_commands.register(subparsers)  # `abm clip train`
 
 
 def _load_scene(args: argparse.Namespace) -> tuple[Any, dict[int, str], str | None, str]:
