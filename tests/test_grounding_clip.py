@@ -156,7 +156,7 @@ def test_fast_encoder_layer_matches_the_library_layer(act):
     from transformers import CLIPVisionConfig
     from transformers.models.clip.modeling_clip import CLIPEncoderLayer
 
-    from abm.grounding.clip import _run_layer
+    from abm.grounding.clip import run_encoder_layer
 
     torch.manual_seed(0)
     cfg = CLIPVisionConfig(hidden_size=32, intermediate_size=64, num_attention_heads=4, hidden_act=act)
@@ -165,5 +165,5 @@ def test_fast_encoder_layer_matches_the_library_layer(act):
     with torch.no_grad():
         ref = layer(x, None)
         ref = ref[0] if isinstance(ref, tuple) else ref
-        got = _run_layer(layer, x.clone())
+        got = run_encoder_layer(layer, x.clone())
     torch.testing.assert_close(got, ref, atol=1e-5, rtol=1e-5)

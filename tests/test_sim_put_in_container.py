@@ -26,6 +26,7 @@ from abm.sim.splits import SplitFileError, load_splits  # noqa: E402
 from abm.sim.tasks import get_task  # noqa: E402
 from abm.sim.tasks.put_in_container import SLOT, held_out_pairs, split_pairs  # noqa: E402
 from abm.types import KeyframeAction  # noqa: E402
+from sim_helpers import teleport  # noqa: E402
 
 TASK = "put_in_container"
 SPLITS = ("seen", "unseen", "compositional")
@@ -177,16 +178,6 @@ def test_subgoal_labels_follow_the_keyframe_kinds_and_survive_the_episode_file(t
     assert get_task(TASK).keyframe_subgoal(KeyframeAction(np.zeros(3), np.array([0, 0, 0, 1.0]), True)) is None
 
 
-def _teleport(sim, index: int, xyz) -> None:
-    import mujoco
-
-    adr = sim.model.joint(f"obj{index}_free").qposadr[0]
-    sim.data.qpos[adr:adr + 3] = xyz
-    sim.data.qpos[adr + 3:adr + 7] = [1, 0, 0, 0]
-    sim.data.qvel[:] = 0
-    mujoco.mj_forward(sim.model, sim.data)
-
-
 def test_predicate_wants_x_resting_in_the_named_container():
     task = get_task(TASK)
     with make_env(TASK, "seen", 2, resolution=16) as env:
@@ -196,10 +187,10 @@ def test_predicate_wants_x_resting_in_the_named_container():
         start = sim.object_pose(x)[:3, 3].copy()
         for container, expected in ((info["distractor_containers"][0], False), (info["container"], True)):
             centre, _, _ = task.opening(sim, container)
-            _teleport(sim, x, [centre[0], centre[1], 0.13])  # dropped into the container's opening
+            teleport(sim, x, [centre[0], centre[1], 0.13])  # dropped into the container's opening
             sim.step_seconds(0.8)
             assert env.success() is expected, container
-        _teleport(sim, x, start + [0, 0, 0.01])  # back on the table where it started
+        teleport(sim, x, start + [0, 0, 0.01])  # back on the table where it started
         sim.step_seconds(0.5)
         assert not env.success()
 

@@ -25,6 +25,7 @@ from abm.grounding.instruction import decompose_instruction  # noqa: E402
 from abm.sim.env import make_env, run_expert  # noqa: E402
 from abm.sim.splits import SplitFileError, load_splits  # noqa: E402
 from abm.sim.tasks import TASKS, get_task  # noqa: E402
+from sim_helpers import teleport  # noqa: E402
 
 needs_libero = pytest.mark.skipif(not libero_available(), reason="LIBERO asset wheels not installed")
 
@@ -94,16 +95,6 @@ def test_unseen_objects_never_appear_in_the_seen_split(task):
     assert not unseen_targets & seen_targets
 
 
-def _teleport(sim, index: int, xyz) -> None:
-    import mujoco
-
-    adr = sim.model.joint(f"obj{index}_free").qposadr[0]
-    sim.data.qpos[adr:adr + 3] = xyz
-    sim.data.qpos[adr + 3:adr + 7] = [1, 0, 0, 0]
-    sim.data.qvel[:] = 0
-    mujoco.mj_forward(sim.model, sim.data)
-
-
 def test_close_jar_predicate_wants_the_named_jar():
     from abm.sim.catalog import object_geometry
     from abm.sim.props import JAR_HALF_HEIGHT
@@ -115,7 +106,7 @@ def test_close_jar_predicate_wants_the_named_jar():
         other = next(i for i in range(len(sim.scene.objects)) if i not in (info["lid"], info["target"]))
         for jar, expected in ((other, False), (info["target"], True)):
             pose = sim.object_pose(jar)
-            _teleport(sim, info["lid"], [pose[0, 3], pose[1, 3], pose[2, 3] + JAR_HALF_HEIGHT + lift])
+            teleport(sim, info["lid"], [pose[0, 3], pose[1, 3], pose[2, 3] + JAR_HALF_HEIGHT + lift])
             assert env.success() is expected
 
 
@@ -128,10 +119,10 @@ def test_insert_peg_predicate_wants_the_named_peg():
         other = next(i for i in range(len(sim.scene.objects)) if i not in (info["ring"], info["target"]))
         for peg, expected in ((other, False), (info["target"], True)):
             pose = sim.object_pose(peg)
-            _teleport(sim, info["ring"], [pose[0, 3], pose[1, 3], RING_HALF_HEIGHT])
+            teleport(sim, info["ring"], [pose[0, 3], pose[1, 3], RING_HALF_HEIGHT])
             assert env.success() is expected
         pose = sim.object_pose(info["target"])
-        _teleport(sim, info["ring"], [pose[0, 3], pose[1, 3], 2 * PEG_HALF[2] + 0.05])  # above the peg
+        teleport(sim, info["ring"], [pose[0, 3], pose[1, 3], 2 * PEG_HALF[2] + 0.05])  # above the peg
         assert not env.success()
 
 

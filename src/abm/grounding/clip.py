@@ -181,14 +181,9 @@ class ClipBackbone:
         native = pixels.shape[-2:] == (self.image_size, self.image_size)
         x = vision.embeddings(pixels, interpolate_pos_encoding=not native)
         x = vision.pre_layrnorm(x)
-        layers = vision.encoder.layers
-        for layer in layers[:-1]:
-            x = _run_layer(layer, x)
-        last = layers[-1]
-        x = last.self_attn.out_proj(last.self_attn.v_proj(last.layer_norm1(x)))
-        x = vision.post_layernorm(x[:, 1:])
-        x = self.model.visual_projection(x)
-        x = F.normalize(x.float(), dim=-1)
+        for layer in vision.encoder.layers[:-1]:
+            x = run_encoder_layer(layer, x)
+        x = F.normalize(maskclip_head(self.model, x).float(), dim=-1)
         gh, gw = pixels.shape[-2] // self.patch_size, pixels.shape[-1] // self.patch_size
         return x.reshape(x.shape[0], gh, gw, x.shape[-1])
 
@@ -225,21 +220,22 @@ QUICK_GELU_SCALE = 1.702
 """CLIP's ``quick_gelu(x) = x * sigmoid(1.702 x)``; equal to ``silu(1.702 x) / 1.702``."""
 
 
-def _run_layer(layer: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
+def run_encoder_layer(layer: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
     """One CLIP encoder layer without masks, ``(B, N, W) -> (B, N, W)``: the layer's own attention and
     layer norms, and an MLP that computes ``quick_gelu`` as one ``silu`` kernel.
 
     ``fc2(quick_gelu(fc1 x)) = (W2 silu(1.702 (W1 x + b1))) / 1.702 + b2``; both scale factors ride on the
     matrix multiplications (``addmm``'s ``alpha``/``beta``), so the three elementwise passes of
     ``x * sigmoid(1.702 x)`` become one in-place ``silu``: ~10 % of a ViT-B/16 forward on a 2-core CPU,
-    same result up to float rounding. Other activations run the layer's own MLP.
+    same result up to float rounding. Other activations, and any call that records gradients (training the
+    benchmark CLIP), run the layer's own MLP out of place.
     """
     attn = layer.self_attn(hidden_states=layer.layer_norm1(x))
     x = x + (attn[0] if isinstance(attn, tuple) else attn)
     h = layer.layer_norm2(x)
     mlp = layer.mlp
     act = getattr(getattr(mlp, "config", None), "hidden_act", None)
-    if act != "quick_gelu":
+    if act != "quick_gelu" or torch.is_grad_enabled():
         return x + mlp(h)
     flat = h.reshape(-1, h.shape[-1])
     s = QUICK_GELU_SCALE
@@ -247,6 +243,15 @@ def _run_layer(layer: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
     F.silu(hidden, inplace=True)
     out = torch.addmm(mlp.fc2.bias, hidden, mlp.fc2.weight.t(), alpha=1.0 / s)
     return x.add_(out.view_as(x))
+
+
+def maskclip_head(model: Any, x: torch.Tensor) -> torch.Tensor:
+    """MaskCLIP's last block: ``(B, 1 + h*w, W)`` input of the last vision layer -> projected patch features
+    ``(B, h*w, D)`` (not normalised): the value path only, no attention mixing, residual or MLP; CLS dropped."""
+    vision = model.vision_model
+    last = vision.encoder.layers[-1]
+    x = last.self_attn.out_proj(last.self_attn.v_proj(last.layer_norm1(x)))
+    return model.visual_projection(vision.post_layernorm(x[:, 1:]))
 
 
 def _resolve_device(device: str | torch.device | None) -> torch.device:

@@ -40,6 +40,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from abm.grounding.clip import maskclip_head, run_encoder_layer
 from abm.grounding.clip_captions import GENERIC_PARENT, OBJECT_PARENT, class_prompts
 from abm.grounding.clip_data import SCENE, ClipDataset
 from abm.grounding.instruction import clip_prompt
@@ -122,13 +123,6 @@ def bench_clip_config(arch: dict[str, Any], vocab_size: int) -> Any:
 # --------------------------------------------------------------------------------------------------
 # Forward passes with gradients
 # --------------------------------------------------------------------------------------------------
-def _layer(layer: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
-    """One pre-norm CLIP encoder layer without masks, ``(B, N, W) -> (B, N, W)`` (autograd-safe)."""
-    attn = layer.self_attn(hidden_states=layer.layer_norm1(x))
-    x = x + (attn[0] if isinstance(attn, tuple) else attn)
-    return x + layer.mlp(layer.layer_norm2(x))
-
-
 def encode_images(model: Any, pixels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(image embeddings (B, D), MaskCLIP patch features (B, h*w, D))``, both L2-normalised.
 
@@ -140,11 +134,9 @@ def encode_images(model: Any, pixels: torch.Tensor) -> tuple[torch.Tensor, torch
     x = vision.pre_layrnorm(vision.embeddings(pixels))
     layers = vision.encoder.layers
     for layer in layers[:-1]:
-        x = _layer(layer, x)
-    last = layers[-1]
-    dense = last.self_attn.out_proj(last.self_attn.v_proj(last.layer_norm1(x)))[:, 1:]
-    dense = model.visual_projection(vision.post_layernorm(dense))
-    cls = model.visual_projection(vision.post_layernorm(_layer(last, x)[:, 0]))
+        x = run_encoder_layer(layer, x)
+    dense = maskclip_head(model, x)
+    cls = model.visual_projection(vision.post_layernorm(run_encoder_layer(layers[-1], x)[:, 0]))
     return F.normalize(cls, dim=-1), F.normalize(dense, dim=-1)
 
 
