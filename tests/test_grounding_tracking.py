@@ -113,3 +113,29 @@ def test_policy_and_evaluation_select_tracking(tmp_path) -> None:
     assert policy.grounder.inner_calls == 2
     loaded = _load_policy(str(tmp_path), EvalSettings(grounder="tracking"))
     assert isinstance(loaded.grounder, TrackingGrounder)
+    # --grounder clip --clip-model M: an oracle-trained policy grounds with that CLIP; tracking's first step too
+    clip = _load_policy(str(tmp_path), EvalSettings(grounder="clip", clip_model="tiny"))
+    assert clip.grounder_spec == {"kind": "clip", "model": "tiny"}
+    tracked = _load_policy(str(tmp_path), EvalSettings(grounder="tracking", clip_model="tiny"))
+    assert tracked.grounder_spec == {"kind": "tracking", "inner": {"kind": "clip", "model": "tiny"}}
+    with pytest.raises(ValueError, match="--clip-model applies to --grounder clip or tracking"):
+        EvalSettings(grounder="oracle", clip_model="tiny")
+    assert "clip_model" not in EvalSettings().signature()  # outcomes recorded before the flag still match
+
+
+def test_clip_model_override_keeps_the_trained_clip_options(tmp_path) -> None:
+    from abm.grounding.grounders import override_spec
+    from abm.policy import KeyframePolicy
+    from abm.train import TrainConfig, train
+    from abm.train.synthetic import synthetic_episodes
+
+    episodes = synthetic_episodes(2, camera_resolution=32)
+    tiny = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
+            "decoder_channels": 4}
+    train(TrainConfig(out=tmp_path, steps=1, batch=2, policy_overrides=tiny, progress=False, grounder="clip",
+                      grounder_options={"model": "tiny", "threshold": 0.4}), episodes)
+    other = str(tmp_path / "elsewhere")  # a CLIP folder that was moved: only the model changes
+    spec = KeyframePolicy.from_checkpoint(tmp_path, grounder=override_spec("tracking", "tiny")).grounder_spec
+    assert spec == {"kind": "tracking", "inner": {"kind": "clip", "model": "tiny", "threshold": 0.4}}
+    assert override_spec("clip", other) == {"kind": "clip", "model": other}
+    assert override_spec(None) is None and override_spec("oracle") == {"kind": "oracle"}

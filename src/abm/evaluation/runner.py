@@ -67,6 +67,8 @@ class EvalSettings:
         resolution: camera resolution in pixels.
         max_steps: keyframes before an episode counts as failed.
         splits_path: object split file replacing the built-in one.
+        clip_model: CLIP weights (hub name or folder) of the ``clip`` grounder or of ``tracking``'s first
+            step; needs ``grounder`` clip or tracking.
     """
 
     device: str = "cpu"
@@ -74,21 +76,30 @@ class EvalSettings:
     resolution: int = 128
     max_steps: int = 10
     splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
+    clip_model: str | None = None
+
+    def __post_init__(self) -> None:
+        from abm.grounding.grounders import override_spec
+
+        override_spec(self.grounder, self.clip_model)  # a clear error for --clip-model without a CLIP grounder
 
     def signature(self) -> str:
-        """Compact JSON of the settings that change outcomes (recorded with every outcome)."""
-        return json.dumps({k: v for k, v in asdict(self).items() if k != "device"}, sort_keys=True)
+        """Compact JSON of the settings that change outcomes (recorded with every outcome; ``clip_model``
+        only when set, so outcomes recorded before it existed still match)."""
+        fields = {k: v for k, v in asdict(self).items() if k != "device" and not (k == "clip_model" and v is None)}
+        return json.dumps(fields, sort_keys=True)
 
 
-_POLICIES: dict[tuple[str, str | None, str], Any] = {}  # per-process cache of loaded policies
+_POLICIES: dict[tuple[str, str | None, str | None, str], Any] = {}  # per-process cache of loaded policies
 
 
 def _load_policy(run: str, settings: EvalSettings) -> Any:
+    from abm.grounding.grounders import override_spec
     from abm.policy import KeyframePolicy
 
-    key = (run, settings.grounder, settings.device)
+    key = (run, settings.grounder, settings.clip_model, settings.device)
     if key not in _POLICIES:
-        grounder = {"kind": settings.grounder} if settings.grounder else None
+        grounder = override_spec(settings.grounder, settings.clip_model)
         _POLICIES[key] = KeyframePolicy.from_checkpoint(run, device=settings.device, grounder=grounder)
     return _POLICIES[key]
 

@@ -251,6 +251,23 @@ class ClipGrounder:
         return field
 
 
+def override_spec(kind: str | None, clip_model: str | None = None) -> dict[str, Any] | None:
+    """The grounder spec of the ``--grounder KIND [--clip-model M]`` flags of ``abm eval`` and ``abm run``.
+
+    ``None`` keeps the checkpoint's grounder; ``clip_model`` names the CLIP weights of the ``clip`` grounder,
+    or of the grounder ``tracking`` grounds the first step with. Options it does not name (threshold,
+    normalisation) stay those stored in the checkpoint (:meth:`abm.policy.KeyframePolicy.from_checkpoint`).
+    """
+    if clip_model is None:
+        return {"kind": kind} if kind else None
+    if kind == "clip":
+        return {"kind": "clip", "model": clip_model}
+    if kind == "tracking":
+        return {"kind": "tracking", "inner": {"kind": "clip", "model": clip_model}}
+    raise ValueError(f"--clip-model applies to --grounder clip or tracking, not {kind or 'the checkpoint default'!r}: "
+                     f"add --grounder clip to ground with {clip_model}")
+
+
 def make_grounder(kind: str = "oracle", **kwargs: Any) -> Grounder:
     """Build a grounder by name.
 

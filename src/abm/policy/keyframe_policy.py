@@ -366,8 +366,13 @@ class KeyframePolicy(nn.Module):
         stored = ckpt.get("grounder")
         if isinstance(grounder, Mapping) and isinstance(stored, Mapping) and grounder.get("kind") == stored.get("kind"):
             grounder = {**stored, **grounder}  # same grounder: keep the trained options (e.g. the CLIP model)
-        elif isinstance(grounder, Mapping) and grounder.get("kind") == "tracking" and "inner" not in grounder:
-            grounder = {**grounder, "inner": stored or {"kind": "oracle"}}  # track with the trained grounder
+        elif isinstance(grounder, Mapping) and grounder.get("kind") == "tracking":
+            inner = grounder.get("inner")
+            if inner is None:
+                inner = stored or {"kind": "oracle"}  # track with the trained grounder
+            elif isinstance(inner, Mapping) and isinstance(stored, Mapping) and inner.get("kind") == stored.get("kind"):
+                inner = {**stored, **inner}  # e.g. another CLIP model with the trained threshold
+            grounder = {**grounder, "inner": inner}
         policy = cls(config, ckpt["language"], grounder or stored, ckpt.get("camera_names"))
         policy.model.load_state_dict(ckpt["model"])
         policy.checkpoint_path = ckpt["path"]

@@ -19,6 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true", help="never move the arm: log the commands only")
     p.add_argument("--steps", type=int, default=10, help="keyframes to run (default: 10)")
     p.add_argument("--grounder", choices=["oracle", "clip", "tracking"], help="override the checkpoint's grounder")
+    p.add_argument("--clip-model", help="CLIP weights (hub name or folder) of --grounder clip or tracking")
     p.add_argument("--device", default="cpu", help="torch device of the policy")
     p.add_argument("--log", type=Path, default=Path("runs/robot_log"), help="log folder (default: runs/robot_log)")
     p.set_defaults(func=run)
@@ -65,6 +66,7 @@ def calibrate(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from abm.cli import CommandError
+    from abm.grounding.grounders import override_spec
     from abm.policy import KeyframePolicy
     from abm.robot.limits import LimitError
     from abm.robot.run import RobotConfig, run_robot
@@ -73,13 +75,16 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--robot {args.robot} is not a file")
     if args.steps < 1:
         raise CommandError("--steps must be at least 1")
+    try:
+        grounder = override_spec(args.grounder, args.clip_model)
+    except ValueError as err:
+        raise CommandError(str(err)) from err
     config = RobotConfig.load(args.robot)
     camera, arm = config.build(dry_run=args.dry_run)
     instruction = args.instruction or getattr(camera, "instruction", "")
     if not instruction:
         raise CommandError("give --instruction (the camera source has none)")
-    policy = KeyframePolicy.from_checkpoint(args.run, device=args.device,
-                                            grounder={"kind": args.grounder} if args.grounder else None)
+    policy = KeyframePolicy.from_checkpoint(args.run, device=args.device, grounder=grounder)
     try:
         records = run_robot(policy, camera, arm, instruction, config.limits, args.steps, args.log)
     except LimitError as err:
