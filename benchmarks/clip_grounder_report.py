@@ -1,11 +1,12 @@
 """Write the CLIP-grounder result of ``scripts/clip_grounder.sh`` (never typed by hand).
 
 Reads ``OUT/eval_seen/results.json`` and ``OUT/eval_unseen/results.json`` (five runs evaluated together:
-abm_oracle, abm_clip, rvt_hash, rvt_clip, ifd_clip), the training logs ``OUT/RUN/log.csv``, the stage
-times ``OUT/times.txt`` and, when given, the mask-quality JSON of ``benchmarks/clip_quality.py``; writes
-the markdown table to ``--report`` (default ``docs/results/clip_grounder.md``), keeps the JSON it was built
-from beside it (``docs/results/clip_grounder/``) and replaces the block between
-``<!-- clip-grounder:start -->`` and ``<!-- clip-grounder:end -->`` in the README when it has one.
+abm_oracle, abm_clip, rvt_hash, rvt_clip, ifd_clip), ``OUT/eval_SPLIT_oracle_trained_clip/results.json``
+(abm_oracle grounded by CLIP), the training logs ``OUT/RUN/log.csv`` and, when present, the mask-quality
+JSON of ``benchmarks/clip_quality.py``; writes the markdown to ``--report`` (default
+``docs/results/clip_grounder.md``), keeps the JSON it was built from beside it
+(``docs/results/clip_grounder/``) and replaces the block between ``<!-- clip-grounder:start -->`` and
+``<!-- clip-grounder:end -->`` in the README when it has one.
 
 Usage: python benchmarks/clip_grounder_report.py OUT [--clip runs/clip_bench] [--quality runs/clip_quality.json]
 """
@@ -15,10 +16,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import shlex
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from seen_unseen_report import _cell, _load, _machine, _stage_minutes, _training
+from seen_unseen_report import _cell, _eval_max_steps, _load, _machine, _training
 
 START, END = "<!-- clip-grounder:start -->", "<!-- clip-grounder:end -->"
 #: run folder -> (variant, what grounds the target / carries the instruction), in table order
@@ -120,7 +123,6 @@ def report(out: Path, clip: Path, command: str, quality: Mapping | None = None) 
     table, avg = success_table(rates)
     config = json.loads((out / "abm_clip" / "config.json").read_text())
     train = {name: _training(out / name) for name in RUNS if (out / name / "log.csv").is_file()}
-    stages = _stage_minutes(out / "times.txt")
     repeats = max(len(r["per_repeat"]) for r in rates)
     episodes = max(r["episodes"] for r in rates)
     clip_info = json.loads((clip / "abm_clip.json").read_text()) if (clip / "abm_clip.json").is_file() else {}
@@ -137,12 +139,11 @@ def report(out: Path, clip: Path, command: str, quality: Mapping | None = None) 
         "see docs/grounding.md section 8). Policies: `small` preset at "
         f"{policy['resolution']}² views over a {policy['workspace_size']} m cube, "
         f"{config['train']['steps']} steps of batch {config['train']['batch']}, {config['train']['optimizer']} "
-        f"lr {config['train']['lr']}, trained two at a time with one thread each ("
+        f"lr {config['train']['lr']}, trained two at a time with one thread each (the odd one out alone with two; "
         + ", ".join(f"{n} {t['elapsed_min']:.0f} min" for n, t in train.items())
         + f") on the same seen demonstrations. Evaluation: {episodes // repeats} seeded episodes per task, "
-        f"split and repeat, {repeats} repeats, the same scenes for every run; CLIP runs ground with CLIP at "
-        "evaluation too" + ("; stage wall times (min): " + ", ".join(f"{k} {v:.0f}" for k, v in stages.items())
-                            if stages else "") + ".",
+        f"split and repeat, {repeats} repeats, at most {_eval_max_steps(out)} keyframes, the same scenes for "
+        "every run; CLIP runs ground with CLIP at evaluation too.",
         "",
         "Rollout success, % (mean ± std over repeats; successes / episodes):",
         "",
@@ -187,6 +188,9 @@ def main() -> None:
     args = parser.parse_args()
 
     quality = json.loads(args.quality.read_text()) if args.quality.is_file() else None
+    knobs = ("CLIP", "DATA", "TASKS", "DEMOS", "STEPS", "EVAL_EPISODES", "REPEATS", "METHODS")
+    args.command = " ".join([*(f"{k}={shlex.quote(os.environ[k])}" for k in knobs if k in os.environ),
+                             args.command.strip()])
     text, summary = report(args.run_dir, args.clip, args.command, quality)
     store = args.report.with_suffix("")
     store.mkdir(parents=True, exist_ok=True)

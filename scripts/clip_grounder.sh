@@ -17,8 +17,8 @@
 # Knobs (environment): CLIP (runs/clip_bench: an `abm clip train` folder), DATA (OUT/data; generated with
 #   DEMOS=20 seen demonstrations of each of TASKS when missing), TASKS ("pick_block place_food"),
 #   STEPS (1400), EVAL_EPISODES (10), REPEATS (3), METHODS (all five), REPORT (docs/results/clip_grounder.md).
-# Every stage resumes. 2-core CPU: ~2 min of CLIP caching, ~70 min of training (two runs side by side, one
-# thread each), ~35 min of evaluation.
+# Every stage resumes. 2-core CPU: ~1 min of CLIP caching, ~75 min of training (two runs side by side, one
+# thread each; 25 min per pair), ~25 min of evaluation (720 rollouts, ~4 s each per worker).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 [ -x .venv/bin/abm ] || bash scripts/bootstrap.sh
