@@ -107,11 +107,10 @@ def mask_quality(quality: Mapping, tasks: Sequence[str], normalization: str, thr
     return "\n".join(out)
 
 
-def _grounder_setting(out: Path) -> tuple[str, float]:
+def _grounder_setting(config: Mapping) -> tuple[str, float]:
     """Normalisation and threshold the abm_clip run grounded with (its stored grounder options)."""
     from abm.grounding.mask_field import DEFAULT_NORMALIZATION, DEFAULT_THRESHOLD
 
-    config = json.loads((out / "abm_clip" / "config.json").read_text())
     options = config["train"].get("grounder_options") or {}
     return options.get("normalization", DEFAULT_NORMALIZATION), float(options.get("threshold", DEFAULT_THRESHOLD))
 
@@ -167,7 +166,7 @@ def report(out: Path, clip: Path, command: str, quality: Mapping | None = None) 
                      f"({h['seen']:.0f} % to {c['seen']:.0f} % on seen).")
     summary = "\n".join(lines) + "\n"
     if quality:
-        normalization, threshold = _grounder_setting(out)
+        normalization, threshold = _grounder_setting(config)
         q = mask_quality(quality, tasks, normalization, threshold)
         if q:
             lines += ["", f"Quality of the benchmark CLIP's mask field on these tasks' scenes at the grounder's "

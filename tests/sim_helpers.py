@@ -2,6 +2,23 @@
 
 from __future__ import annotations
 
+import pytest
+
+
+def require_simulator(*modules: str, libero: bool = False) -> None:
+    """Skip the calling test module (at import) without MuJoCo, mink, ``modules``, the Panda model or, with
+    ``libero``, the LIBERO asset wheels; CI installs them all."""
+    for name in ("mujoco", "mink", *modules):
+        pytest.importorskip(name)
+    from abm.sim.assets import AssetNotFoundError, libero_available, panda_dir
+
+    try:
+        panda_dir()
+    except AssetNotFoundError as err:  # pragma: no cover - CI installs the package
+        pytest.skip(str(err), allow_module_level=True)
+    if libero and not libero_available():  # pragma: no cover - CI installs the asset wheels
+        pytest.skip("LIBERO asset wheels not installed", allow_module_level=True)
+
 
 def teleport(sim, index: int, xyz) -> None:
     """Put free object ``index`` at ``xyz`` (world metres), upright and at rest, and update the kinematics."""

@@ -9,24 +9,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco")
-pytest.importorskip("mink")
+from sim_helpers import require_simulator, teleport
 
-from abm.sim.assets import AssetNotFoundError, libero_available, panda_dir  # noqa: E402
-
-try:
-    panda_dir()
-except AssetNotFoundError as err:  # pragma: no cover - CI installs the package
-    pytest.skip(str(err), allow_module_level=True)
-if not libero_available():  # pragma: no cover - CI installs the asset wheels
-    pytest.skip("LIBERO asset wheels not installed", allow_module_level=True)
+require_simulator(libero=True)
 
 from abm.sim.env import make_env, run_expert  # noqa: E402
 from abm.sim.splits import SplitFileError, load_splits  # noqa: E402
 from abm.sim.tasks import get_task  # noqa: E402
 from abm.sim.tasks.put_in_container import SLOT, held_out_pairs, split_pairs  # noqa: E402
 from abm.types import KeyframeAction  # noqa: E402
-from sim_helpers import teleport  # noqa: E402
 
 TASK = "put_in_container"
 SPLITS = ("seen", "unseen", "compositional")

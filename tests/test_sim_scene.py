@@ -3,17 +3,11 @@
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco")
-pytest.importorskip("mink")
+from sim_helpers import require_simulator
+
+require_simulator()
 
 from abm.geometry import depth_to_points, fuse_cameras, matrix_to_quat  # noqa: E402
-from abm.sim.assets import AssetNotFoundError, panda_dir  # noqa: E402
-
-try:
-    panda_dir()
-except AssetNotFoundError as err:  # pragma: no cover - CI installs the package
-    pytest.skip(str(err), allow_module_level=True)
-
 from abm.sim.catalog import catalog_entry  # noqa: E402
 from abm.sim.scene import CAMERA_NAMES, PlacedObject, SceneSpec  # noqa: E402
 from abm.sim.simulation import Simulation  # noqa: E402

@@ -3,17 +3,11 @@
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco")
-pytest.importorskip("mink")
-pytest.importorskip("h5py")
+from sim_helpers import require_simulator
 
-from abm.sim.assets import AssetNotFoundError, libero_available, panda_dir  # noqa: E402
+require_simulator("h5py")
 
-try:
-    panda_dir()
-except AssetNotFoundError as err:  # pragma: no cover - CI installs the package
-    pytest.skip(str(err), allow_module_level=True)
-
+from abm.sim.assets import libero_available  # noqa: E402
 from abm.sim.env import make_env, run_expert  # noqa: E402
 from abm.sim.splits import SplitFileError, load_splits  # noqa: E402
 from abm.sim.tasks import TASKS, get_task  # noqa: E402

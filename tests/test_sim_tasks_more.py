@@ -9,23 +9,16 @@ Cameras are never rendered here (run_expert with record=False).
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco")
-pytest.importorskip("mink")
-pytest.importorskip("h5py")
+from sim_helpers import require_simulator, teleport
 
-from abm.sim.assets import AssetNotFoundError, libero_available, panda_dir  # noqa: E402
-
-try:
-    panda_dir()
-except AssetNotFoundError as err:  # pragma: no cover - CI installs the package
-    pytest.skip(str(err), allow_module_level=True)
+require_simulator("h5py")
 
 from abm.data.generate import EvaluationOnlyTaskError, expand_tasks, generate, trainable_tasks  # noqa: E402
 from abm.grounding.instruction import decompose_instruction  # noqa: E402
+from abm.sim.assets import libero_available  # noqa: E402
 from abm.sim.env import make_env, run_expert  # noqa: E402
 from abm.sim.splits import SplitFileError, load_splits  # noqa: E402
 from abm.sim.tasks import TASKS, get_task  # noqa: E402
-from sim_helpers import teleport  # noqa: E402
 
 needs_libero = pytest.mark.skipif(not libero_available(), reason="LIBERO asset wheels not installed")
 
