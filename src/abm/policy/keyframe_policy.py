@@ -32,6 +32,7 @@ from torch import nn
 
 from abm.geometry import Workspace, quat_to_bins
 from abm.grounding.conditioning import condition_scene, make_grounder_from_spec
+from abm.machine import cpu_supports_bf16
 from abm.policy.checkpoint import load_checkpoint, save_checkpoint
 from abm.policy.config import PolicyConfig
 from abm.policy.heads import decode_output, policy_loss, translation_targets
@@ -110,6 +111,9 @@ class KeyframePolicy(nn.Module):
         self._lang_cache: dict[str, torch.Tensor] = {}
         self.last_timings: dict[str, float] = {}
         self.checkpoint_path: str | None = None
+        # kept out of the module tree (plain attributes), so state_dict keys never change
+        self.__dict__["_compiled_model"] = None
+        self.cpu_bf16 = False
 
     # ------------------------------------------------------------------ parts
     @property
@@ -226,13 +230,34 @@ class KeyframePolicy(nn.Module):
             "collision": batch["action_collision"].to(dev),
         }
 
+    def compile_network(self, enabled: bool = True, backend: str = "inductor") -> KeyframePolicy:
+        """Run the network through ``torch.compile`` from now on (``enabled=False`` goes back to eager); the
+        module itself, its parameters and checkpoint keys are unchanged. With TorchInductor, compiling costs
+        ~50 s at the first step on 2 CPU cores and pays off in long runs (``benchmarks/train_speed.py
+        --compile``, docs/performance.md)."""
+        self.__dict__["_compiled_model"] = torch.compile(self.model, backend=backend) if enabled else None
+        return self
+
+    def use_cpu_bf16(self, mode: str = "auto") -> bool:
+        """bf16 autocast on CPU: ``on``, ``off`` or ``auto`` (on only where oneDNN reports native bf16
+        support, e.g. AVX512-BF16 / AMX; elsewhere bf16 is 5-10x slower than float32). Returns the choice."""
+        if mode not in ("auto", "on", "off"):
+            raise ValueError(f"bf16 mode must be 'auto', 'on' or 'off', not {mode!r}")
+        self.cpu_bf16 = mode == "on" or (mode == "auto" and cpu_supports_bf16())
+        return self.cpu_bf16
+
     def run_model(self, inputs: Mapping[str, torch.Tensor], pool_weights: torch.Tensor | None = None
                   ) -> PolicyOutput:
-        """The network on prepared inputs (bf16 autocast on CUDA)."""
-        with torch.autocast(device_type=self.device.type, dtype=torch.bfloat16, enabled=self.device.type == "cuda"):
-            return self.model(inputs["images"], inputs["proprio"], inputs["lang"], mask=inputs.get("mask"),
-                              ifd_features=inputs.get("ifd_features"), ifd_index=inputs.get("ifd_index"),
-                              pool_weights=pool_weights)
+        """The network on prepared inputs (bf16 autocast on CUDA, and on CPU after :meth:`use_cpu_bf16`)."""
+        dev = self.device.type
+        autocast = dev == "cuda" or (dev == "cpu" and self.cpu_bf16)
+        compiled = self.__dict__["_compiled_model"]
+        model = self.model if compiled is None else compiled
+        with torch.autocast(device_type=dev, dtype=torch.bfloat16, enabled=autocast):
+            out = model(inputs["images"], inputs["proprio"], inputs["lang"], mask=inputs.get("mask"),
+                        ifd_features=inputs.get("ifd_features"), ifd_index=inputs.get("ifd_index"),
+                        pool_weights=pool_weights)
+        return out
 
     # ------------------------------------------------------------------ training / inference
     def forward(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:

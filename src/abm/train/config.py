@@ -50,6 +50,10 @@ class TrainConfig:
         cache_dir: grounding / CLIP feature cache (default ``out/cache``).
         camera_names: cameras to fuse (default all).
         progress: show a progress bar (``--no-progress`` hides it).
+        compile: run the network through ``torch.compile`` (measured 0.44 -> 0.39 s per step at 64² views on
+            2 CPU threads after a ~50 s compile: worth it for runs of more than a few hundred steps).
+        bf16: bf16 autocast on CPU: ``auto`` (only where oneDNN reports native bf16; emulated bf16 is 5-10x
+            slower), ``on`` or ``off``. CUDA always trains under bf16 autocast.
     """
 
     method: str = field(default="abm", metadata={"choices": sorted(VARIANTS), "required": True})
@@ -82,6 +86,8 @@ class TrainConfig:
     cache_dir: Path | None = None
     camera_names: list[str] | None = field(default=None, metadata={"flag": "--cameras"})
     progress: bool = True
+    compile: bool = False
+    bf16: str = field(default="auto", metadata={"choices": ["auto", "on", "off"]})
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=str))

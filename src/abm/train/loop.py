@@ -1,7 +1,7 @@
 """Behaviour-cloning training loop for every policy variant (single process or ``torchrun`` DDP).
 
 * LAMB (``torch_optimizer.Lamb``), linear warm-up then cosine decay, gradient-norm clipping,
-  bf16 autocast on CUDA.
+  bf16 autocast on CUDA (on CPU only with native bf16, ``--bf16``), optional ``torch.compile``.
 * Data: :class:`~abm.data.keyframes.KeyframeDataset` with the deterministic
   :class:`~abm.data.keyframes.StepSampler` (rank-sharded like ``DistributedSampler``), so a run
   resumed from a checkpoint sees exactly the batches the uninterrupted run would have seen.
@@ -294,6 +294,10 @@ class Trainer:
         if ckpt is not None:
             check_compatible(PolicyConfig.from_dict(ckpt["policy_config"]), self.policy_config)
         self.policy = KeyframePolicy(self.policy_config, encoder, gspec, cfg.camera_names).to(device)
+        if device.type == "cpu" and self.policy.use_cpu_bf16(cfg.bf16) and dinfo.main:
+            log.info("abm train: bf16 autocast on the CPU (--bf16 %s)", cfg.bf16)
+        if cfg.compile:
+            self.policy.compile_network()
         source = _episode_source(cfg, self.episodes)
         check_inside_workspace(source, self.policy.workspace)  # every rank, before anything is written
         _claim_run_folder(self.run, cfg, dinfo)  # options are valid: now the folder may be written

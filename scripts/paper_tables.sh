@@ -1,0 +1,165 @@
+#!/usr/bin/env bash
+# The paper's three tables on ABM-Bench (issue 25): ONE multi-task policy per method over the 8 paper tasks,
+# trained on the same seen demonstrations with the same recipe, views and model size, then
+#   Table 1  every model on the 8 tasks, seen and unseen objects
+#   Table 2  the Table-1 models on the two compositional tasks (never trained on)
+#   Table 3  the mask-fusion ablations (stack, concat-rerendered, concat-full) beside abm (center-pixel)
+# Runs (one folder each under OUT):
+#   abm_oracle   abm, target mask from the simulator's segmentation (upper bound; needs no CLIP)
+#   rvt_clip     rvt, instruction through the benchmark CLIP's text encoder (the paper's RVT had CLIP text)
+#   abm_clip     abm, the benchmark CLIP's Object Mask Field with the package's default grounding configuration
+#   ifd_clip     ifd, benchmark-CLIP point features and text
+#   stack, concat-rerendered, concat-full   the ablations, grounded like abm_clip
+# Every finished model is exported (bfloat16) into the model zoo (ZOO, default models/) with its index, and
+# evaluated FROM THE ZOO FILE, so `abm eval --run models/NAME.pt ...` reproduces its row on a fresh clone.
+#
+# Usage: bash scripts/paper_tables.sh [OUT]        (default OUT=runs/paper)
+# Knobs (environment): RUNS (all seven, in training order), CLIP (models/benchmark-clip), DEMOS (20 per task),
+#   STEPS (5000), EVAL_EPISODES (25), REPEATS (2), EVAL_WORKERS (2), MAX_STEPS (8), COMPILE (1: torch.compile),
+#   STAGES ("data ground train eval report"), README (README.md; "" = skip), ZOO (models).
+# Resumable at every stage: demonstrations are kept, grounding caches are filled once, trainings continue
+# from their last checkpoint (--resume), evaluations skip finished episodes, finished exports are kept.
+# Across machines: at the end of every pair, unfinished trainings leave their latest checkpoint and log in
+# ZOO/carry/NAME/ (commit it); a rerun on a fresh clone continues from there.
+# Cost on a 2-core CPU: data ~20 min, two trainings at a time with one thread each (~2 h per pair at
+# 5000 steps), evaluation ~4 s per rollout per worker (a Table-1 row: 850 rollouts).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+[ -x .venv/bin/abm ] || bash scripts/bootstrap.sh
+export PATH="$PWD/.venv/bin:$PATH" MUJOCO_GL="${MUJOCO_GL:-egl}" OMP_WAIT_POLICY="${OMP_WAIT_POLICY:-PASSIVE}"
+
+OUT="${1:-runs/paper}"
+ZOO="${ZOO:-models}"
+CLIP="${CLIP:-$ZOO/benchmark-clip}"
+DATA="${DATA:-$OUT/data}"
+TASKS="close_jar insert_peg pick_block place_food place_wine put_in_shelf take_off_pan water_plants"
+COMPOSITIONAL="place_block_in_plate pick_food_to_target"
+RUNS="${RUNS:-abm_oracle rvt_clip abm_clip ifd_clip stack concat-rerendered concat-full}"
+TABLE1="abm_oracle rvt_clip abm_clip ifd_clip"
+DEMOS="${DEMOS:-20}"
+STEPS="${STEPS:-5000}"
+EVAL_EPISODES="${EVAL_EPISODES:-25}"
+REPEATS="${REPEATS:-2}"
+EVAL_WORKERS="${EVAL_WORKERS:-2}"
+MAX_STEPS="${MAX_STEPS:-8}"
+COMPILE="${COMPILE:-1}"
+STAGES="${STAGES:-data ground train eval report}"
+README="${README-README.md}"
+mkdir -p "$OUT" "$ZOO"
+TIMES="$OUT/times.txt"
+stamp() { echo "$1 $(date +%s)" >> "$TIMES"; }
+stage() { [[ " $STAGES " == *" $1 "* ]]; }
+needs_clip() { [ "$1" != abm_oracle ]; }
+have_clip() {
+  [ -f "$CLIP/config.json" ] && return 0
+  echo "no benchmark CLIP in $CLIP: train it (abm clip train --out $CLIP) or set CLIP=DIR" >&2
+  return 1
+}
+
+# ----------------------------------------------------------------------------------------------- data
+if stage data; then
+  stamp data_start
+  abm data generate --task "${TASKS// /,}" --split seen --episodes "$DEMOS" --out "$DATA" --workers 2
+  stamp data_end
+fi
+
+# ------------------------------------------------------------------------------ the explicit grounding step
+if stage ground && [[ "$RUNS" != abm_oracle ]] && have_clip; then
+  stamp ground_start
+  # shellcheck disable=SC2086
+  abm data ground --data "$DATA" --cache "$OUT/cache_masks" --clip-model "$CLIP" --tasks $TASKS
+  if [[ " $RUNS " == *" ifd_clip "* ]]; then
+    # shellcheck disable=SC2086
+    abm data ground --data "$DATA" --cache "$OUT/cache_features" --clip-model "$CLIP" --features --tasks $TASKS
+  fi
+  stamp ground_end
+fi
+
+# ------------------------------------------------------------------------------------------- training
+train_one() {  # run name, threads -> one multi-task training (resumes), then its zoo export
+  local name="$1" threads="$2" extra=() flags=()
+  case "$name" in
+    abm_oracle) extra=(--method abm --grounder oracle) ;;
+    rvt_clip) extra=(--method rvt --language clip --clip-model "$CLIP") ;;
+    abm_clip) extra=(--method abm --grounder clip --clip-model "$CLIP" --cache-dir "$OUT/cache_masks") ;;
+    ifd_clip) extra=(--method ifd --grounder clip --clip-model "$CLIP" --cache-dir "$OUT/cache_features") ;;
+    stack|concat-rerendered|concat-full)
+      extra=(--method "$name" --grounder clip --clip-model "$CLIP" --cache-dir "$OUT/cache_masks") ;;
+    *) echo "unknown run $name" >&2; return 1 ;;
+  esac
+  [ "$COMPILE" = 1 ] && flags+=(--compile)
+  if [ -f "$ZOO/$name.pt" ]; then return 0; fi  # finished and exported earlier
+  local carry="$ZOO/carry/$name"
+  if [ -d "$carry" ] && [ ! -d "$OUT/$name/checkpoints" ]; then  # a fresh clone: continue the committed state
+    mkdir -p "$OUT/$name/checkpoints"
+    cp "$carry"/step_*.pt "$OUT/$name/checkpoints/"
+    [ -f "$carry/log.csv" ] && cp "$carry/log.csv" "$OUT/$name/"
+  fi
+  # shellcheck disable=SC2086
+  OMP_NUM_THREADS="$threads" MKL_NUM_THREADS="$threads" abm train "${extra[@]}" "${flags[@]}" --data "$DATA" \
+    --tasks $TASKS --steps "$STEPS" --batch 8 --optimizer adamw --lr 1e-3 --warmup 50 --set resolution=64 \
+    --set patch_size=8 --checkpoint-every 250 --keep-checkpoints 2 --no-progress --out "$OUT/$name" --resume \
+    > "$OUT/train_$name.log" 2>&1 || return 1
+  abm export --run "$OUT/$name" --out "$ZOO/$name.pt" --dtype bfloat16
+  rm -rf "$carry"
+  python benchmarks/paper_tables_report.py "$OUT" --zoo "$ZOO" --index-only
+}
+
+carry_unfinished() {  # keep what a continuation on another machine needs (call before the session ends)
+  local name latest
+  for name in $RUNS; do
+    [ -f "$ZOO/$name.pt" ] && continue
+    latest=$(ls "$OUT/$name/checkpoints"/step_*.pt 2>/dev/null | sort | tail -n 1) || true
+    [ -n "$latest" ] || continue
+    rm -rf "$ZOO/carry/$name" && mkdir -p "$ZOO/carry/$name"
+    cp "$latest" "$ZOO/carry/$name/"
+    [ -f "$OUT/$name/log.csv" ] && cp "$OUT/$name/log.csv" "$ZOO/carry/$name/"
+  done
+}
+
+if stage train; then
+  stamp train_start
+  trap 'carry_unfinished; kill $(jobs -p) 2>/dev/null || true' INT TERM
+  todo=()
+  for name in $RUNS; do
+    if needs_clip "$name" && ! have_clip; then continue; fi
+    todo+=("$name")
+  done
+  set -- "${todo[@]}"
+  while [ $# -gt 0 ]; do  # two trainers at a time, one thread each (two threads for one left alone)
+    pids=()
+    threads=1; [ -n "${2:-}" ] || threads=2
+    for name in "$1" "${2:-}"; do
+      [ -n "$name" ] || continue
+      train_one "$name" "$threads" &
+      pids+=($!)
+    done
+    for p in "${pids[@]}"; do wait "$p" || { carry_unfinished; echo "training failed: see $OUT/train_*.log" >&2; exit 1; }; done
+    shift; [ $# -gt 0 ] && shift
+  done
+  trap - INT TERM
+  stamp train_end
+fi
+
+# ----------------------------------------------------------------------------------------- evaluation
+if stage eval; then
+  stamp eval_start
+  for name in $RUNS; do
+    [ -f "$ZOO/$name.pt" ] || { echo "skip evaluating $name: $ZOO/$name.pt is not trained yet" >&2; continue; }
+    for s in seen unseen; do
+      # shellcheck disable=SC2086
+      abm eval --run "$ZOO/$name.pt" --tasks $TASKS --split "$s" --episodes "$EVAL_EPISODES" --repeats "$REPEATS" \
+        --workers "$EVAL_WORKERS" --max-steps "$MAX_STEPS" --out "$OUT/eval/$name/$s"
+    done
+    if [[ " $TABLE1 " == *" $name "* ]]; then
+      # shellcheck disable=SC2086
+      abm eval --run "$ZOO/$name.pt" --tasks $COMPOSITIONAL --split compositional --episodes "$EVAL_EPISODES" \
+        --repeats "$REPEATS" --workers "$EVAL_WORKERS" --max-steps "$MAX_STEPS" --out "$OUT/eval/$name/compositional"
+    fi
+  done
+  stamp eval_end
+fi
+
+if stage report; then
+  python benchmarks/paper_tables_report.py "$OUT" --zoo "$ZOO" --clip "$CLIP" --readme "$README" --command "bash $0 $*"
+fi

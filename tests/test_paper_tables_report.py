@@ -1,0 +1,76 @@
+"""The paper-tables report (benchmarks/paper_tables_report.py): records, averages, stages and the zoo index."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+paper_tables_report = pytest.importorskip("paper_tables_report")
+TASKS = paper_tables_report.TASKS
+
+
+def _rate(task: str, split: str, per_repeat: list[float]) -> dict:
+    mean = sum(per_repeat) / len(per_repeat)
+    return {"method": "abm", "task": task, "split": split, "per_repeat": per_repeat,
+            "episodes": 25 * len(per_repeat), "errors": 0, "mean": mean, "std": 0.0}
+
+
+def _write_eval(out: Path, run: str, split: str, rates: list[dict]) -> None:
+    folder = out / "eval" / run / split
+    folder.mkdir(parents=True)
+    (folder / "results.json").write_text(json.dumps(rates))
+
+
+def test_records_averages_and_tables_fill_in_stages(tmp_path: Path) -> None:
+    out = tmp_path / "paper"
+    _write_eval(out, "abm_clip", "seen", [_rate(t, "seen", [80.0, 60.0]) for t in TASKS])
+    _write_eval(out, "abm_clip", "unseen", [_rate(t, "unseen", [40.0, 60.0]) for t in TASKS[:-1]])  # one missing
+    _write_eval(out, "abm_clip", "compositional",
+                [_rate(t, "compositional", [20.0, 20.0]) for t in paper_tables_report.COMPOSITIONAL])
+    cells = paper_tables_report.collect(out)
+    recs = paper_tables_report.records(cells)
+    # abm_clip belongs to tables 1 and 3 (seen/unseen cells) and table 2 (compositional cells)
+    assert {r["table"] for r in recs if r["split"] == "compositional"} == {2}
+    assert {r["table"] for r in recs if r["split"] != "compositional"} == {1, 3}
+    cell = next(r for r in recs if r["table"] == 1 and r["task"] == "close_jar" and r["split"] == "seen")
+    assert (cell["successes"], cell["episodes"], cell["grounder"]) == (35, 50, "clip")
+    assert paper_tables_report.average(cells, "abm_clip", "seen") == 70.0
+    assert paper_tables_report.average(cells, "abm_clip", "unseen") is None  # water_plants not evaluated yet
+    t1 = paper_tables_report.table1(cells)
+    assert "| close_jar | – | – | – | – | 70 ± 0 (35/50) | 50 ± 0 (25/50) | – | – |" in t1
+    assert "**70.0**" in t1 and "74.2" in t1  # ours beside the paper's
+    assert "| ABM (CLIP mask field) | 20 ± 0 (10/50) | 20 ± 0 (10/50) | 20.0 | 53.2 |" in paper_tables_report.table2(cells)
+    assert "| center-pixel (abm) | 70.0 | – | – | 70.0 | 57.5 |" in paper_tables_report.table3(cells)
+    assert "abm (CLIP) seen ≥ 60 %: met (70.0)" in paper_tables_report.targets(cells)
+    assert "abm unseen ≥ 0.85 × seen: not evaluated yet" in paper_tables_report.targets(cells)
+
+
+def test_zoo_index_describes_exported_models(tmp_path: Path) -> None:
+    out, zoo = tmp_path / "paper", tmp_path / "models"
+    zoo.mkdir()
+    (zoo / "abm_oracle.pt").write_bytes(b"weights")
+    run = out / "abm_oracle"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({
+        "train": {"tasks": list(TASKS), "data": "runs/paper/data", "steps": 5000, "batch": 8, "optimizer": "adamw",
+                  "warmup": 50, "weight_decay": 1e-4, "seed": 0},
+        "lr": 1e-3, "policy": {"resolution": 64, "patch_size": 8, "preset": "small+custom"},
+        "language": {"kind": "hash"}, "grounder": {"kind": "oracle"}}))
+    (run / "log.csv").write_text("step,lr,total,translation,rotation,gripper,collision,samples_per_s,elapsed_s\n"
+                                 "10,0.001,1,1,1,1,1,6.5,60\n5000,0,0.2,0.1,0.1,0,0,6.9,7200\n")
+    entries = paper_tables_report.zoo_index(out, zoo, None)
+    assert [e["name"] for e in entries] == ["abm_oracle"]
+    e = entries[0]
+    assert e["sha256"] == hashlib.sha256(b"weights").hexdigest() and e["size_bytes"] == 7
+    assert (e["steps"], e["train_minutes"], e["recipe"]["resolution"], e["grounder"]) == (5000, 120.0, 64, "oracle")
+    assert json.loads((zoo / "index.json").read_text()) == entries
+    # on a fresh clone the run folder is gone: the index keeps what it knew, and re-hashes the file
+    (zoo / "abm_oracle.pt").write_bytes(b"other")
+    again = paper_tables_report.zoo_index(tmp_path / "gone", zoo, None)
+    assert again[0]["train_minutes"] == 120.0 and again[0]["sha256"] == hashlib.sha256(b"other").hexdigest()
+    assert "| abm_oracle | abm | oracle | 5000 | 120.0 |" in (zoo / "README.md").read_text()
