@@ -16,7 +16,8 @@
 # Usage: bash scripts/paper_tables.sh [OUT]        (default OUT=runs/paper)
 # Knobs (environment): RUNS (all seven, in training order), CLIP (models/benchmark-clip), DEMOS (20 per task),
 #   STEPS (5000), EVAL_EPISODES (25), REPEATS (2), EVAL_WORKERS (2), MAX_STEPS (8), COMPILE (1: torch.compile),
-#   STAGES ("data ground train eval report"), README (README.md; "" = skip), ZOO (models).
+#   STAGES ("data ground train eval report"), README (README.md; "" = skip), ZOO (models), THREADS (per trainer:
+#   1 for a pair, 2 for one left alone).
 # Resumable at every stage: demonstrations are kept, grounding caches are filled once, trainings continue
 # from their last checkpoint (--resume), evaluations skip finished episodes, finished exports are kept.
 # Across machines: at the end of every pair, unfinished trainings leave their latest checkpoint and log in
@@ -129,6 +130,7 @@ if stage train; then
   while [ $# -gt 0 ]; do  # two trainers at a time, one thread each (two threads for one left alone)
     pids=()
     threads=1; [ -n "${2:-}" ] || threads=2
+    threads="${THREADS:-$threads}"
     for name in "$1" "${2:-}"; do
       [ -n "$name" ] || continue
       train_one "$name" "$threads" &
