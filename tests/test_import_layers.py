@@ -1,5 +1,5 @@
 """Imports flow one way: types (and the small helpers machine, workers, configuration) -> geometry
--> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot -> commands (quickstart,
+-> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot -> commands (quickstart, zoo,
 cli, every ``*.commands`` module).
 
 Checked on the source text (every ``import`` statement, at module level or inside functions), so a
@@ -23,7 +23,7 @@ LAYERS = [
     ("policy",),
     ("train",),
     ("evaluation", "robot", "viewer"),
-    ("quickstart", "cli", "commands"),
+    ("quickstart", "zoo", "cli", "commands"),
 ]
 RANK = {name: i for i, names in enumerate(LAYERS) for name in names}
 

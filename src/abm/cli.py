@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "abm.robot.commands",
     "abm.viewer.commands",
     "abm.quickstart",
+    "abm.zoo",
 )
 
 

@@ -1,0 +1,64 @@
+"""``abm zoo``: the index is read and every file verified against its sha256; the entries compared are chosen
+by what the zoo holds."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import pytest
+
+from abm.cli import main
+from abm.zoo import ZooError, pick, read_index, verify
+
+
+def _zoo(tmp_path: Path, names: tuple[str, ...] = ("abm_oracle", "rvt_clip")) -> Path:
+    zoo = tmp_path / "models"
+    zoo.mkdir(parents=True)
+    entries = []
+    for name in names:
+        data = name.encode()
+        (zoo / f"{name}.pt").write_bytes(data)
+        entries.append({"name": name, "file": f"{name}.pt", "method": name.split("_")[0],
+                        "grounder": "oracle" if name == "abm_oracle" else "clip",
+                        "size_bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
+    (zoo / "index.json").write_text(json.dumps(entries))
+    return zoo
+
+
+def test_list_verifies_every_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    zoo = _zoo(tmp_path)
+    assert main(["zoo", "list", "--zoo", str(zoo)]) == 0
+    out = capsys.readouterr().out
+    assert "abm_oracle" in out and "rvt_clip" in out and "FAILED" not in out
+    (zoo / "rvt_clip.pt").write_bytes(b"changed")
+    assert main(["zoo", "list", "--zoo", str(zoo)]) == 2
+    captured = capsys.readouterr()
+    assert "rvt_clip.pt does not match its recorded sha256" in captured.out
+    assert "abm: error: 1 zoo file(s) failed verification" in captured.err
+
+
+def test_missing_or_malformed_index_is_one_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["zoo", "list", "--zoo", str(tmp_path / "nowhere")]) == 2
+    assert "no model zoo index" in capsys.readouterr().err
+    (tmp_path / "index.json").write_text("{not json")
+    with pytest.raises(ZooError, match="not valid JSON"):
+        read_index(tmp_path)
+    (tmp_path / "index.json").write_text(json.dumps({"name": "x"}))
+    with pytest.raises(ZooError, match="must be a list"):
+        read_index(tmp_path)
+    zoo = _zoo(tmp_path / "z")
+    (zoo / "abm_oracle.pt").unlink()
+    with pytest.raises(ZooError, match="listed in .* but missing"):
+        verify(zoo, read_index(zoo)[0])
+
+
+def test_pick_needs_the_clip_of_clip_models(tmp_path: Path) -> None:
+    entries = read_index(_zoo(tmp_path, ("abm_oracle", "abm_clip", "rvt_clip")))
+    # without the benchmark CLIP in the zoo, the CLIP-grounded models cannot run: fall back to the oracle row
+    assert pick(entries, ("abm_clip", "abm_oracle"))["name"] == "abm_oracle"
+    assert pick(entries, ("rvt_clip",)) is None
+    entries.append({"name": "benchmark-clip", "file": "benchmark-clip/", "method": "clip"})
+    assert pick(entries, ("abm_clip", "abm_oracle"))["name"] == "abm_clip"
+    assert pick(entries, ("rvt_clip",))["name"] == "rvt_clip"
