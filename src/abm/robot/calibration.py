@@ -132,10 +132,10 @@ def save_calibration(path: str | Path, cameras: Mapping[str, Mapping[str, np.nda
 
 def load_calibration(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
     """Read and check a calibration file; ``ValueError`` names the camera and the problem."""
-    import yaml
+    from abm.files import load_yaml
 
-    data = yaml.safe_load(Path(path).read_text()) or {}
-    cameras = data.get("cameras")
+    data = load_yaml(path, "calibration file") or {}
+    cameras = data.get("cameras") if isinstance(data, dict) else None
     if not isinstance(cameras, dict) or not cameras:
         raise ValueError(f"{path}: no 'cameras' section")
     out = {}

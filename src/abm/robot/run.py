@@ -44,9 +44,9 @@ class RobotConfig:
 
     @classmethod
     def load(cls, path: str | Path) -> RobotConfig:
-        import yaml
+        from abm.files import load_yaml
 
-        data = yaml.safe_load(Path(path).read_text()) or {}
+        data = load_yaml(path, "robot file") or {}
         unknown = set(data) - {"cameras", "arm", "limits"}
         if unknown:
             raise ValueError(f"{path}: unknown sections {sorted(unknown)} (expected cameras, arm, limits)")

@@ -27,8 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
+from abm.files import load_yaml
 from abm.sim.catalog import CATALOG
 from abm.types import SPLITS
 
@@ -80,9 +79,9 @@ def load_splits(path: str | Path | None = None) -> ObjectSplits:
     if not path.is_file():
         raise SplitFileError(f"{path}: split file not found")
     try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise SplitFileError(f"{path}: not valid YAML ({err})") from None
+        raw = load_yaml(path, "split file")
+    except ValueError as err:
+        raise SplitFileError(str(err)) from None
     if not isinstance(raw, dict):
         raise SplitFileError(f"{path}: expected a mapping with keys 'version' and 'tasks'")
     if raw.get("version") != SPLITS_VERSION:
