@@ -1,4 +1,5 @@
-"""Imports flow one way: types (and the small helpers machine, workers, configuration, files) -> geometry
+"""Imports flow one way: types (and the small helpers machine, workers, configuration, files,
+schema) -> geometry
 -> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot -> commands (quickstart,
 cli, every ``*.commands`` module).
 
@@ -15,7 +16,7 @@ import abm
 
 ROOT = Path(abm.__file__).parent
 LAYERS = [
-    ("types", "machine", "workers", "configuration", "files"),
+    ("types", "machine", "workers", "configuration", "files", "schema"),
     ("geometry",),
     ("render", "grounding", "sim"),
     ("samples",),

@@ -117,7 +117,7 @@ def test_abm_run_cli_with_sim_and_dry_run(recording, checkpoint, tmp_path, capsy
     bad = tmp_path / "bad.yaml"
     bad.write_text("limbs: {}\n")
     assert cli_main(["run", "--robot", str(bad), "--run", str(checkpoint)]) == 2
-    assert "unknown sections ['limbs']" in capsys.readouterr().err
+    assert "unknown keys ['limbs']" in capsys.readouterr().err
     assert cli_main(["run", "--robot", str(replay), "--run", str(checkpoint), "--clip-model", "tiny"]) == 2
     assert "--clip-model applies to --grounder clip or tracking" in capsys.readouterr().err
 

@@ -422,7 +422,13 @@ def load_templates(path: str | Path | None = None, base_synonyms: Synonyms | Non
     data = load_yaml(path, "template file") or {}
     if not isinstance(data, dict):
         raise ValueError(f"{path}: a template file is a mapping (skills, synonyms, ...), not {type(data).__name__}")
-    return parse_templates(data, base_synonyms)
+    unknown = sorted(str(k) for k in data if k not in {"skills", "synonyms", *_WORD_LISTS})
+    if unknown:
+        raise ValueError(f"{path}: unknown keys {unknown} (expected: {sorted({'skills', 'synonyms', *_WORD_LISTS})})")
+    try:
+        return parse_templates(data, base_synonyms)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
 
 
 def _phrase_regex(phrases: Collection[str], lookahead: str = "") -> re.Pattern[str] | None:
