@@ -155,11 +155,28 @@ class RobotConfig:
                          "configure the real arm (kind ur; a dry run only reads its pose)")
 
 
-def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path
-              ) -> list[dict[str, Any]]:
+class NoTargetError(ValueError):
+    """Grounding found no point of the instruction's target object, so the arm would move blind (nothing moved)."""
+
+
+def no_target_message(instruction: str, object_names: dict[int, str] | None) -> str:
+    """Why a step was refused on an empty mask, naming what the scene holds."""
+    held = sorted(set((object_names or {}).values()))
+    scene = f"the scene holds: {', '.join(held)}" if held else "the camera names no objects"
+    return (f"grounding found no target for {instruction!r} ({scene}); nothing was moved. Name an object in the "
+            "scene, or pass --allow-no-target to move on an empty mask anyway")
+
+
+def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path,
+              allow_no_target: bool = False) -> list[dict[str, Any]]:
     """Run the loop for ``steps`` keyframes (or until a simulated arm reports success).
 
+    Args:
+        allow_no_target: move even when the grounder found no point of the target (an empty mask).
+
     Raises:
+        NoTargetError: the mask of the target is empty (and not ``allow_no_target``); nothing is moved (the
+            step is logged).
         LimitError: a predicted keyframe violates ``limits``; the arm is not moved (the step is logged).
         KeyboardInterrupt: Ctrl-C during a motion; the arm's ``stop()`` is called first (the step is logged).
     """
@@ -173,13 +190,18 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
             t0 = time.perf_counter()
             pose, opening = arm.state()
             obs = Observation(camera.read(), opening, pose, k)
-            action = policy.act(obs, instruction, names)
-            views = policy.model_inputs(collate([policy.observe(obs, instruction, names)]))
+            sample = policy.observe(obs, instruction, names)
+            views = policy.model_inputs(collate([sample]))
             arrays = {f"camera/{n}": f.rgb for n, f in obs.cameras.items()}
             arrays["views"] = views["images"][0, :, :3].cpu().numpy()
             if "mask" in views:
                 arrays["mask"] = views["mask"][0, :, 0].cpu().numpy()
             np.savez_compressed(log_dir / f"step_{k:03d}.npz", **arrays)
+            if "point_mask" in sample and not float(sample["point_mask"].sum()) > 0 and not allow_no_target:
+                reason = no_target_message(instruction, names)
+                out.write(json.dumps({"step": k, "status": "refused", "reason": reason}) + "\n")
+                raise NoTargetError(reason)
+            action = policy.act(obs, instruction, names)
             record = {"step": k, "position": action.position.round(4).tolist(),
                       "quaternion": action.quaternion.round(4).tolist(), "gripper_open": action.gripper_open,
                       "ignore_collision": action.ignore_collision, "timings": policy.last_timings}
