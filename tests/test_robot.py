@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from abm.cli import main as cli_main
-from abm.robot import DryRunArm, LimitError, MotionLimits, ReplayCamera, record_observations, run_robot
+from abm.robot import DryRunArm, LimitError, MotionLimits, NoTargetError, ReplayCamera, record_observations, run_robot
 from abm.sim.env import TaskEnv, run_expert
 from abm.types import KeyframeAction
 
@@ -117,9 +117,43 @@ def test_abm_run_cli_with_sim_and_dry_run(recording, checkpoint, tmp_path, capsy
     bad = tmp_path / "bad.yaml"
     bad.write_text("limbs: {}\n")
     assert cli_main(["run", "--robot", str(bad), "--run", str(checkpoint)]) == 2
-    assert "unknown sections ['limbs']" in capsys.readouterr().err
+    assert "unknown keys ['limbs']" in capsys.readouterr().err
     assert cli_main(["run", "--robot", str(replay), "--run", str(checkpoint), "--clip-model", "tiny"]) == 2
     assert "--clip-model applies to --grounder clip or tracking" in capsys.readouterr().err
+
+
+def test_run_refuses_to_move_when_grounding_finds_no_target(recording, checkpoint, tmp_path, capsys) -> None:
+    """An instruction whose object is not in the scene: an empty mask, so nothing moves, on both arms."""
+    from abm.policy import KeyframePolicy
+
+    folder, episode = recording
+    held = sorted(set(episode.object_names.values()))
+    policy = KeyframePolicy.from_checkpoint(checkpoint)
+    camera = ReplayCamera(folder)
+    arm = DryRunArm(*camera.recorded_gripper())
+    with pytest.raises(NoTargetError, match=f"no target for 'put the ketchup on the target' .*holds: {held[0]}"):
+        run_robot(policy, camera, arm, "put the ketchup on the target", OPEN, 2, tmp_path / "log")
+    assert arm.commands == []
+    refused = json.loads((tmp_path / "log/steps.jsonl").read_text())
+    assert refused["status"] == "refused" and "--allow-no-target" in refused["reason"]
+    # the same instruction with a target in the scene moves
+    assert len(run_robot(policy, ReplayCamera(folder), arm, episode.instruction, OPEN, 1, tmp_path / "ok")) == 1
+    # the command, dry run and MuJoCo arm: exit 2 with one line, unless --allow-no-target
+    replay = tmp_path / "replay.yaml"
+    replay.write_text(f"cameras: {{kind: replay, path: {folder}}}\narm: {{kind: dry-run}}\n" + OPEN_YAML)
+    sim = tmp_path / "sim.yaml"
+    sim.write_text("arm: {kind: sim, task: pick_block, split: seen, seed: 1, resolution: 48}\n" + OPEN_YAML)
+    for robot in (replay, sim):
+        log_dir = tmp_path / robot.stem
+        base = ["run", "--robot", str(robot), "--run", str(checkpoint), "--steps", "1", "--log", str(log_dir),
+                "--instruction", "put the ketchup on the target"]
+        assert cli_main(base) == 2
+        errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("abm: error: ")]
+        assert len(errors) == 1 and "refused before moving: grounding found no target" in errors[0]
+        assert "the scene holds: " in errors[0] and "block" in errors[0]
+        assert cli_main([*base, "--allow-no-target"]) == 0
+        status = json.loads((log_dir / "steps.jsonl").read_text().splitlines()[0])["status"]
+        assert status in {"dry-run", "reached", "unreachable", "collided"}
 
 
 def _rotation(rng, max_deg: float) -> np.ndarray:

@@ -345,7 +345,7 @@ class KeyframeDataset(Dataset):
         if not path.exists():
             raise FileNotFoundError(f"grounding cache entry {path} is missing; fill the cache with abm data ground")
         scene = self._scene(j, obs, None, False, False)
-        with np.load(path) as data:
+        with np.load(path, allow_pickle=False) as data:
             pm = None
             if self.mask:
                 mask, heat = data["mask"].astype(np.float32), data["heatmap"].astype(np.float32)

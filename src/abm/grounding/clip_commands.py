@@ -59,13 +59,22 @@ def run_train(args: argparse.Namespace) -> int:
 
     from abm.grounding.clip import load_clip
     from abm.grounding.clip_data import build_dataset, load_dataset
-    from abm.grounding.clip_train import CHECKPOINT, SUMMARY, TrainConfig, train, zero_shot_accuracy
+    from abm.grounding.clip_train import (
+        CHECKPOINT,
+        SUMMARY,
+        TrainConfig,
+        load_training_state,
+        train,
+        zero_shot_accuracy,
+    )
 
     if args.steps < 1 or args.batch < 2 or args.shards < 1:
         raise ValueError("--steps must be >= 1, --batch >= 2 and --shards >= 1")  # abm: error: ...
     if (args.out / CHECKPOINT).is_file() and not args.resume:
         raise ValueError(f"{args.out} already holds a training run; pass --resume to continue it or choose "
                          "another --out")
+    if args.resume and (args.out / CHECKPOINT).is_file():
+        load_training_state(args.out / CHECKPOINT)  # a crafted or foreign checkpoint is refused before rendering
     torch.set_num_threads(args.threads)
     if args.threads > 1 and "OMP_WAIT_POLICY" not in os.environ:
         log.info("hint: on a shared machine start with OMP_WAIT_POLICY=PASSIVE; busy-waiting OpenMP threads "

@@ -565,7 +565,7 @@ def load_dataset(folder: str | Path, shards: int | None = None) -> ClipDataset:
         raise FileNotFoundError(f"no shards in {folder}")
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("images", "classes", "kind", "label", "caption")}
     for path in paths:
-        with np.load(path) as z:
+        with np.load(path, allow_pickle=False) as z:
             for k in parts:
                 parts[k].append(z[k])
     return ClipDataset(**{k: np.concatenate(v) for k, v in parts.items()}, class_names=tuple(meta["classes"]))

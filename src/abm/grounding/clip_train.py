@@ -40,6 +40,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from abm.files import load_torch_data
 from abm.grounding.clip import maskclip_head, run_encoder_layer
 from abm.grounding.clip_captions import GENERIC_PARENT, OBJECT_PARENT, class_prompts
 from abm.grounding.clip_data import SCENE, ClipDataset
@@ -340,6 +341,22 @@ def save_model(model: Any, tokenizer: Any, out: Path, mean: Sequence[float], std
     (out / "preprocessor_config.json").write_text(json.dumps(pre, indent=2) + "\n", encoding="utf-8")
 
 
+def load_training_state(path: str | Path) -> dict[str, Any]:
+    """The resumable state in ``checkpoint.pt``, read with ``weights_only=True`` (tensors and plain data only,
+    so a crafted file is refused instead of running its code).
+
+    Raises:
+        ValueError: the file holds other Python objects, or cannot be read, or lacks the training state.
+    """
+    state = load_torch_data(path, "abm CLIP training checkpoint")
+    missing = [k for k in ("model", "optimizer", "step", "elapsed", "history", "order", "rng", "torch_rng", "mean",
+                           "std") if not isinstance(state, dict) or k not in state]
+    if missing:
+        raise ValueError(f"{path} is not an abm CLIP training checkpoint (missing {', '.join(missing)}); "
+                         "train into a new --out folder")
+    return state
+
+
 def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None, resume: bool = False,
           progress: bool = True, extra_summary: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train on ``data`` and write the model folder ``out``; returns the summary written to ``abm_clip.json``.
@@ -367,7 +384,7 @@ def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None,
     rng = np.random.default_rng([config.seed, 1])
     step, elapsed, history = 0, 0.0, []
     if resume and ckpt_path.is_file():
-        state = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        state = load_training_state(ckpt_path)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         step, elapsed, history = state["step"], state["elapsed"], state["history"]

@@ -35,6 +35,8 @@ from typing import NamedTuple, NoReturn, Protocol, runtime_checkable
 
 import yaml
 
+from abm.files import load_yaml
+
 PLACEHOLDER = "X"
 SECOND_PLACEHOLDER = "Y"  # the second object of a two-target skill ("put X in Y": X is grasped, then placed in Y)
 ARTICLES: frozenset[str] = frozenset({"a", "an", "the"})
@@ -417,7 +419,16 @@ def load_templates(path: str | Path | None = None, base_synonyms: Synonyms | Non
     if base_synonyms is None:
         builtin = _builtin_data().get("synonyms", {}) or {}
         base_synonyms = {str(k): tuple(str(p) for p in v) for k, v in builtin.items()}
-    return parse_templates(yaml.safe_load(path.read_text(encoding="utf-8")) or {}, base_synonyms)
+    data = load_yaml(path, "template file") or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a template file is a mapping (skills, synonyms, ...), not {type(data).__name__}")
+    unknown = sorted(str(k) for k in data if k not in {"skills", "synonyms", *_WORD_LISTS})
+    if unknown:
+        raise ValueError(f"{path}: unknown keys {unknown} (expected: {sorted({'skills', 'synonyms', *_WORD_LISTS})})")
+    try:
+        return parse_templates(data, base_synonyms)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
 
 
 def _phrase_regex(phrases: Collection[str], lookahead: str = "") -> re.Pattern[str] | None:

@@ -16,13 +16,14 @@ tensors and plain data only, so a crafted file is refused instead of running its
 from __future__ import annotations
 
 import os
-import pickle
 import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+
+from abm.files import load_torch_data
 
 try:
     from numpy._core.multiarray import _reconstruct
@@ -83,18 +84,9 @@ def resolve_checkpoint(run_or_ckpt: str | Path) -> Path:
 def load_checkpoint(run_or_ckpt: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """Load and sanity-check a checkpoint (file or run folder)."""
     path = resolve_checkpoint(run_or_ckpt)
-    try:
-        # weights_only: tensors and plain data only, so a crafted file cannot run code. Checkpoints
-        # written before the numpy RNG state was stored as a tensor also hold numpy arrays.
-        with torch.serialization.safe_globals(_NUMPY_ARRAY_GLOBALS):
-            data = torch.load(path, map_location=map_location, weights_only=True)
-    except pickle.UnpicklingError as err:
-        raise ValueError(
-            f"refusing to load {path}: it holds Python objects other than tensors and plain data, which an "
-            f"abm checkpoint never does (it may be crafted to run code). Details: {str(err).splitlines()[0]}"
-        ) from err
-    except Exception as err:  # noqa: BLE001 - any other reading failure means a corrupt file
-        raise ValueError(f"cannot read checkpoint {path}: {err}") from err
+    # weights_only: tensors and plain data only, so a crafted file cannot run code. Checkpoints
+    # written before the numpy RNG state was stored as a tensor also hold numpy arrays.
+    data = load_torch_data(path, "abm checkpoint", _NUMPY_ARRAY_GLOBALS, map_location)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ValueError(f"{path} is not an abm policy checkpoint")
     if int(data.get("version", 0)) > VERSION:

@@ -6,7 +6,7 @@ demand, as their SDKs are optional (docs/real-robot.md)."""
 
 from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot, record_observations
 from abm.robot.limits import LimitError, MotionLimits
-from abm.robot.run import RobotConfig, run_robot
+from abm.robot.run import NoTargetError, RobotConfig, run_robot
 
-__all__ = ["DryRunArm", "LimitError", "MotionLimits", "ReplayCamera", "RobotConfig", "SimRobot",
+__all__ = ["DryRunArm", "LimitError", "MotionLimits", "NoTargetError", "ReplayCamera", "RobotConfig", "SimRobot",
            "record_observations", "run_robot"]

@@ -132,10 +132,10 @@ def save_calibration(path: str | Path, cameras: Mapping[str, Mapping[str, np.nda
 
 def load_calibration(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
     """Read and check a calibration file; ``ValueError`` names the camera and the problem."""
-    import yaml
+    from abm.files import load_yaml
 
-    data = yaml.safe_load(Path(path).read_text()) or {}
-    cameras = data.get("cameras")
+    data = load_yaml(path, "calibration file") or {}
+    cameras = data.get("cameras") if isinstance(data, dict) else None
     if not isinstance(cameras, dict) or not cameras:
         raise ValueError(f"{path}: no 'cameras' section")
     out = {}
@@ -149,6 +149,12 @@ def load_calibration(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
         if k.shape != (3, 3) or t.shape != (4, 4):
             raise ValueError(f"{path}: camera {name!r}: intrinsics {k.shape}, extrinsics {t.shape}; "
                              "expected (3, 3), (4, 4)")
+        if not (np.all(np.isfinite(k)) and np.all(np.isfinite(t))):
+            raise ValueError(f"{path}: camera {name!r}: intrinsics and extrinsics must be finite numbers (no .nan "
+                             "or .inf)")
+        unknown = sorted(str(key) for key in cam if key not in ("intrinsics", "extrinsics"))
+        if unknown:
+            raise ValueError(f"{path}: camera {name!r}: unknown keys {unknown} (expected: extrinsics, intrinsics)")
         if not np.allclose(t[:3, :3] @ t[:3, :3].T, np.eye(3), atol=1e-5) or not np.allclose(t[3], [0, 0, 0, 1]):
             raise ValueError(f"{path}: camera {name!r}: extrinsics is not a rigid transform")
         out[str(name)] = {"intrinsics": k, "extrinsics": t}

@@ -17,6 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--run", type=Path, required=True, help="training run folder or checkpoint")
     p.add_argument("--instruction", help="the instruction (default: the recording's or the scene's)")
     p.add_argument("--dry-run", action="store_true", help="never move the arm: log the commands only")
+    p.add_argument("--allow-no-target", action="store_true",
+                   help="move even when grounding finds no point of the instruction's object (by default such a "
+                   "step is refused before anything moves, exit code 2)")
     p.add_argument("--steps", type=int, default=10, help="keyframes to run (default: 10)")
     p.add_argument("--grounder", choices=["oracle", "clip", "tracking"], help="override the checkpoint's grounder")
     p.add_argument("--clip-model", help="CLIP weights (hub name or folder) of --grounder clip or tracking")
@@ -69,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from abm.grounding.grounders import override_spec
     from abm.policy import KeyframePolicy
     from abm.robot.limits import LimitError
-    from abm.robot.run import RobotConfig, run_robot
+    from abm.robot.run import NoTargetError, RobotConfig, run_robot
 
     if not args.robot.is_file():
         raise CommandError(f"--robot {args.robot} is not a file")
@@ -86,8 +89,9 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("give --instruction (the camera source has none)")
     policy = KeyframePolicy.from_checkpoint(args.run, device=args.device, grounder=grounder)
     try:
-        records = run_robot(policy, camera, arm, instruction, config.limits, args.steps, args.log)
-    except LimitError as err:
+        records = run_robot(policy, camera, arm, instruction, config.limits, args.steps, args.log,
+                            allow_no_target=args.allow_no_target)
+    except (LimitError, NoTargetError) as err:
         raise CommandError(f"refused before moving: {err} (log: {args.log})") from None
     finally:
         if hasattr(camera, "close"):

@@ -62,7 +62,7 @@ class ReplayCamera:
         self.index = 0
 
     def _load(self, k: int) -> dict[str, np.ndarray]:
-        with np.load(self.folder / f"step_{k:03d}.npz") as data:
+        with np.load(self.folder / f"step_{k:03d}.npz", allow_pickle=False) as data:
             return {key: data[key] for key in data.files}
 
     def read(self) -> dict[str, CameraFrame]:

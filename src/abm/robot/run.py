@@ -27,11 +27,44 @@ from typing import Any
 import numpy as np
 
 from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot
-from abm.robot.limits import LimitError, MotionLimits
+from abm.robot.limits import LIMITS_SCHEMA, LimitError, MotionLimits
 from abm.samples import collate
-from abm.types import Observation
+from abm.schema import Field, SchemaError, any_mapping, check_mapping, integer, number, strings, text, vector
+from abm.types import SPLITS, Observation
 
 log = logging.getLogger(__name__)
+
+
+# The robot file's declared schema: its sections, then each section's options per ``kind``.
+ROBOT_SCHEMA = {"cameras": Field(any_mapping), "arm": Field(any_mapping), "limits": Field(any_mapping)}
+_SIM_OPTIONS = {"task": Field(text()), "split": Field(text(SPLITS)), "seed": Field(integer(0, 2**63 - 1)),
+                "resolution": Field(integer(8, 4096))}
+_POSITIVE = Field(number(0.0, low_open=True))
+CAMERA_KINDS: dict[str, dict[str, Field]] = {
+    "replay": {"path": Field(text(), required=True)},
+    "sim": _SIM_OPTIONS,
+    "realsense": {"serials": Field(strings, required=True), "calibration": Field(text()),
+                  "width": Field(integer(1)), "height": Field(integer(1)), "fps": Field(integer(1)),
+                  "timeout_ms": Field(integer(1)), "warmup_frames": Field(integer(0))},
+}
+ARM_KINDS: dict[str, dict[str, Field]] = {
+    "dry-run": {},
+    "sim": {**_SIM_OPTIONS, "task": Field(text(), required=True)},
+    "ur": {"host": Field(text(), required=True), "speed": _POSITIVE, "acceleration": _POSITIVE,
+           "tcp_offset": Field(vector(6)), "base_pose": Field(vector(6)), "tolerance_m": _POSITIVE,
+           "tolerance_deg": _POSITIVE, "motion_timeout_s": _POSITIVE, "gripper": Field(any_mapping)},
+}
+
+
+def _check_kind(path: str | Path, section: str, data: dict[str, Any], kinds: dict[str, dict[str, Field]]
+                ) -> dict[str, Any]:
+    """A ``{kind: ..., options}`` section checked against the schema of its kind."""
+    if "kind" not in data:
+        raise SchemaError(f"{path}: {section}: missing required key 'kind' (one of {list(kinds)})")
+    kind = data["kind"]
+    if not isinstance(kind, str) or kind not in kinds:
+        raise SchemaError(f"{path}: {section}.kind: expected one of {list(kinds)}, got {kind!r}")
+    return {"kind": kind, **check_mapping(path, section, {k: v for k, v in data.items() if k != "kind"}, kinds[kind])}
 
 
 @dataclass
@@ -44,21 +77,26 @@ class RobotConfig:
 
     @classmethod
     def load(cls, path: str | Path) -> RobotConfig:
-        import yaml
+        """Read and check a robot file against its declared schema (:data:`ROBOT_SCHEMA`, :data:`CAMERA_KINDS`,
+        :data:`ARM_KINDS`, :data:`abm.robot.limits.LIMITS_SCHEMA`) before anything is built.
 
-        data = yaml.safe_load(Path(path).read_text()) or {}
-        unknown = set(data) - {"cameras", "arm", "limits"}
-        if unknown:
-            raise ValueError(f"{path}: unknown sections {sorted(unknown)} (expected cameras, arm, limits)")
-        limits = dict(data.get("limits") or {})
-        for key in ("workspace_lower", "workspace_upper"):
-            if key in limits:
-                limits[key] = tuple(float(v) for v in limits[key])
+        Raises:
+            ValueError: (:class:`abm.schema.SchemaError`) naming the file, the key and what is expected.
+        """
+        from abm.files import load_yaml
+
+        data = load_yaml(path, "robot file")
+        if data is None:
+            raise SchemaError(f"{path}: the robot file is empty; expected the sections {sorted(ROBOT_SCHEMA)} "
+                              "(see abm.robot.run)")
+        top = check_mapping(path, "", data, ROBOT_SCHEMA)
+        cameras = _check_kind(path, "cameras", top.get("cameras", {"kind": "sim"}), CAMERA_KINDS)
+        arm = _check_kind(path, "arm", top.get("arm", {"kind": "dry-run"}), ARM_KINDS)
+        limits = check_mapping(path, "limits", top.get("limits", {}), LIMITS_SCHEMA)
         try:
-            return cls(dict(data.get("cameras") or {"kind": "sim"}), dict(data.get("arm") or {"kind": "dry-run"}),
-                       MotionLimits(**limits))
-        except TypeError as err:
-            raise ValueError(f"{path}: bad limits section ({err})") from None
+            return cls(cameras, arm, MotionLimits(**limits))
+        except ValueError as err:
+            raise SchemaError(f"{path}: limits: {str(err).removeprefix('motion limits: ')}") from None
 
     def build(self, dry_run: bool = False) -> tuple[Any, Any]:
         """``(camera, arm)``; ``dry_run`` replaces the arm by :class:`DryRunArm`."""
@@ -67,6 +105,9 @@ class RobotConfig:
         if arm_kind == "sim" or self.cameras.get("kind") == "sim":
             arm_opts = self.arm if self.arm.get("kind") == "sim" else {}
             opts = {k: v for k, v in {**self.cameras, **arm_opts}.items() if k != "kind"}
+            if "task" not in opts:
+                raise ValueError("a simulated camera or arm needs task: give it in the cameras or arm section "
+                                 "(e.g. arm: {kind: sim, task: pick_block})")
             sim = SimRobot(**opts)
         camera = self.build_camera(sim)
         if arm_kind == "dry-run":
@@ -114,11 +155,28 @@ class RobotConfig:
                          "configure the real arm (kind ur; a dry run only reads its pose)")
 
 
-def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path
-              ) -> list[dict[str, Any]]:
+class NoTargetError(ValueError):
+    """Grounding found no point of the instruction's target object, so the arm would move blind (nothing moved)."""
+
+
+def no_target_message(instruction: str, object_names: dict[int, str] | None) -> str:
+    """Why a step was refused on an empty mask, naming what the scene holds."""
+    held = sorted(set((object_names or {}).values()))
+    scene = f"the scene holds: {', '.join(held)}" if held else "the camera names no objects"
+    return (f"grounding found no target for {instruction!r} ({scene}); nothing was moved. Name an object in the "
+            "scene, or pass --allow-no-target to move on an empty mask anyway")
+
+
+def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path,
+              allow_no_target: bool = False) -> list[dict[str, Any]]:
     """Run the loop for ``steps`` keyframes (or until a simulated arm reports success).
 
+    Args:
+        allow_no_target: move even when the grounder found no point of the target (an empty mask).
+
     Raises:
+        NoTargetError: the mask of the target is empty (and not ``allow_no_target``); nothing is moved (the
+            step is logged).
         LimitError: a predicted keyframe violates ``limits``; the arm is not moved (the step is logged).
         KeyboardInterrupt: Ctrl-C during a motion; the arm's ``stop()`` is called first (the step is logged).
     """
@@ -132,13 +190,18 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
             t0 = time.perf_counter()
             pose, opening = arm.state()
             obs = Observation(camera.read(), opening, pose, k)
-            action = policy.act(obs, instruction, names)
-            views = policy.model_inputs(collate([policy.observe(obs, instruction, names)]))
+            sample = policy.observe(obs, instruction, names)
+            views = policy.model_inputs(collate([sample]))
             arrays = {f"camera/{n}": f.rgb for n, f in obs.cameras.items()}
             arrays["views"] = views["images"][0, :, :3].cpu().numpy()
             if "mask" in views:
                 arrays["mask"] = views["mask"][0, :, 0].cpu().numpy()
             np.savez_compressed(log_dir / f"step_{k:03d}.npz", **arrays)
+            if "point_mask" in sample and not float(sample["point_mask"].sum()) > 0 and not allow_no_target:
+                reason = no_target_message(instruction, names)
+                out.write(json.dumps({"step": k, "status": "refused", "reason": reason}) + "\n")
+                raise NoTargetError(reason)
+            action = policy.act(obs, instruction, names)
             record = {"step": k, "position": action.position.round(4).tolist(),
                       "quaternion": action.quaternion.round(4).tolist(), "gripper_open": action.gripper_open,
                       "ignore_collision": action.ignore_collision, "timings": policy.last_timings}

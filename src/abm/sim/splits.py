@@ -27,8 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
+from abm.files import load_yaml
 from abm.sim.catalog import CATALOG
 from abm.types import SPLITS
 
@@ -80,11 +79,14 @@ def load_splits(path: str | Path | None = None) -> ObjectSplits:
     if not path.is_file():
         raise SplitFileError(f"{path}: split file not found")
     try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise SplitFileError(f"{path}: not valid YAML ({err})") from None
+        raw = load_yaml(path, "split file")
+    except ValueError as err:
+        raise SplitFileError(str(err)) from None
     if not isinstance(raw, dict):
         raise SplitFileError(f"{path}: expected a mapping with keys 'version' and 'tasks'")
+    unknown = sorted(str(k) for k in raw if k not in ("version", "tasks"))
+    if unknown:
+        raise SplitFileError(f"{path}: unknown keys {unknown} (expected: ['tasks', 'version'])")
     if raw.get("version") != SPLITS_VERSION:
         raise SplitFileError(f"{path}: 'version' must be {SPLITS_VERSION}, got {raw.get('version')!r}")
     tasks = raw.get("tasks")
@@ -135,6 +137,9 @@ def _object_list(path: Path, where: str, names) -> list[str]:
     unknown = [n for n in names if n not in CATALOG]
     if unknown:
         raise SplitFileError(f"{path}: {where} names unknown objects {unknown}; known objects: {sorted(CATALOG)}")
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise SplitFileError(f"{path}: {where} lists {repeated} more than once; list each object once")
     return list(names)
 
 
