@@ -227,6 +227,7 @@ def evaluate(
     checkpoints = {str(r): checkpoint_of(r) for r in runs}
     plan = [replace(j, checkpoint=checkpoints[j.run], settings=settings.signature())
             for j in plan_jobs(runs, tasks, split, episodes, repeats, out, gifs, labels)]
+    check_same_evaluation(log.read(), plan, out)
     jobs = [j for j in plan if j.key not in done]
     bar = tqdm(total=len(jobs), desc=f"eval {split}", unit="ep", disable=not progress)
     successes = 0
@@ -250,6 +251,34 @@ def evaluate(
     planned = {j.key for j in plan}
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
     return write_reports(list(latest.values()), out)
+
+
+PROTOCOL_FILE = "evaluation.json"
+
+
+def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[EvalJob], out: Path) -> None:
+    """Refuse (``ValueError``) to add rollouts to a folder whose outcomes were made with other evaluation
+    settings or on other tasks / splits, so a table never mixes two protocols and an accidental call does not
+    append to a finished evaluation; then record this protocol in ``out/evaluation.json``. More episodes,
+    repeats or runs, and newer checkpoints, are allowed (and resume works as before).
+
+    Folders written before ``evaluation.json`` existed are checked against their outcomes instead: other
+    settings, or tasks this call does not plan, are refused.
+    """
+    wanted = {"tasks": sorted({f"{j.task} ({j.split})" for j in plan}), "settings": sorted({j.settings for j in plan})}
+    path = out / PROTOCOL_FILE
+    if path.is_file():
+        had = json.loads(path.read_text())
+    else:
+        recorded = [o for o in existing if o.settings]  # logs written before settings were recorded: unknown
+        had = {"tasks": sorted({f"{o.task} ({o.split})" for o in recorded} | set(wanted["tasks"])),
+               "settings": sorted({o.settings for o in recorded} | set(wanted["settings"]))}
+    problems = [f"{key} {', '.join(had[key])} there vs {', '.join(wanted[key])} now"
+                for key in ("tasks", "settings") if had.get(key) != wanted[key]]
+    if problems:
+        raise ValueError(f"{out} holds the outcomes of another evaluation ({'; '.join(problems)}): evaluate into "
+                         f"a new --out folder, or delete {out / 'outcomes.jsonl'} and {path.name} to start over")
+    path.write_text(json.dumps(wanted, indent=2) + "\n")
 
 
 def checkpoint_of(run: str | Path) -> str:
