@@ -58,7 +58,11 @@ def configure_logging(level: int = logging.INFO) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from abm.configuration import apply_config_file
+
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    apply_config_file(parser, argv)  # a command's --config FILE: its values become that command's defaults
     args = parser.parse_args(argv)
     configure_logging()
     if not getattr(args, "func", None):

@@ -8,6 +8,8 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
+    from abm.configuration import WORKERS
+
     data = subparsers.add_parser("data", help="generate and inspect demonstration episodes")
     sub = data.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
 
@@ -18,7 +20,7 @@ def register(subparsers) -> None:
     gen.add_argument("--split", required=True, help="object split: seen or unseen")
     gen.add_argument("--episodes", type=int, required=True, help="number of successful demonstrations")
     gen.add_argument("--out", required=True, type=Path, help="output directory")
-    gen.add_argument("--workers", type=int, default=1, help="parallel worker processes")
+    gen.add_argument("--workers", type=int, default=WORKERS, help="parallel worker processes")
     gen.add_argument("--seed", type=int, default=0, help="first scene seed")
     gen.add_argument("--resolution", type=int, default=128, help="camera resolution (pixels, square)")
     gen.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")

@@ -9,7 +9,7 @@ SPLITS = ("seen", "unseen", "compositional")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from abm.configuration import add_config_arguments
+    from abm.configuration import WORKERS, add_config_arguments
     from abm.evaluation.runner import EvalSettings
 
     p = subparsers.add_parser(
@@ -28,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "combined table (default: seen unseen)")
     p.add_argument("--episodes", type=int, default=25, help="episodes per task and repeat (paper: 25)")
     p.add_argument("--repeats", type=int, default=5, help="repeats with different scenes (paper: 5)")
-    p.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
+    p.add_argument("--workers", type=int, default=WORKERS, help="parallel rollout processes")
     add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
     p.add_argument("--gifs", type=int, default=0, help="save front-camera GIFs of this many episodes per task")
     p.add_argument("--out", type=Path, default=None,

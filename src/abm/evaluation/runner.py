@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from abm.configuration import MAX_KEYFRAMES
 from abm.evaluation.results import (
     EpisodeOutcome,
     OutcomeLog,
@@ -74,7 +75,7 @@ class EvalSettings:
     device: str = "cpu"
     grounder: str | None = field(default=None, metadata={"choices": ["clip", "oracle", "tracking"]})
     resolution: int = 128
-    max_steps: int = 10
+    max_steps: int = MAX_KEYFRAMES
     splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
     clip_model: str | None = None
 

@@ -8,6 +8,8 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from abm.configuration import MAX_KEYFRAMES
+
     p = subparsers.add_parser(
         "run", help="run a trained policy on a robot (recorded camera, MuJoCo arm or dry run), logged per step",
         description="observe -> ground -> predict -> check limits -> move, for --steps keyframes. The robot "
@@ -17,7 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--run", type=Path, required=True, help="training run folder or checkpoint")
     p.add_argument("--instruction", help="the instruction (default: the recording's or the scene's)")
     p.add_argument("--dry-run", action="store_true", help="never move the arm: log the commands only")
-    p.add_argument("--steps", type=int, default=10, help="keyframes to run (default: 10)")
+    p.add_argument("--steps", type=int, default=MAX_KEYFRAMES, help="keyframes to run")
     p.add_argument("--grounder", choices=["oracle", "clip", "tracking"], help="override the checkpoint's grounder")
     p.add_argument("--clip-model", help="CLIP weights (hub name or folder) of --grounder clip or tracking")
     p.add_argument("--device", default="cpu", help="torch device of the policy")

@@ -1,6 +1,6 @@
 """Behaviour-cloning training loop for every policy variant (single process or ``torchrun`` DDP).
 
-* LAMB (``torch_optimizer.Lamb``), linear warm-up then cosine decay, gradient-norm clipping,
+* AdamW (default) or LAMB (``torch_optimizer.Lamb``), linear warm-up then cosine decay, gradient-norm clipping,
   bf16 autocast on CUDA.
 * Data: :class:`~abm.data.keyframes.KeyframeDataset` with the deterministic
   :class:`~abm.data.keyframes.StepSampler` (rank-sharded like ``DistributedSampler``), so a run
