@@ -9,6 +9,7 @@ rollout that raises is recorded as a failure with its error instead of stopping 
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 import traceback
@@ -18,8 +19,6 @@ from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from abm.configuration import MAX_KEYFRAMES
 from abm.evaluation.results import (
@@ -80,6 +79,8 @@ class EvalSettings:
     clip_model: str | None = None
 
     def __post_init__(self) -> None:
+        if self.grounder is None and self.clip_model is None:
+            return  # nothing to check (and no torch import for `abm --help`)
         from abm.grounding.grounders import override_spec
 
         override_spec(self.grounder, self.clip_model)  # a clear error for --clip-model without a CLIP grounder
@@ -331,7 +332,7 @@ def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seco
         frame = obs.camera(camera)
         img = Image.fromarray(frame.rgb).resize((frame.width * 2, frame.height * 2), Image.NEAREST)
         u, v, z = project_to_camera(action.position[None], frame.intrinsics, frame.extrinsics)[0]
-        if z > 0 and np.isfinite(u) and np.isfinite(v):
+        if z > 0 and math.isfinite(u) and math.isfinite(v):
             draw = ImageDraw.Draw(img)
             cx, cy = 2 * u + 1, 2 * v + 1
             color = (0, 255, 0) if action.gripper_open else (255, 0, 255)

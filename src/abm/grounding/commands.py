@@ -15,9 +15,10 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:  # numpy is imported by the command itself, so `abm --help` stays fast
+    import numpy as np
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -67,6 +68,8 @@ def _load_scene(args: argparse.Namespace) -> tuple[Any, dict[int, str], str | No
 
 
 def _camera_panels(obs: Any, cloud: Any, field: Any) -> dict[str, np.ndarray]:
+    import numpy as np
+
     from abm.grounding.visualize import blend, colormap, hstack, label, upscale
 
     panels = {}
@@ -91,6 +94,7 @@ def _camera_panels(obs: Any, cloud: Any, field: Any) -> dict[str, np.ndarray]:
 
 
 def _topdown(cloud: Any, field: Any, workspace: Any, resolution: int = 256) -> np.ndarray:
+    import numpy as np
     import torch
 
     from abm.grounding.visualize import blend, colormap, hstack, label, to_uint8
@@ -109,6 +113,7 @@ def _topdown(cloud: Any, field: Any, workspace: Any, resolution: int = 256) -> n
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
     import torch
     from PIL import Image
 
