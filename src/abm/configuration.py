@@ -7,6 +7,7 @@ builds the dataclass back from the parsed arguments. Field ``metadata`` adjusts 
 
 * ``flag``: the flag name (default ``--field-name``);
 * ``choices``: allowed values; ``required``: the flag must be given (even though the field has a default);
+* ``off_help``: the help of the ``--no-name`` switch of a ``True`` field (default ``turn off: <field text>``);
 * ``cli=False``: no flag (the command fills the field itself, e.g. from several flags).
 
 Booleans become switches: ``--name`` for a ``False`` default, ``--no-name`` for a ``True`` default.
@@ -31,6 +32,14 @@ WORKERS = 2  #: parallel processes of data generation, evaluation, the quickstar
 CPU_CLIP_MODEL = "openai/clip-vit-base-patch16"  #: the CPU-sized pretrained CLIP (tried first on CPU)
 GPU_CLIP_MODEL = "openai/clip-vit-large-patch14-336"  #: the paper's CLIP (the default of the clip grounder)
 TEST_ONLY_CLIP = "random weights, for tests only: masks and text features are meaningless"  #: 'tiny' / 'random:*'
+
+
+def clip_model_help(use: str, default: str | None = GPU_CLIP_MODEL) -> str:
+    """The help of a ``--clip-model`` option, the same for every command: what it takes, that 'tiny' and
+    'random:ARCH' are random-weight CLIPs for tests only, and the default."""
+    shown = f" (default: {default})" if default else ""
+    return (f"CLIP weights {use}: a hub name or a local folder (e.g. an abm clip train output); 'tiny' and "
+            f"'random:ARCH' are {TEST_ONLY_CLIP}{shown}")
 
 _ENTRY = re.compile(r"^(\s+)([A-Za-z_][\w ,/]*?):\s+(.*)$")
 
@@ -126,6 +135,8 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: type, defaults: A
                 target.add_argument(_flag(f), action=argparse.BooleanOptionalAction, **kwargs)
                 continue
             flag = _flag(f) if not default else f.metadata.get("flag", "--no-" + f.name.replace("_", "-"))
+            if default:  # the flag turns the field off: say so, in the flag's own sense
+                kwargs["help"] = f.metadata.get("off_help") or f"turn off: {text}"
             target.add_argument(flag, action="store_false" if default else "store_true", default=default, **kwargs)
             continue
         kwargs["type"] = kind if kind in (int, float, Path) else str

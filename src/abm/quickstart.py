@@ -66,7 +66,8 @@ class QuickstartConfig:
         resolution: camera image side (pixels) of demonstrations and evaluation.
         device: torch device (cpu, cuda).
         clip_model: CLIP weights (hub name or local folder) for the grounder (default: the best found, see
-            ``choose_grounder``: pretrained CLIP, else the benchmark CLIP, else the oracle).
+            ``choose_grounder``: pretrained CLIP, else the benchmark CLIP, else the oracle; 'tiny' and
+            'random:ARCH' are random weights, for tests only).
         offline: never try to download CLIP weights from the model hub.
         seed: seed of the demonstrations.
     """

@@ -68,7 +68,7 @@ class EvalSettings:
         max_steps: keyframes before an episode counts as failed.
         splits_path: object split file replacing the built-in one.
         clip_model: CLIP weights (hub name or folder) of the ``clip`` grounder or of ``tracking``'s first
-            step; needs ``grounder`` clip or tracking.
+            step; needs ``grounder`` clip or tracking ('tiny' and 'random:ARCH' are random weights, for tests only).
     """
 
     device: str = "cpu"

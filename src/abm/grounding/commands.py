@@ -22,6 +22,8 @@ if TYPE_CHECKING:  # numpy is imported by the command itself, so `abm --help` st
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from abm.configuration import clip_model_help
+
     p = subparsers.add_parser(
         "ground",
         help="ground an instruction's target object and write heatmap / mask / virtual-view PNGs",
@@ -35,8 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--instruction", help="instruction (default: the episode's, or one naming a scene object)")
     p.add_argument("--grounder", choices=("oracle", "clip"), default="oracle", help="grounder (default oracle)")
     p.add_argument("--clip-model", default=None,
-                   help="CLIP hub name, local directory, 'tiny' or 'random:vit-b16' (default "
-                        "openai/clip-vit-large-patch14-336; needs the weights locally)")
+                   help=clip_model_help("of --grounder clip (needs them locally unless --allow-download)"))
     p.add_argument("--allow-download", action="store_true", help="let transformers download CLIP weights")
     p.add_argument("--normalization", choices=("raw", "minmax", "softmax"), default=None,
                    help="heatmap normalisation (default softmax)")

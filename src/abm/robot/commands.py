@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from abm.configuration import MAX_KEYFRAMES
+    from abm.configuration import MAX_KEYFRAMES, clip_model_help
 
     p = subparsers.add_parser(
         "run", help="run a trained policy on a robot (recorded camera, MuJoCo arm or dry run), logged per step",
@@ -21,7 +21,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true", help="never move the arm: log the commands only")
     p.add_argument("--steps", type=int, default=MAX_KEYFRAMES, help="keyframes to run")
     p.add_argument("--grounder", choices=["oracle", "clip", "tracking"], help="override the checkpoint's grounder")
-    p.add_argument("--clip-model", help="CLIP weights (hub name or folder) of --grounder clip or tracking")
+    p.add_argument("--clip-model", help=clip_model_help("of --grounder clip or tracking (default: the "
+                                                        "checkpoint's)", default=None))
     p.add_argument("--device", default="cpu", help="torch device of the policy")
     p.add_argument("--log", type=Path, default=Path("runs/robot_log"), help="log folder (default: runs/robot_log)")
     p.set_defaults(func=run)

@@ -17,7 +17,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import add_config_arguments, config_from_args, overrides_from_args
+from abm.configuration import add_config_arguments, clip_model_help, config_from_args, overrides_from_args
 from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
 
@@ -51,8 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                          dest_prefix=POLICY_DEST, title="policy (overrides of the --preset; saved with the run)")
     p.add_argument("--synthetic", type=int, default=0, metavar="N",
                    help="train on N built-in synthetic block episodes instead of --data (smoke tests)")
-    p.add_argument("--clip-model", help="CLIP weights for --grounder/--language clip: hub name, local folder, "
-                   "or 'tiny' (random tiny CLIP, tests only); default: the grounding package's default")
+    p.add_argument("--clip-model", help=clip_model_help("for --grounder clip / --language clip"))
     p.add_argument("--clip-device", help="device of the CLIP model (default: CUDA when available)")
     p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
                    help="override a policy config field, e.g. --set resolution=64 (repeatable)")

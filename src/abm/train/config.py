@@ -46,11 +46,11 @@ class TrainConfig:
         resume: continue from the latest checkpoint in ``out`` (from scratch if it has none).
         overwrite: replace a run already in ``out`` (without it, and without ``resume``, a folder that
             holds a run is refused, so no run is lost).
-        augment: SE(3) augmentation of the scene and the action (``--no-augment`` turns it off).
+        augment: SE(3) augmentation of the scene and the action.
         policy_overrides: ``PolicyConfig`` field overrides (``abm train --set resolution=64``).
         cache_dir: grounding / CLIP feature cache (default ``out/cache``).
         camera_names: cameras to fuse (default all).
-        progress: show a progress bar (``--no-progress`` hides it).
+        progress: a progress bar on a terminal (plain periodic lines when the output is a file or pipe).
     """
 
     method: str = field(default="abm", metadata={"choices": sorted(VARIANTS), "required": True})
@@ -78,11 +78,12 @@ class TrainConfig:
     seed: int = 0
     resume: bool = False
     overwrite: bool = False
-    augment: bool = True
+    augment: bool = field(default=True, metadata={"off_help": "no SE(3) augmentation of the scene and the action"})
     policy_overrides: dict[str, Any] = field(default_factory=dict, metadata={"cli": False})
     cache_dir: Path | None = None
     camera_names: list[str] | None = field(default=None, metadata={"flag": "--cameras"})
-    progress: bool = True
+    progress: bool = field(default=True, metadata={
+        "off_help": "no progress bar, even on a terminal: plain periodic lines only"})
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=str))
