@@ -41,8 +41,7 @@ fi
 mkdir -p "$OUT"
 TIMES="$OUT/times.txt"
 stamp() { echo "$1 $(date +%s)" >> "$TIMES"; }
-# the quickstart recipe's policy: views and workspace cube (QUICKSTART_POLICY in src/abm/quickstart.py)
-POLICY=(--set resolution=48 --set patch_size=6 --set workspace_size=0.6 --set 'workspace_center=[0.5,0.0,0.15]')
+# the workspace cube of the quickstart recipe (configs/quickstart.yaml), for the grounding cache
 CUBE=(--workspace-center 0.5 0.0 0.15 --workspace-size 0.6)
 
 stamp data_start
@@ -72,7 +71,7 @@ train_one() {  # run folder name, threads -> abm train with that method's ground
   # shellcheck disable=SC2086
   # exec: the background job is the trainer itself, so the trap below stops it
   OMP_NUM_THREADS="$threads" MKL_NUM_THREADS="$threads" exec abm train "${extra[@]}" --data "$DATA" --tasks $TASKS --steps "$STEPS" \
-    --batch 8 --optimizer adamw --lr 1e-3 --warmup 50 "${POLICY[@]}" --checkpoint-every 350 --no-progress \
+    --config configs/quickstart.yaml --no-progress \
     --out "$OUT/$name" --resume > "$OUT/train_$name.log" 2>&1
 }
 

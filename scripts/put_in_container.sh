@@ -17,9 +17,9 @@ EVAL_EPISODES="${EVAL_EPISODES:-10}"
 REPORT="${REPORT:-docs/results/put_in_container.md}"
 
 abm data generate --task put_in_container --split seen --episodes "$DEMOS" --out "$OUT/data" --workers 1
-abm train --method abm --data "$OUT/data" --steps "$STEPS" --batch 8 --optimizer adamw --lr 1e-3 --warmup 50 \
-  --set resolution=48 --set patch_size=6 --set workspace_size=0.6 --set 'workspace_center=[0.5,0.0,0.15]' \
-  --checkpoint-every 350 --no-progress --out "$OUT/abm" --resume
+# the quickstart recipe: batch 8, AdamW 1e-3, 48-pixel views over a 0.6 m cube, checkpoints every 350 steps
+abm train --config configs/quickstart.yaml --method abm --data "$OUT/data" --steps "$STEPS" --no-progress \
+  --out "$OUT/abm" --resume
 for s in seen unseen compositional; do
   abm eval --run "$OUT/abm" --tasks put_in_container --split "$s" --episodes "$EVAL_EPISODES" --max-steps 8 \
     --workers 1 --gifs 1 --out "$OUT/eval_$s"

@@ -35,10 +35,9 @@ stamp train_start
 trap 'kill $(jobs -p) 2>/dev/null || true' INT TERM EXIT
 pids=()
 for m in abm rvt; do
-  OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 abm train --method "$m" --data "$OUT/data" --steps "$STEPS" --batch 8 \
-    --optimizer adamw --lr 1e-3 --warmup 50 --set resolution=64 --set patch_size=8 --workers 0 \
-    --checkpoint-every 500 --keep-checkpoints 0 --no-progress --out "$OUT/$m" --resume \
-    > "$OUT/train_$m.log" 2>&1 &
+  # the recipe (batch 8, AdamW 1e-3, 50 warm-up steps, 64-pixel views, ...) is configs/seen_unseen.yaml
+  OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 abm train --config configs/seen_unseen.yaml --method "$m" --data "$OUT/data" \
+    --steps "$STEPS" --no-progress --out "$OUT/$m" --resume > "$OUT/train_$m.log" 2>&1 &
   pids+=($!)
 done
 rc=0

@@ -109,3 +109,42 @@ def test_policy_flags_are_overrides_of_the_preset(tmp_path, monkeypatch) -> None
                  "--set", "width=96"]) == 0
     assert seen["cfg"].policy_overrides == {"patch_size": 6, "resolution": 48, "workspace_center": [0.5, 0.0, 0.15],
                                             "width": 96}
+
+
+def test_train_config_file_with_flags_overriding_it(tmp_path, monkeypatch, capsys) -> None:
+    """`abm train --config RECIPE`: the file's values (policy ones under `policy:`) are the defaults, flags win,
+    the file can supply required options, and the shipped recipes load (the quickstart reads its own)."""
+    import abm.train.loop as loop
+    from abm.cli import main
+    from abm.quickstart import QuickstartConfig
+    from abm.train.config import TrainConfig
+
+    seen = {}
+    monkeypatch.setattr(loop, "train", lambda cfg, episodes=None: seen.__setitem__("cfg", cfg) or {
+        "steps": 0, "final_loss": {}, "checkpoint": ""})
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text("method: rvt\nsteps: 30\nlr: 0.002\ncheckpoint-every: 7\naugment: false\n"
+                      "policy:\n  resolution: 48\n  patch_size: 6\n  workspace_center: [0.5, 0, 0.15]\n")
+    assert main(["train", "--config", str(recipe), "--synthetic", "1", "--out", str(tmp_path / "r"), "--lr",
+                 "0.005", "--view-resolution", "60"]) == 0
+    cfg = seen["cfg"]
+    assert (cfg.method, cfg.steps, cfg.lr, cfg.checkpoint_every, cfg.augment) == ("rvt", 30, 0.005, 7, False)
+    assert cfg.policy_overrides == {"resolution": 60, "patch_size": 6, "workspace_center": [0.5, 0.0, 0.15]}
+    # without --config, the defaults are the measured CPU recipe
+    default = TrainConfig()
+    assert (default.optimizer, default.lr, default.warmup, default.batch) == ("adamw", 1e-3, 50, 8)
+    # a built-in recipe by name; the quickstart trains with the same file
+    assert main(["train", "--config", "quickstart", "--method", "abm", "--synthetic", "1",
+                 "--out", str(tmp_path / "q")]) == 0
+    quick = QuickstartConfig()
+    assert (seen["cfg"].steps, seen["cfg"].lr, seen["cfg"].optimizer) == (quick.steps, quick.lr, quick.optimizer)
+    assert seen["cfg"].policy_overrides == quick.policy_overrides
+    # unknown keys and missing files are usage errors naming the problem
+    recipe.write_text("stepz: 3\n")
+    with pytest.raises(SystemExit):
+        main(["train", "--config", str(recipe), "--method", "abm", "--synthetic", "1", "--steps", "1",
+              "--out", str(tmp_path / "x")])
+    assert "unknown option(s) stepz" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["train", "--config", str(tmp_path / "nope.yaml"), "--synthetic", "1"])
+    assert "built-in recipe: cpu, quickstart, seen_unseen" in capsys.readouterr().err

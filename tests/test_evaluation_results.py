@@ -48,10 +48,21 @@ def test_markdown_table_layout():
     lines = table.splitlines()
     assert lines[0] == "**seen**"
     assert "| method | place_food | avg |" in lines
-    assert "| abm | 50.0 ± 25.0 | 50.0 |" in lines
-    assert "| rvt | 0.0 ± 0.0 | 0.0 |" in lines
+    assert "| abm | 50.0 ± 25.0 (4/8) | 50.0 |" in lines
+    assert "| rvt | 0.0 ± 0.0 (0/8) | 0.0 |" in lines
     assert "**unseen**" in lines
-    assert "| abm | 100.0 ± 0.0 | 100.0 |" in lines
+    assert "| abm | 100.0 ± 0.0 (4/4) | 100.0 |" in lines
+    one_repeat = [o for o in outcomes() if o.repeat == 0]
+    assert "| abm | 75.0 (3/4) | 75.0 |" in markdown_table(aggregate(one_repeat)).splitlines()  # no "± 0.0"
+
+
+def test_combined_table_over_splits():
+    from abm.evaluation.results import combined_table
+
+    lines = combined_table(aggregate(outcomes())).splitlines()
+    assert lines[0] == ("| method | place_food seen | pick_block unseen | seen avg | unseen avg | unseen / seen |")
+    assert lines[2] == "| abm | 50.0 ± 25.0 (4/8) | 100.0 ± 0.0 (4/4) | 50.0 | 100.0 | 2.00 |"
+    assert lines[3] == "| rvt | 0.0 ± 0.0 (0/8) | – | 0.0 | – | – |"
 
 
 def test_csv_and_json(tmp_path):
@@ -109,16 +120,24 @@ def test_interrupted_evaluation_resumes_without_repeating(tmp_path):
     assert len(executed) == 12 and len(set(executed)) == 12  # every job exactly once over both runs
     assert [r.per_repeat for r in rates] == [[pytest.approx(200 / 3)] * 2] * 2
     assert (tmp_path / "results.md").read_text().startswith("**seen**")
-    # other evaluation settings (or another checkpoint) are new rollouts, and only they are reported
+    # other evaluation settings or other tasks would mix two protocols in one table: refused, nothing run
     from abm.evaluation.runner import EvalSettings
 
     calls.clear()
     kwargs["runner"] = lambda job, settings: EpisodeOutcome(
         job.method, job.task, job.split, job.repeat, job.episode, job.seed, True, checkpoint=job.checkpoint,
         settings=job.settings)
-    rates = evaluate(**kwargs, settings=EvalSettings(max_steps=3))
+    with pytest.raises(ValueError, match="holds the outcomes of another evaluation .*settings"):
+        evaluate(**kwargs, settings=EvalSettings(max_steps=3))
+    with pytest.raises(ValueError, match=r"tasks t1 \(seen\), t2 \(seen\) there vs t1 \(seen\) now"):
+        evaluate(**{**kwargs, "tasks": ["t1"]})
+    assert len(OutcomeLog(tmp_path / "outcomes.jsonl").read()) == 12
+    # in their own folder they run; more episodes in the same folder extend it
+    rates = evaluate(**{**kwargs, "out_dir": tmp_path / "other"}, settings=EvalSettings(max_steps=3))
     assert [r.per_repeat for r in rates] == [[100.0, 100.0]] * 2
-    assert len(OutcomeLog(tmp_path / "outcomes.jsonl").read()) == 24
+    rates = evaluate(**{**kwargs, "episodes": 4})
+    assert [(r.successes, r.episodes) for r in rates] == [(6, 8)] * 2
+    assert len(OutcomeLog(tmp_path / "outcomes.jsonl").read()) == 16
 
 
 def test_crashed_episode_is_a_recorded_failure(tmp_path, monkeypatch):
@@ -197,3 +216,43 @@ def test_failure_reasons_and_the_html_report(tmp_path) -> None:
     assert "<th>grasp missed</th>" in page and "<th>timeout</th>" in page
     assert page.count("<img ") == 3 and "src='gifs/abm_pick_block_seen_001.gif'" in page
     assert "http" not in page  # nothing fetched from the network
+
+
+def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, capsys, caplog, monkeypatch):
+    """`abm eval --run RUN` evaluates the run's trained tasks on both splits into one combined table, refuses
+    to append other tasks to those folders, and `--split seen --out DIR` keeps the single-folder layout."""
+    import functools
+
+    from abm.cli import main as cli_main
+    from abm.evaluation import runner
+    from abm.train import TrainConfig, train
+    from abm.train.synthetic import synthetic_episodes
+
+    tiny = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1,
+            "stem_channels": 8, "decoder_channels": 4, "lang_dim": 16}
+    run = tmp_path / "run"
+    train(TrainConfig(method="abm", out=run, tasks=["pick_block"], steps=1, batch=1, checkpoint_every=1,
+                      progress=False, policy_overrides=tiny), synthetic_episodes(1, camera_resolution=32))
+
+    def fake(job, settings):
+        return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
+                              job.episode == 0 or job.split == "seen", checkpoint=job.checkpoint,
+                              settings=job.settings)
+
+    monkeypatch.setattr(runner, "evaluate", functools.partial(runner.evaluate, runner=fake, progress=False))
+    assert cli_main(["eval", "--run", str(run), "--episodes", "2", "--repeats", "1"]) == 0
+    out = capsys.readouterr()
+    assert "tasks seen: pick_block; unseen: pick_block (trained on: pick_block" in caplog.text
+    summary = (run / "eval_summary.md").read_text()
+    assert "| abm | 100.0 (2/2) | 50.0 (1/2) | 100.0 | 50.0 | 0.50 |" in summary and summary.split("\n\n")[1] in out.out
+    for split in ("seen", "unseen"):
+        logged = OutcomeLog(run / f"eval_{split}" / "outcomes.jsonl").read()
+        assert {(o.task, o.split) for o in logged} == {("pick_block", split)} and len(logged) == 2
+    # another task set into the same folders is refused before any rollout
+    assert cli_main(["eval", "--run", str(run), "--tasks", "place_food", "--episodes", "2", "--repeats", "1"]) == 2
+    assert "holds the outcomes of another evaluation" in capsys.readouterr().err
+    assert len(OutcomeLog(run / "eval_seen" / "outcomes.jsonl").read()) == 2
+    # the scripts' explicit single-split form writes its tables straight into --out
+    assert cli_main(["eval", "--run", str(run), "--split", "seen", "--episodes", "1", "--repeats", "1",
+                     "--out", str(tmp_path / "ev")]) == 0
+    assert json.loads((tmp_path / "ev" / "results.json").read_text())[0]["successes"] == 1

@@ -34,14 +34,38 @@ class CommandError(Exception):
     """A user-facing error: printed as ``abm: error: ...`` without a traceback."""
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """Help that shows every option's default (``(default: X)``) unless its text already names it, or it has
+    none worth showing (``None``, switches, empty lists)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        switch = isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction,
+                                     argparse.BooleanOptionalAction, argparse._HelpAction, argparse._VersionAction))
+        if switch or not action.option_strings or "default" in text or default is argparse.SUPPRESS or (
+                default is None or default is False or default == [] or default == ()):
+            return text
+        shown = " ".join(map(str, default)) if isinstance(default, (list, tuple)) else str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})"
+
+
+class Parser(argparse.ArgumentParser):
+    """``abm``'s parsers (and their sub-commands'): help with defaults (:class:`HelpFormatter`)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="abm",
         description="Attention before Manipulation: ground the target object, mark it in virtual views, "
         "and predict the next gripper keyframe.",
     )
     parser.add_argument("--version", action="version", version=f"abm {abm.__version__}")
-    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(subparsers)
     return parser
@@ -59,7 +83,11 @@ def configure_logging(level: int = logging.INFO) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from abm.configuration import apply_config_file
+
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    apply_config_file(parser, argv)  # a command's --config FILE: its values become that command's defaults
     args = parser.parse_args(argv)
     configure_logging()
     if not getattr(args, "func", None):

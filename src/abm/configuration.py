@@ -7,6 +7,7 @@ builds the dataclass back from the parsed arguments. Field ``metadata`` adjusts 
 
 * ``flag``: the flag name (default ``--field-name``);
 * ``choices``: allowed values; ``required``: the flag must be given (even though the field has a default);
+* ``off_help``: the help of the ``--no-name`` switch of a ``True`` field (default ``turn off: <field text>``);
 * ``cli=False``: no flag (the command fills the field itself, e.g. from several flags).
 
 Booleans become switches: ``--name`` for a ``False`` default, ``--no-name`` for a ``True`` default.
@@ -24,6 +25,21 @@ import types
 import typing
 from pathlib import Path
 from typing import Any
+
+# Defaults shared by several commands, defined once here (this module is imported by every command).
+MAX_KEYFRAMES = 8  #: keyframes per evaluation rollout (abm eval, abm quickstart, abm view --task, the scripts)
+WORKERS = 2  #: parallel processes of data generation, evaluation, the quickstart and abm clip train
+CPU_CLIP_MODEL = "openai/clip-vit-base-patch16"  #: the CPU-sized pretrained CLIP (tried first on CPU)
+GPU_CLIP_MODEL = "openai/clip-vit-large-patch14-336"  #: the paper's CLIP (the default of the clip grounder)
+TEST_ONLY_CLIP = "random weights, for tests only: masks and text features are meaningless"  #: 'tiny' / 'random:*'
+
+
+def clip_model_help(use: str, default: str | None = GPU_CLIP_MODEL) -> str:
+    """The help of a ``--clip-model`` option, the same for every command: what it takes, that 'tiny' and
+    'random:ARCH' are random-weight CLIPs for tests only, and the default."""
+    shown = f" (default: {default})" if default else ""
+    return (f"CLIP weights {use}: a hub name or a local folder (e.g. an abm clip train output); 'tiny' and "
+            f"'random:ARCH' are {TEST_ONLY_CLIP}{shown}")
 
 _ENTRY = re.compile(r"^(\s+)([A-Za-z_][\w ,/]*?):\s+(.*)$")
 
@@ -119,6 +135,8 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: type, defaults: A
                 target.add_argument(_flag(f), action=argparse.BooleanOptionalAction, **kwargs)
                 continue
             flag = _flag(f) if not default else f.metadata.get("flag", "--no-" + f.name.replace("_", "-"))
+            if default:  # the flag turns the field off: say so, in the flag's own sense
+                kwargs["help"] = f.metadata.get("off_help") or f"turn off: {text}"
             target.add_argument(flag, action="store_false" if default else "store_true", default=default, **kwargs)
             continue
         kwargs["type"] = kind if kind in (int, float, Path) else str
@@ -149,3 +167,75 @@ def config_from_args(cls: type, args: argparse.Namespace, **extra: Any) -> Any:
 def overrides_from_args(args: argparse.Namespace, dest_prefix: str) -> dict[str, Any]:
     """The fields given on the command line for flags added with ``overrides_only`` and ``dest_prefix``."""
     return {k[len(dest_prefix):]: v for k, v in vars(args).items() if k.startswith(dest_prefix)}
+
+
+# ---------------------------------------------------------------------------------------------- recipe files
+RECIPES = Path(__file__).parent / "configs"  # the built-in recipes (the repository's configs/ links here)
+
+
+def recipe_path(name: str | Path) -> Path:
+    """A recipe file: the path itself when it exists, else the built-in recipe of that name
+    (``quickstart`` -> ``abm/configs/quickstart.yaml``)."""
+    path = Path(name)
+    if path.is_file():
+        return path
+    builtin = RECIPES / (path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml")
+    if path.parent == Path(".") and builtin.is_file():
+        return builtin
+    known = ", ".join(sorted(p.stem for p in RECIPES.glob("*.yaml")))
+    raise FileNotFoundError(f"recipe {name} not found (give a YAML file, or a built-in recipe: {known})")
+
+
+def load_recipe(name: str | Path) -> dict[str, Any]:
+    """The mapping of a recipe file (see :func:`recipe_path`); ``ValueError`` when it is not a mapping."""
+    import yaml
+
+    path = recipe_path(name)
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"recipe {path} must be a mapping of option names to values")
+    return data
+
+
+def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
+    """Make the values of ``--config FILE`` the defaults of the command it is given to, so flags override it.
+
+    Only for commands with a ``--config`` option. The file maps option names (``lr``, ``checkpoint_every`` or
+    ``checkpoint-every``) to values; a nested mapping fills the options whose destination starts with the
+    command's ``config_sections[name]`` prefix (``policy:`` -> the policy flags). Options the file sets are no
+    longer required on the command line. Bad files end the command with a usage error.
+    """
+    sub, tokens = parser, list(argv)
+    while True:  # descend to the (sub-)command the arguments name
+        choices = next((a.choices for a in sub._actions if isinstance(a, argparse._SubParsersAction)), None)
+        index = next((i for i, t in enumerate(tokens) if choices and t in choices), None)
+        if index is None:
+            break
+        sub, tokens = choices[tokens[index]], tokens[index + 1:]
+    if "--config" not in sub._option_string_actions:
+        return
+    given = [tokens[i + 1] for i, t in enumerate(tokens[:-1]) if t == "--config"]
+    given += [t.split("=", 1)[1] for t in tokens if t.startswith("--config=")]
+    if not given:
+        return
+    try:
+        values = load_recipe(given[-1])
+    except (OSError, ValueError) as err:
+        sub.error(str(err))
+    sections = sub.get_default("config_sections") or {}
+    actions = {a.dest: a for a in sub._actions if a.dest not in ("help", "config")}
+    unknown = []
+    for key, value in values.items():
+        items = ([(sections[key] + k, v) for k, v in value.items()] if key in sections and isinstance(value, dict)
+                 else [(key, value)])
+        for dest, v in items:
+            action = actions.get(dest.replace("-", "_"))
+            if action is None:
+                unknown.append(dest.removeprefix(sections.get(key, "")))
+                continue
+            if isinstance(action.type, type) and action.type is not str and v is not None:
+                v = [action.type(x) for x in v] if isinstance(v, list) else action.type(v)
+            action.default = v
+            action.required = False
+    if unknown:
+        sub.error(f"recipe {given[-1]}: unknown option(s) {', '.join(unknown)}")

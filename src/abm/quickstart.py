@@ -13,6 +13,7 @@ last checkpoint and skips finished evaluation episodes.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import shutil
 import sys
@@ -23,25 +24,30 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+from abm.configuration import CPU_CLIP_MODEL, GPU_CLIP_MODEL, MAX_KEYFRAMES, WORKERS
 from abm.workers import die_with_parent
 
-CPU_CLIP_MODEL = "openai/clip-vit-base-patch16"  # the CPU-sized CLIP tried first on CPU
-GPU_CLIP_MODEL = "openai/clip-vit-large-patch14-336"  # the paper's model
-#: The small preset's changes for the quickstart: 48-pixel views with 6-pixel patches (8 x 8 tokens per view)
-#: over a 0.6 m workspace cube fitted to the table (1.25 cm per pixel; it holds the keyframes of every
-#: trainable task except put_in_shelf, whose shelf reaches further out: use --set workspace_size=1.0 --set
-#: workspace_center=[0.5,0,0.35] there). Measured in docs/evaluation.md against 64-pixel views over the 1 m cube.
-QUICKSTART_POLICY: dict[str, Any] = {"resolution": 48, "patch_size": 6, "workspace_size": 0.6,
-                                     "workspace_center": [0.5, 0.0, 0.15]}
+#: The quickstart's training recipe (``configs/quickstart.yaml``; also ``abm train --config quickstart``): steps,
+#: batch, optimiser, lr, warm-up, checkpoint interval, and under ``policy`` the small preset's changes: 48-pixel
+#: views with 6-pixel patches over a 0.6 m workspace cube fitted to the table. Measured in docs/evaluation.md.
+RECIPE = "quickstart"
+
+
+@functools.cache
+def recipe() -> dict[str, Any]:
+    """The quickstart recipe's values (:data:`RECIPE`)."""
+    from abm.configuration import load_recipe
+
+    return load_recipe(RECIPE)
 
 
 @dataclass
 class QuickstartConfig:
     """Sizes of the quickstart run (the ``abm quickstart`` flags; defaults fit about 20 minutes on a 2-core CPU).
 
-    The defaults are the CPU recipe of ``scripts/seen_unseen.sh`` cut to one task, with smaller views over a
-    tighter workspace cube (:data:`QUICKSTART_POLICY`), AdamW at 1e-3 and enough steps for the ~2 cm a grasp
-    needs.
+    The training defaults come from the quickstart recipe (``configs/quickstart.yaml``, :data:`RECIPE`): the CPU
+    recipe of ``scripts/seen_unseen.sh`` cut to one task, with smaller views over a tighter workspace cube,
+    AdamW at 1e-3 and enough steps for the ~2 cm a grasp needs.
 
     Attributes:
         out: output folder (data, runs, eval and report inside).
@@ -60,7 +66,8 @@ class QuickstartConfig:
         resolution: camera image side (pixels) of demonstrations and evaluation.
         device: torch device (cpu, cuda).
         clip_model: CLIP weights (hub name or local folder) for the grounder (default: the best found, see
-            ``choose_grounder``: pretrained CLIP, else the benchmark CLIP, else the oracle).
+            ``choose_grounder``: pretrained CLIP, else the benchmark CLIP, else the oracle; 'tiny' and
+            'random:ARCH' are random weights, for tests only).
         offline: never try to download CLIP weights from the model hub.
         seed: seed of the demonstrations.
     """
@@ -69,15 +76,15 @@ class QuickstartConfig:
     tasks: list[str] = field(default_factory=lambda: ["pick_block"])
     methods: list[str] = field(default_factory=lambda: ["abm", "rvt"])
     episodes: int = 20
-    steps: int = 1400
-    batch: int = 8
-    optimizer: str = field(default="adamw", metadata={"choices": ["adamw", "lamb"]})
-    lr: float = 1e-3
-    warmup: int = 50
-    policy_overrides: dict[str, Any] = field(default_factory=lambda: dict(QUICKSTART_POLICY), metadata={"cli": False})
+    steps: int = field(default_factory=lambda: recipe()["steps"])
+    batch: int = field(default_factory=lambda: recipe()["batch"])
+    optimizer: str = field(default_factory=lambda: recipe()["optimizer"], metadata={"choices": ["adamw", "lamb"]})
+    lr: float = field(default_factory=lambda: recipe()["lr"])
+    warmup: int = field(default_factory=lambda: recipe()["warmup"])
+    policy_overrides: dict[str, Any] = field(default_factory=lambda: dict(recipe()["policy"]), metadata={"cli": False})
     eval_episodes: int = 10
-    max_steps: int = 8
-    workers: int = 2
+    max_steps: int = MAX_KEYFRAMES
+    workers: int = WORKERS
     resolution: int = field(default=128, metadata={"flag": "--camera-resolution"})
     device: str = "cpu"
     clip_model: str | None = None
@@ -276,11 +283,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
                    help="change a policy config field (repeatable; same as the policy flags below)")
     add_config_arguments(p, PolicyConfig, overrides_only=True, exclude=("variant", "preset", "extra"),
-                         dest_prefix=POLICY_DEST, title=f"policy (overrides of the small preset; quickstart "
-                         f"defaults: {QUICKSTART_POLICY})")
+                         dest_prefix=POLICY_DEST, title="policy (overrides of the small preset; quickstart "
+                         "defaults: the 'policy' of configs/quickstart.yaml)")
 
     def run(args: argparse.Namespace) -> int:
-        overrides = {**QUICKSTART_POLICY, **overrides_from_args(args, POLICY_DEST), **dict(args.overrides)}
+        overrides = {**recipe()["policy"], **overrides_from_args(args, POLICY_DEST), **dict(args.overrides)}
         run_quickstart(config_from_args(QuickstartConfig, args, policy_overrides=overrides))
         return 0
 

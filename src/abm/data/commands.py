@@ -8,6 +8,8 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
+    from abm.configuration import WORKERS, clip_model_help
+
     data = subparsers.add_parser("data", help="generate and inspect demonstration episodes")
     sub = data.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
 
@@ -18,7 +20,7 @@ def register(subparsers) -> None:
     gen.add_argument("--split", required=True, help="object split: seen or unseen")
     gen.add_argument("--episodes", type=int, required=True, help="number of successful demonstrations")
     gen.add_argument("--out", required=True, type=Path, help="output directory")
-    gen.add_argument("--workers", type=int, default=1, help="parallel worker processes")
+    gen.add_argument("--workers", type=int, default=WORKERS, help="parallel worker processes")
     gen.add_argument("--seed", type=int, default=0, help="first scene seed")
     gen.add_argument("--resolution", type=int, default=128, help="camera resolution (pixels, square)")
     gen.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
@@ -33,7 +35,7 @@ def register(subparsers) -> None:
     ground.add_argument("--data", required=True, type=Path, help="episode store folder")
     ground.add_argument("--cache", required=True, type=Path, help="cache folder (abm train --cache-dir)")
     ground.add_argument("--grounder", default="clip", choices=["clip"], help="grounder (the oracle needs no cache)")
-    ground.add_argument("--clip-model", help="CLIP weights: hub name, local folder, or 'tiny' (tests only)")
+    ground.add_argument("--clip-model", help=clip_model_help("of the grounder"))
     ground.add_argument("--clip-device", help="device of the CLIP model (default: CUDA when available)")
     ground.add_argument("--features", action="store_true",
                         help="cache CLIP point features (ifd) instead of the target's mask field")
@@ -47,7 +49,7 @@ def register(subparsers) -> None:
     ground.set_defaults(func=_ground)
 
     info = sub.add_parser("info", help="summarise the episodes in a directory")
-    info.add_argument("dir", type=Path)
+    info.add_argument("dir", type=Path, help="episode folder (abm data generate --out)")
     info.add_argument("--quick", action="store_true",
                       help="read metadata only (default: read every dataset and check its checksum)")
     info.set_defaults(func=_info)

@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+SPLITS = ("seen", "unseen", "compositional")
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from abm.configuration import add_config_arguments
+    from abm.configuration import WORKERS, add_config_arguments
     from abm.evaluation.runner import EvalSettings
 
     p = subparsers.add_parser(
@@ -19,14 +21,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--run", action="append", required=True, type=Path,
                    help="training run folder or checkpoint; repeat for several methods")
     p.add_argument("--tasks", nargs="+", default=None,
-                   help="tasks to evaluate (default: every task the split defines objects for)")
-    p.add_argument("--split", default="unseen", choices=("seen", "unseen", "compositional"))
+                   help="tasks to evaluate (default: the tasks the runs were trained on, each on the splits that "
+                   "define objects for it; every task of the split for runs whose training data is unknown)")
+    p.add_argument("--split", nargs="+", default=["seen", "unseen"], choices=SPLITS, metavar="SPLIT",
+                   help=f"object splits to evaluate ({', '.join(SPLITS)}), one outcome folder each and one "
+                   "combined table (default: seen unseen)")
     p.add_argument("--episodes", type=int, default=25, help="episodes per task and repeat (paper: 25)")
     p.add_argument("--repeats", type=int, default=5, help="repeats with different scenes (paper: 5)")
-    p.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
+    p.add_argument("--workers", type=int, default=WORKERS, help="parallel rollout processes")
     add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
     p.add_argument("--gifs", type=int, default=0, help="save front-camera GIFs of this many episodes per task")
-    p.add_argument("--out", type=Path, default=None, help="output folder (default: FIRST_RUN/eval_SPLIT)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="with one --split: the folder of its outcomes and tables (default: FIRST_RUN/eval_SPLIT); "
+                   "with several: the parent of one eval_SPLIT folder per split and of the combined table "
+                   "eval_summary.md/.json (default: the first run's folder)")
     p.set_defaults(func=run)
 
 
@@ -39,46 +47,120 @@ def default_tasks(split: str, splits_path: Path | None) -> list[str]:
     return [name for name in sorted(TASKS) if split in splits.tasks.get(name, {})]
 
 
+def trained_tasks(runs: list[Path]) -> list[str] | None:
+    """The tasks the runs were trained on (their union, in order), from each run's training config (its
+    ``--tasks``, else the tasks of its episode store); ``None`` when a run's training data is unknown."""
+    import json
+
+    from abm.policy.checkpoint import load_checkpoint
+
+    tasks: list[str] = []
+    for run in runs:
+        config = run / "config.json"
+        train = (json.loads(config.read_text())["train"] if config.is_file()
+                 else load_checkpoint(run).get("train_config") or {})
+        names = train.get("tasks")
+        if not names and train.get("data") and Path(train["data"]).is_dir():
+            from abm.data.episode_store import EpisodeStore
+
+            store = EpisodeStore(train["data"])
+            names = sorted({store.episodes[i].task for i in store.select(splits=train.get("splits"))})
+        if not names:
+            return None
+        tasks += names
+    return list(dict.fromkeys(tasks))
+
+
+def plan_tasks(args: argparse.Namespace) -> dict[str, list[str]]:
+    """Split -> tasks to evaluate on it: ``--tasks`` on every split, else the runs' trained tasks on the splits
+    that define objects for them (see :func:`trained_tasks`)."""
+    import logging
+
+    from abm.cli import CommandError
+    from abm.sim.tasks import TASKS
+
+    splits = list(dict.fromkeys(args.split))
+    if args.tasks:
+        unknown = [t for t in args.tasks if t not in TASKS]
+        if unknown:
+            raise CommandError(f"unknown tasks {unknown}; known tasks: {sorted(TASKS)}")
+        return {split: list(args.tasks) for split in splits}
+    trained = trained_tasks(args.run)
+    plan = {}
+    for split in splits:
+        defined = default_tasks(split, args.splits_path)
+        tasks = [t for t in trained if t in defined] if trained is not None else defined
+        if tasks:
+            plan[split] = tasks
+    source = f"trained on: {', '.join(trained)}" if trained is not None else "training data unknown: every task"
+    logging.getLogger("abm").info("abm eval: tasks %s (%s; pick others with --tasks)", "; ".join(
+        f"{split}: {', '.join(tasks)}" for split, tasks in plan.items()) or "none", source)
+    if not plan:
+        raise CommandError(f"no task the runs were trained on ({', '.join(trained or [])}) defines objects for the "
+                           f"split(s) {', '.join(splits)}; give --tasks")
+    return plan
+
+
 def run(args: argparse.Namespace) -> int:
+    import logging
+
     from abm.cli import CommandError
     from abm.configuration import config_from_args
-    from abm.evaluation.results import markdown_table
+    from abm.evaluation.results import combined_table, markdown_table, write_json
     from abm.evaluation.runner import EvalSettings, evaluate
-    from abm.sim.tasks import TASKS
 
     for r in args.run:
         if not r.exists():
             raise CommandError(f"run {r} does not exist (give a training run folder or a checkpoint file)")
     if args.episodes < 1 or args.repeats < 1:
         raise CommandError("--episodes and --repeats must be at least 1")
-    tasks = args.tasks or default_tasks(args.split, args.splits_path)
-    unknown = [t for t in tasks if t not in TASKS]
-    if unknown:
-        raise CommandError(f"unknown tasks {unknown}; known tasks: {sorted(TASKS)}")
-    if not tasks:
-        raise CommandError(f"no task defines objects for the {args.split!r} split")
-    _check_setup(args, tasks)
-    out = args.out or (args.run[0] if args.run[0].is_dir() else args.run[0].parent) / f"eval_{args.split}"
-    if out.exists() and not out.is_dir():
-        raise CommandError(f"--out {out} is a file; give a folder")
+    plan = plan_tasks(args)
+    _check_setup(args, plan)
+    base = args.run[0] if args.run[0].is_dir() else args.run[0].parent
+    single = len(plan) == 1 and len(set(args.split)) == 1
+    parent = args.out or base
+    outs = {split: (args.out or base / f"eval_{split}") if single else parent / f"eval_{split}" for split in plan}
+    for out in [*outs.values(), parent]:
+        if out.exists() and not out.is_dir():
+            raise CommandError(f"--out {out} is a file; give a folder")
     settings = config_from_args(EvalSettings, args)
-    rates = evaluate(args.run, tasks, args.split, out, args.episodes, args.repeats, args.workers, settings,
-                     gifs=args.gifs)
-    print(markdown_table([r for r in rates if r.split == args.split and r.task in tasks]))
+    rollouts = len(args.run) * sum(map(len, plan.values())) * args.episodes * args.repeats
+    logging.getLogger("abm").info("abm eval: %d rollouts (%d run(s) x %s x %d episodes x %d repeats)", rollouts,
+                                  len(args.run), " + ".join(f"{len(t)} {s} task(s)" for s, t in plan.items()),
+                                  args.episodes, args.repeats)
+    rates = []
+    for split, tasks in plan.items():
+        rates += [r for r in evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers,
+                                      settings, gifs=args.gifs) if r.split == split and r.task in tasks]
+    if single:
+        print(markdown_table(rates))
+    else:
+        table = combined_table(rates)
+        (parent / "eval_summary.md").write_text(
+            f"Success, % (mean ± std over {args.repeats} repeats; successes / episodes); {args.episodes} "
+            f"episodes per task, split and repeat; settings {settings.signature()}; per-split folders: "
+            + ", ".join(f"[{o.name}]({o.name}/results.md)" for o in outs.values()) + "\n\n" + table + "\n")
+        write_json(rates, parent / "eval_summary.json")
+        print(table)
     errors = sum(r.errors for r in rates)
-    print(f"results: {out / 'results.md'} (also .json, .csv; per-episode outcomes in outcomes.jsonl)")
+    for split, out in outs.items():
+        print(f"results {split}: {out / 'results.md'} (also .json, .csv; per-episode outcomes in outcomes.jsonl)")
+    if not single:
+        print(f"combined table: {parent / 'eval_summary.md'} (also eval_summary.json)")
     if errors:
-        print(f"{errors} episode(s) crashed and count as failures; see {out / 'outcomes.jsonl'}")
+        print(f"{errors} episode(s) crashed and count as failures; see outcomes.jsonl in "
+              + ", ".join(map(str, outs.values())))
         if errors == sum(r.episodes for r in rates):
             from abm.evaluation.results import OutcomeLog
 
-            latest = [o.error for o in OutcomeLog(out / "outcomes.jsonl").read() if o.error][-1:]  # this run's
+            latest = [o.error for out in outs.values() for o in OutcomeLog(out / "outcomes.jsonl").read()
+                      if o.error][-1:]
             raise CommandError(f"every episode crashed, so the table measures nothing; last error: "
                                f"{latest[0] if latest else '?'}")
     return 0
 
 
-def _check_setup(args: argparse.Namespace, tasks: list[str]) -> None:
+def _check_setup(args: argparse.Namespace, plan: dict[str, list[str]]) -> None:
     """Fail before the first rollout on what would make every episode crash."""
     import torch
 
@@ -87,11 +169,12 @@ def _check_setup(args: argparse.Namespace, tasks: list[str]) -> None:
     from abm.sim.splits import load_splits
 
     splits = load_splits(args.splits_path)
-    for task in tasks:
-        defined = sorted(splits.tasks.get(task, {}))
-        if args.split not in defined:
-            raise CommandError(f"task {task} has no objects in the {args.split!r} split "
-                               f"(it defines: {', '.join(defined) or 'none'})")
+    for split, tasks in plan.items():
+        for task in tasks:
+            defined = sorted(splits.tasks.get(task, {}))
+            if split not in defined:
+                raise CommandError(f"task {task} has no objects in the {split!r} split "
+                                   f"(it defines: {', '.join(defined) or 'none'})")
     if str(args.device).startswith("cuda") and not torch.cuda.is_available():
         raise CommandError(f"--device {args.device}: CUDA is not available on this machine (use --device cpu)")
     for r in args.run:

@@ -128,7 +128,8 @@ class OutcomeLog:
 
 @dataclass
 class SuccessRate:
-    """Success of one (method, task, split): percentages per repeat and their mean and std."""
+    """Success of one (method, task, split): percentages per repeat and their mean and std, and the
+    successful episodes out of ``episodes``."""
 
     method: str
     task: str
@@ -136,6 +137,7 @@ class SuccessRate:
     per_repeat: list[float]
     episodes: int
     errors: int
+    successes: int = 0
 
     @property
     def mean(self) -> float:
@@ -177,7 +179,8 @@ def aggregate(outcomes: Iterable[EpisodeOutcome]) -> list[SuccessRate]:
     for (method, task, split), repeats in sorted(groups.items()):
         per_repeat = [100.0 * sum(o.success for o in eps) / len(eps) for _, eps in sorted(repeats.items())]
         all_eps = [o for eps in repeats.values() for o in eps]
-        rates.append(SuccessRate(method, task, split, per_repeat, len(all_eps), sum(bool(o.error) for o in all_eps)))
+        rates.append(SuccessRate(method, task, split, per_repeat, len(all_eps), sum(bool(o.error) for o in all_eps),
+                                 sum(bool(o.success) for o in all_eps)))
     return rates
 
 
@@ -196,10 +199,19 @@ def write_json(rates: Sequence[SuccessRate], path: str | Path) -> None:
     Path(path).write_text(json.dumps(payload, indent=2) + "\n")
 
 
+def rate_cell(rate: SuccessRate | None, digits: int = 1) -> str:
+    """``mean ± std (successes/episodes)`` in percent; without ``± std`` for a single repeat; ``–`` for none."""
+    if rate is None:
+        return "–"
+    std = f" ± {rate.std:.{digits}f}" if len(rate.per_repeat) > 1 else ""
+    return f"{rate.mean:.{digits}f}{std} ({rate.successes}/{rate.episodes})"
+
+
 def markdown_table(rates: Sequence[SuccessRate], splits: Sequence[str] | None = None) -> str:
     """The paper's Table 1 layout: one block per split, methods as rows, tasks as columns, plus the mean.
 
-    Cells read ``mean ± std`` success in percent; the "avg" column averages the task means.
+    Cells read ``mean ± std (successes/episodes)`` success in percent (:func:`rate_cell`); the "avg" column
+    averages the task means.
     """
     splits = list(splits) if splits is not None else sorted({r.split for r in rates})
     lines = []
@@ -216,8 +228,40 @@ def markdown_table(rates: Sequence[SuccessRate], splits: Sequence[str] | None = 
         for m in methods:
             row = [cell.get((m, t)) for t in tasks]
             means = [r.mean for r in row if r is not None]
-            cells = [f"{r.mean:.1f} ± {r.std:.1f}" if r is not None else "–" for r in row]
+            cells = [rate_cell(r) for r in row]
             avg = f"{sum(means) / len(means):.1f}" if means else "–"
             lines.append(f"| {m} | " + " | ".join(cells) + f" | {avg} |")
         lines.append("")
+    return "\n".join(lines)
+
+
+def split_averages(rates: Sequence[SuccessRate], method: str) -> dict[str, float]:
+    """Split -> mean over tasks of ``method``'s success (%), for the splits it was evaluated on."""
+    by_split: dict[str, list[float]] = defaultdict(list)
+    for r in rates:
+        if r.method == method:
+            by_split[r.split].append(r.mean)
+    return {split: sum(means) / len(means) for split, means in by_split.items()}
+
+
+def combined_table(rates: Sequence[SuccessRate], digits: int = 1) -> str:
+    """One table over every split: a row per method, a column per (task, split) (:func:`rate_cell`), then
+    the average over tasks of each split and, with both, unseen avg / seen avg (the README's layout)."""
+    order = ["seen", "unseen", "compositional"]
+    splits = sorted({r.split for r in rates}, key=lambda s: (order.index(s) if s in order else len(order), s))
+    tasks = sorted({r.task for r in rates})
+    columns = [(t, s) for s in splits for t in tasks if any(r.task == t and r.split == s for r in rates)]
+    cell = {(r.method, r.task, r.split): r for r in rates}
+    ratio = "seen" in splits and "unseen" in splits
+    head = ["method", *(f"{t} {s}" for t, s in columns), *(f"{s} avg" for s in splits)]
+    head += ["unseen / seen"] if ratio else []
+    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    for method in dict.fromkeys(r.method for r in rates):
+        avgs = split_averages(rates, method)
+        row = [method, *(rate_cell(cell.get((method, t, s)), digits) for t, s in columns)]
+        row += [f"{avgs[s]:.{digits}f}" if s in avgs else "–" for s in splits]
+        if ratio:
+            seen, unseen = avgs.get("seen", 0.0), avgs.get("unseen")
+            row.append(f"{unseen / seen:.2f}" if seen > 0 and unseen is not None else "–")
+        lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)

@@ -9,6 +9,7 @@ rollout that raises is recorded as a failure with its error instead of stopping 
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 import traceback
@@ -19,8 +20,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from abm.configuration import MAX_KEYFRAMES
 from abm.evaluation.results import (
     EpisodeOutcome,
     OutcomeLog,
@@ -68,17 +68,19 @@ class EvalSettings:
         max_steps: keyframes before an episode counts as failed.
         splits_path: object split file replacing the built-in one.
         clip_model: CLIP weights (hub name or folder) of the ``clip`` grounder or of ``tracking``'s first
-            step; needs ``grounder`` clip or tracking.
+            step; needs ``grounder`` clip or tracking ('tiny' and 'random:ARCH' are random weights, for tests only).
     """
 
     device: str = "cpu"
     grounder: str | None = field(default=None, metadata={"choices": ["clip", "oracle", "tracking"]})
     resolution: int = 128
-    max_steps: int = 10
+    max_steps: int = MAX_KEYFRAMES
     splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
     clip_model: str | None = None
 
     def __post_init__(self) -> None:
+        if self.grounder is None and self.clip_model is None:
+            return  # nothing to check (and no torch import for `abm --help`)
         from abm.grounding.grounders import override_spec
 
         override_spec(self.grounder, self.clip_model)  # a clear error for --clip-model without a CLIP grounder
@@ -227,6 +229,7 @@ def evaluate(
     checkpoints = {str(r): checkpoint_of(r) for r in runs}
     plan = [replace(j, checkpoint=checkpoints[j.run], settings=settings.signature())
             for j in plan_jobs(runs, tasks, split, episodes, repeats, out, gifs, labels)]
+    check_same_evaluation(log.read(), plan, out)
     jobs = [j for j in plan if j.key not in done]
     bar = tqdm(total=len(jobs), desc=f"eval {split}", unit="ep", disable=not progress)
     successes = 0
@@ -250,6 +253,34 @@ def evaluate(
     planned = {j.key for j in plan}
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
     return write_reports(list(latest.values()), out)
+
+
+PROTOCOL_FILE = "evaluation.json"
+
+
+def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[EvalJob], out: Path) -> None:
+    """Refuse (``ValueError``) to add rollouts to a folder whose outcomes were made with other evaluation
+    settings or on other tasks / splits, so a table never mixes two protocols and an accidental call does not
+    append to a finished evaluation; then record this protocol in ``out/evaluation.json``. More episodes,
+    repeats or runs, and newer checkpoints, are allowed (and resume works as before).
+
+    Folders written before ``evaluation.json`` existed are checked against their outcomes instead: other
+    settings, or tasks this call does not plan, are refused.
+    """
+    wanted = {"tasks": sorted({f"{j.task} ({j.split})" for j in plan}), "settings": sorted({j.settings for j in plan})}
+    path = out / PROTOCOL_FILE
+    if path.is_file():
+        had = json.loads(path.read_text())
+    else:
+        recorded = [o for o in existing if o.settings]  # logs written before settings were recorded: unknown
+        had = {"tasks": sorted({f"{o.task} ({o.split})" for o in recorded} | set(wanted["tasks"])),
+               "settings": sorted({o.settings for o in recorded} | set(wanted["settings"]))}
+    problems = [f"{key} {', '.join(had[key])} there vs {', '.join(wanted[key])} now"
+                for key in ("tasks", "settings") if had.get(key) != wanted[key]]
+    if problems:
+        raise ValueError(f"{out} holds the outcomes of another evaluation ({'; '.join(problems)}): evaluate into "
+                         f"a new --out folder, or delete {out / 'outcomes.jsonl'} and {path.name} to start over")
+    path.write_text(json.dumps(wanted, indent=2) + "\n")
 
 
 def checkpoint_of(run: str | Path) -> str:
@@ -301,7 +332,7 @@ def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seco
         frame = obs.camera(camera)
         img = Image.fromarray(frame.rgb).resize((frame.width * 2, frame.height * 2), Image.NEAREST)
         u, v, z = project_to_camera(action.position[None], frame.intrinsics, frame.extrinsics)[0]
-        if z > 0 and np.isfinite(u) and np.isfinite(v):
+        if z > 0 and math.isfinite(u) and math.isfinite(v):
             draw = ImageDraw.Draw(img)
             cx, cy = 2 * u + 1, 2 * v + 1
             color = (0, 255, 0) if action.gripper_open else (255, 0, 255)

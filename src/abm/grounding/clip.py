@@ -21,6 +21,7 @@ speed measurements (same cost as the real ones).
 from __future__ import annotations
 
 import json
+import logging
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -31,7 +32,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-DEFAULT_MODEL = "openai/clip-vit-large-patch14-336"
+from abm.configuration import GPU_CLIP_MODEL, TEST_ONLY_CLIP
+
+DEFAULT_MODEL = GPU_CLIP_MODEL  # the paper's (abm.configuration holds the defaults shared by commands)
 TEXT_CONTEXT = 77
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
@@ -358,6 +361,8 @@ def load_clip(
     Raises:
         ClipWeightsNotFoundError: the weights are not available (the message says how to provide them).
     """
+    if name_or_path == "tiny" or name_or_path.startswith("random:"):
+        logging.getLogger("abm").warning("CLIP %s: %s", name_or_path, TEST_ONLY_CLIP)
     if name_or_path == "tiny":
         return tiny_clip(seed=seed, device=device or "cpu")
     if name_or_path.startswith("random:"):

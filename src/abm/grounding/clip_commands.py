@@ -13,6 +13,8 @@ import os
 import time
 from pathlib import Path
 
+from abm.configuration import WORKERS
+
 log = logging.getLogger("abm")
 
 DEFAULT_SHARDS = 70
@@ -45,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    f"runs out first (default {DEFAULT_MINUTES:g}; 0 = steps only)")
     t.add_argument("--batch", type=int, default=DEFAULT_BATCH, help=f"batch size (default {DEFAULT_BATCH})")
     t.add_argument("--lr", type=float, default=DEFAULT_LR, help=f"peak learning rate (default {DEFAULT_LR:g})")
-    t.add_argument("--workers", type=int, default=2, help="rendering processes (default 2)")
+    t.add_argument("--workers", type=int, default=WORKERS, help="rendering processes")
     t.add_argument("--threads", type=int, default=2, help="torch threads for training (default 2)")
     t.add_argument("--seed", type=int, default=0, help="data and initialisation seed (default 0)")
     t.add_argument("--resume", action="store_true", help="continue the run in --out (rendering always resumes)")

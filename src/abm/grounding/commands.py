@@ -15,12 +15,15 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:  # numpy is imported by the command itself, so `abm --help` stays fast
+    import numpy as np
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from abm.configuration import clip_model_help
+
     p = subparsers.add_parser(
         "ground",
         help="ground an instruction's target object and write heatmap / mask / virtual-view PNGs",
@@ -34,8 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--instruction", help="instruction (default: the episode's, or one naming a scene object)")
     p.add_argument("--grounder", choices=("oracle", "clip"), default="oracle", help="grounder (default oracle)")
     p.add_argument("--clip-model", default=None,
-                   help="CLIP hub name, local directory, 'tiny' or 'random:vit-b16' (default "
-                        "openai/clip-vit-large-patch14-336; needs the weights locally)")
+                   help=clip_model_help("of --grounder clip (needs them locally unless --allow-download)"))
     p.add_argument("--allow-download", action="store_true", help="let transformers download CLIP weights")
     p.add_argument("--normalization", choices=("raw", "minmax", "softmax"), default=None,
                    help="heatmap normalisation (default softmax)")
@@ -67,6 +69,8 @@ def _load_scene(args: argparse.Namespace) -> tuple[Any, dict[int, str], str | No
 
 
 def _camera_panels(obs: Any, cloud: Any, field: Any) -> dict[str, np.ndarray]:
+    import numpy as np
+
     from abm.grounding.visualize import blend, colormap, hstack, label, upscale
 
     panels = {}
@@ -91,6 +95,7 @@ def _camera_panels(obs: Any, cloud: Any, field: Any) -> dict[str, np.ndarray]:
 
 
 def _topdown(cloud: Any, field: Any, workspace: Any, resolution: int = 256) -> np.ndarray:
+    import numpy as np
     import torch
 
     from abm.grounding.visualize import blend, colormap, hstack, label, to_uint8
@@ -109,6 +114,7 @@ def _topdown(cloud: Any, field: Any, workspace: Any, resolution: int = 256) -> n
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
     import torch
     from PIL import Image
 

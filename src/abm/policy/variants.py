@@ -21,9 +21,10 @@ into the single channel a variant consumes.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import torch
+if TYPE_CHECKING:  # torch is imported where masks are computed, so the command line starts fast
+    import torch
 
 MaskKind = Literal["none", "center", "soft", "binary"]
 
@@ -88,6 +89,8 @@ def mask_channel(spec: VariantSpec, rendered: torch.Tensor, threshold: float = 0
         ``(B, V, 1, H, W)`` float mask: centre pixel (``abm``), soft heatmap (``concat-rerendered``)
         or binarised mask (``stack``, ``concat-full``).
     """
+    import torch
+
     from abm.render import binarize_mask, center_pixel_mask, soft_mask
 
     if rendered.dim() != 5 or rendered.shape[2] != 2:

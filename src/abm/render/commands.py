@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:  # numpy is imported by the command itself, so `abm --help` stays fast
+    import numpy as np
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -25,10 +27,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _to_uint8(img: np.ndarray) -> np.ndarray:
+    import numpy as np
+
     return (np.clip(img, 0.0, 1.0) * 255).round().astype(np.uint8)
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
     import torch
     from PIL import Image
 

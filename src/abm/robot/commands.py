@@ -8,6 +8,8 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from abm.configuration import MAX_KEYFRAMES, clip_model_help
+
     p = subparsers.add_parser(
         "run", help="run a trained policy on a robot (recorded camera, MuJoCo arm or dry run), logged per step",
         description="observe -> ground -> predict -> check limits -> move, for --steps keyframes. The robot "
@@ -20,9 +22,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--allow-no-target", action="store_true",
                    help="move even when grounding finds no point of the instruction's object (by default such a "
                    "step is refused before anything moves, exit code 2)")
-    p.add_argument("--steps", type=int, default=10, help="keyframes to run (default: 10)")
+    p.add_argument("--steps", type=int, default=MAX_KEYFRAMES, help="keyframes to run")
     p.add_argument("--grounder", choices=["oracle", "clip", "tracking"], help="override the checkpoint's grounder")
-    p.add_argument("--clip-model", help="CLIP weights (hub name or folder) of --grounder clip or tracking")
+    p.add_argument("--clip-model", help=clip_model_help("of --grounder clip or tracking (default: the "
+                                                        "checkpoint's)", default=None))
     p.add_argument("--device", default="cpu", help="torch device of the policy")
     p.add_argument("--log", type=Path, default=Path("runs/robot_log"), help="log folder (default: runs/robot_log)")
     p.set_defaults(func=run)

@@ -17,7 +17,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import add_config_arguments, config_from_args, overrides_from_args
+from abm.configuration import add_config_arguments, clip_model_help, config_from_args, overrides_from_args
 from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
 
@@ -42,18 +42,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "Checkpoints go to OUT/checkpoints; --resume continues exactly where an interrupted run stopped. "
         "Launch with `torchrun --nproc_per_node N -m abm.cli train ...` for data-parallel training.",
     )
+    p.add_argument("--config", metavar="RECIPE",
+                   help="a recipe file (YAML: option names to values, policy overrides under 'policy:') or a "
+                   "built-in recipe (cpu, quickstart, seen_unseen; the repository's configs/ folder); flags given "
+                   "on the command line override it")
     add_config_arguments(p, TrainConfig)  # one flag per TrainConfig field, help from its docstring
     add_config_arguments(p, PolicyConfig, overrides_only=True, exclude=("variant", "preset", "extra"),
                          dest_prefix=POLICY_DEST, title="policy (overrides of the --preset; saved with the run)")
     p.add_argument("--synthetic", type=int, default=0, metavar="N",
                    help="train on N built-in synthetic block episodes instead of --data (smoke tests)")
-    p.add_argument("--clip-model", help="CLIP weights for --grounder/--language clip: hub name, local folder, "
-                   "or 'tiny' (random tiny CLIP, tests only); default: the grounding package's default")
+    p.add_argument("--clip-model", help=clip_model_help("for --grounder clip / --language clip"))
     p.add_argument("--clip-device", help="device of the CLIP model (default: CUDA when available)")
     p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
                    help="override a policy config field, e.g. --set resolution=64 (repeatable)")
     p.add_argument("--camera-resolution", type=int, default=64, help="camera side for --synthetic episodes")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, config_sections={"policy": POLICY_DEST})
 
     e = subparsers.add_parser(
         "export",
@@ -87,10 +90,11 @@ def run_export(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     from abm.cli import CommandError
 
-    try:
-        import torch_optimizer  # noqa: F401
-    except ImportError as err:
-        raise CommandError("training needs torch-optimizer (LAMB): pip install 'abm[train]'") from err
+    if args.optimizer == "lamb":
+        try:
+            import torch_optimizer  # noqa: F401
+        except ImportError as err:
+            raise CommandError("--optimizer lamb needs torch-optimizer: pip install 'abm[train]'") from err
     from abm.train.loop import train
 
     if args.steps < 1 or args.batch < 1:

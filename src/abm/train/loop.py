@@ -1,6 +1,6 @@
 """Behaviour-cloning training loop for every policy variant (single process or ``torchrun`` DDP).
 
-* LAMB (``torch_optimizer.Lamb``), linear warm-up then cosine decay, gradient-norm clipping,
+* AdamW (default) or LAMB (``torch_optimizer.Lamb``), linear warm-up then cosine decay, gradient-norm clipping,
   bf16 autocast on CUDA (on CPU only with native bf16, ``--bf16``), optional ``torch.compile``.
 * Data: :class:`~abm.data.keyframes.KeyframeDataset` with the deterministic
   :class:`~abm.data.keyframes.StepSampler` (rank-sharded like ``DistributedSampler``), so a run

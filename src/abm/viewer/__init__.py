@@ -5,6 +5,13 @@
 screenshots of the page (docs, browser tests).
 """
 
-from abm.viewer.scene import ViewerScene, ViewerStep, overlay_views, rollout_scene, scene_from_episode, view_camera_pose
+from abm.lazy import lazy_exports
+
+# imported on first use (abm.lazy), so importing the package (every `abm` command does) stays light
+__getattr__, __dir__ = lazy_exports(__name__, {
+    "abm.viewer.scene": (
+        "ViewerScene", "ViewerStep", "overlay_views", "rollout_scene", "scene_from_episode", "view_camera_pose",
+    ),
+})
 
 __all__ = ["ViewerScene", "ViewerStep", "overlay_views", "rollout_scene", "scene_from_episode", "view_camera_pose"]

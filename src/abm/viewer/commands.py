@@ -9,6 +9,8 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from abm.configuration import clip_model_help
+
     p = subparsers.add_parser(
         "view", help="3-D browser viewer: point cloud, mask field, virtual views, heatmaps and keyframes",
         description="Serve a local web page (viser; works offline) showing, for each keyframe step, the fused "
@@ -25,7 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="rollout scene seed (abm eval's outcome log lists the seed of each episode)")
     p.add_argument("--steps", type=int, nargs="+", metavar="K", help="only these steps of --episode")
     p.add_argument("--grounder", choices=["oracle", "clip"], help="grounder (default: the checkpoint's, or oracle)")
-    p.add_argument("--clip-model", help="CLIP weights for --grounder clip (hub name, folder, or 'tiny')")
+    p.add_argument("--clip-model", help=clip_model_help("for --grounder clip", default=None))
     p.add_argument("--device", default="cpu", help="torch device of the policy")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: localhost only)")
     p.add_argument("--port", type=int, default=8080, help="port (default: 8080)")

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
+from abm.configuration import MAX_KEYFRAMES
 from abm.geometry import Workspace
 from abm.grounding.conditioning import condition_scene, make_grounder_from_spec, split_instruction
 from abm.grounding.visualize import overlay_views
@@ -185,7 +186,7 @@ def scene_from_episode(
 
 
 def rollout_scene(policy: Any, task: str, split: str = "seen", seed: int = 1_000_000, resolution: int = 128,
-                  max_steps: int = 10) -> ViewerScene:
+                  max_steps: int = MAX_KEYFRAMES) -> ViewerScene:
     """Roll ``policy`` out on one seeded ABM-Bench scene (as ``abm eval`` does) and keep every step's view.
 
     ``seed`` is the scene seed (``abm eval`` writes it into its outcome log); the scene, the instruction
