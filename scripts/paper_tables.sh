@@ -97,9 +97,8 @@ train_one() {  # run name, threads -> one multi-task training (resumes), then it
     [ -f "$carry/log.csv" ] && cp "$carry/log.csv" "$OUT/$name/"
   fi
   # shellcheck disable=SC2086
-  OMP_NUM_THREADS="$threads" MKL_NUM_THREADS="$threads" abm train "${extra[@]}" "${flags[@]}" --data "$DATA" \
-    --tasks $TASKS --steps "$STEPS" --batch 8 --optimizer adamw --lr 1e-3 --warmup 50 --set resolution=64 \
-    --set patch_size=8 --checkpoint-every 250 --keep-checkpoints 2 --no-progress --out "$OUT/$name" --resume \
+  OMP_NUM_THREADS="$threads" MKL_NUM_THREADS="$threads" abm train --config paper_tables "${extra[@]}" \
+    "${flags[@]}" --data "$DATA" --tasks $TASKS --steps "$STEPS" --no-progress --out "$OUT/$name" --resume \
     > "$OUT/train_$name.log" 2>&1 || return 1
   abm export --run "$OUT/$name" --out "$ZOO/$name.pt" --dtype bfloat16
   rm -rf "$carry"
