@@ -15,7 +15,7 @@
 #
 # Usage: bash scripts/paper_tables.sh [OUT]        (default OUT=runs/paper)
 # Knobs (environment): RUNS (all seven, in training order), CLIP (models/benchmark-clip), DEMOS (20 per task),
-#   STEPS (5000), EVAL_EPISODES (25), REPEATS (2), EVAL_WORKERS (2), MAX_STEPS (8), COMPILE (1: torch.compile),
+#   STEPS (5000), EVAL_EPISODES (25), REPEATS (2), EVAL_WORKERS (2), MAX_STEPS (8), COMPILE (0; 1 adds --compile),
 #   STAGES ("data ground train eval report"), README (README.md; "" = skip), ZOO (models), THREADS (per trainer:
 #   1 for a pair, 2 for one left alone).
 # Resumable at every stage: demonstrations are kept, grounding caches are filled once, trainings continue
@@ -43,7 +43,7 @@ EVAL_EPISODES="${EVAL_EPISODES:-25}"
 REPEATS="${REPEATS:-2}"
 EVAL_WORKERS="${EVAL_WORKERS:-2}"
 MAX_STEPS="${MAX_STEPS:-8}"
-COMPILE="${COMPILE:-1}"
+COMPILE="${COMPILE:-0}"
 STAGES="${STAGES:-data ground train eval report}"
 README="${README-README.md}"
 mkdir -p "$OUT" "$ZOO"
