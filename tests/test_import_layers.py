@@ -15,7 +15,7 @@ import abm
 
 ROOT = Path(abm.__file__).parent
 LAYERS = [
-    ("types", "machine", "workers", "configuration"),
+    ("types", "machine", "workers", "configuration", "ray_pool"),
     ("geometry",),
     ("render", "grounding", "sim"),
     ("samples",),

@@ -8,6 +8,8 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
+    from abm.ray_pool import add_backend_arguments
+
     data = subparsers.add_parser("data", help="generate and inspect demonstration episodes")
     sub = data.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
 
@@ -28,6 +30,7 @@ def register(subparsers) -> None:
     gen.add_argument("--dense-fps", type=float, default=10.0,
                      help="control rate of --dense in frames per second (default 10; 1/fps must be a whole "
                           "number of 2 ms physics steps)")
+    add_backend_arguments(gen)
     gen.set_defaults(func=_generate)
 
     export = sub.add_parser(
@@ -88,6 +91,7 @@ def register(subparsers) -> None:
 def _generate(args: argparse.Namespace) -> int:
     from abm.cli import CommandError
     from abm.data.generate import EvaluationOnlyTaskError, expand_tasks, generate
+    from abm.ray_pool import RayBackendError
     from abm.sim.assets import AssetNotFoundError
     from abm.sim.splits import SplitFileError
 
@@ -111,8 +115,9 @@ def _generate(args: argparse.Namespace) -> int:
         try:
             report = generate(task, args.split, args.episodes, args.out, workers=args.workers,
                               seed=args.seed, resolution=args.resolution, splits_path=args.splits,
-                              dense_fps=args.dense_fps if args.dense else None)
-        except (SplitFileError, AssetNotFoundError) as err:
+                              dense_fps=args.dense_fps if args.dense else None, backend=args.backend,
+                              ray_address=args.ray_address)
+        except (SplitFileError, AssetNotFoundError, RayBackendError) as err:
             raise CommandError(str(err)) from None
         print(f"{task}/{args.split}: {report.created} new, {report.skipped} already present, "
               f"{len(report.failed_seeds)} expert failures, {report.seconds:.0f} s "

@@ -104,6 +104,34 @@ def generate_one(task: str, split: str, seed: int, out: str, resolution: int,
     return seed, False, str(episode.metadata.get("motions"))
 
 
+def generate_remote(task: str, split: str, seed: int, out: str, resolution: int, splits_path: str | None,
+                    dense_fps: float | None = None) -> tuple[int, bool, str, bytes]:
+    """:func:`generate_one` on a machine that may not see ``out`` (a Ray node): the episode is written to a
+    local temporary folder and returned as the file's bytes, for the driver to store."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="abm-gen-") as tmp:
+        sd, ok, note = generate_one(task, split, seed, tmp, resolution, splits_path, dense_fps)
+        path = episode_path(Path(tmp), task, split, seed)
+        return sd, ok, note, path.read_bytes() if ok else b""
+
+
+def _store_remote(out: Path, task: str, split: str, result: tuple[int, bool, str, bytes]) -> tuple[int, bool, str]:
+    """Write what :func:`generate_remote` returned where :func:`generate_one` would have (atomically)."""
+    import os
+
+    sd, ok, note, payload = result
+    path = episode_path(out, task, split, sd)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if ok:
+        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+        tmp.write_bytes(payload)
+        os.replace(tmp, path)
+    else:
+        _failed_marker(path).write_text(f"expert failed; motions: {note}\n")
+    return sd, ok, note
+
+
 def _check_resume_settings(folder: Path, resolution: int, dense_fps: float | None = None) -> None:
     """Refuse to add episodes of another camera resolution (or dense rate) to a folder (they could not be
     trained or exported together)."""
@@ -127,10 +155,12 @@ def _check_resume_settings(folder: Path, resolution: int, dense_fps: float | Non
 
 def generate(task: str, split: str, episodes: int, out: str | Path, workers: int = 1, seed: int = 0,
              resolution: int = 128, splits_path: str | Path | None = None, progress: bool = True,
-             dense_fps: float | None = None) -> GenerationReport:
+             dense_fps: float | None = None, backend: str = "local", ray_address: str | None = None
+             ) -> GenerationReport:
     """Make sure ``episodes`` successful demonstrations of ``task``/``split`` exist under ``out``.
 
-    ``dense_fps`` also records the full trajectory at that control rate."""
+    ``dense_fps`` also records the full trajectory at that control rate; ``backend`` ``"ray"`` runs the
+    workers as Ray actors (:mod:`abm.ray_pool`) on the cluster at ``ray_address`` (or a local Ray)."""
     from tqdm import tqdm
 
     from abm.sim.env import make_env
@@ -161,7 +191,7 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     ctx = multiprocessing.get_context("spawn")
     next_seed = s
     args = (str(out), int(resolution), str(splits_path) if splits_path else None, dense_fps)
-    with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx, initializer=die_with_parent) as pool:
+    with _pool(backend, workers, ctx, ray_address) as pool:
         running: set[Future] = set()
         queue = list(pending_seeds)
 
@@ -178,14 +208,15 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
                         continue
                 else:
                     return
-                running.add(pool.submit(generate_one, task, split, sd, *args))
+                running.add(pool.submit(generate_remote if backend == "ray" else generate_one, task, split, sd,
+                                        *args))
 
         submit_more()
         while running:
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for fut in finished:
                 running.discard(fut)
-                sd, ok, note = fut.result()
+                sd, ok, note = _store_remote(out, task, split, fut.result()) if backend == "ray" else fut.result()
                 if ok:
                     created += 1
                     bar.update(1)
@@ -196,3 +227,13 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     bar.close()
     return GenerationReport(created, skipped, sorted(failed), time.perf_counter() - start)
 
+
+def _pool(backend: str, workers: int, ctx, ray_address: str | None):
+    """The executor of the generation workers: the local process pool or Ray actors."""
+    if backend == "ray":
+        from abm.ray_pool import RayActorPool
+
+        return RayActorPool(max(1, workers), address=ray_address)
+    if backend != "local":
+        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
+    return ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx, initializer=die_with_parent)

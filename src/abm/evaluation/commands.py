@@ -9,6 +9,7 @@ from pathlib import Path
 def register(subparsers: argparse._SubParsersAction) -> None:
     from abm.configuration import add_config_arguments
     from abm.evaluation.runner import EvalSettings
+    from abm.ray_pool import add_backend_arguments
 
     p = subparsers.add_parser(
         "eval",
@@ -24,6 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, default=25, help="episodes per task and repeat (paper: 25)")
     p.add_argument("--repeats", type=int, default=5, help="repeats with different scenes (paper: 5)")
     p.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
+    add_backend_arguments(p)  # --backend local|ray, --ray-address
     add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
     p.add_argument("--gifs", type=int, default=0, help="save front-camera GIFs of this many episodes per task")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: FIRST_RUN/eval_SPLIT)")
@@ -44,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from abm.configuration import config_from_args
     from abm.evaluation.results import markdown_table
     from abm.evaluation.runner import EvalSettings, evaluate
+    from abm.ray_pool import RayBackendError
     from abm.sim.tasks import TASKS
 
     for r in args.run:
@@ -62,8 +65,11 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise CommandError(f"--out {out} is a file; give a folder")
     settings = config_from_args(EvalSettings, args)
-    rates = evaluate(args.run, tasks, args.split, out, args.episodes, args.repeats, args.workers, settings,
-                     gifs=args.gifs)
+    try:
+        rates = evaluate(args.run, tasks, args.split, out, args.episodes, args.repeats, args.workers, settings,
+                         gifs=args.gifs, backend=args.backend, ray_address=args.ray_address)
+    except RayBackendError as err:
+        raise CommandError(str(err)) from None
     print(markdown_table([r for r in rates if r.split == args.split and r.task in tasks]))
     errors = sum(r.errors for r in rates)
     print(f"results: {out / 'results.md'} (also .json, .csv; per-episode outcomes in outcomes.jsonl)")

@@ -200,6 +200,8 @@ def evaluate(
     progress: bool = True,
     labels: dict[str, str] | None = None,
     runner: Callable[[EvalJob, EvalSettings], EpisodeOutcome] = run_job,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> list[SuccessRate]:
     """Evaluate policies on one split and write ``outcomes.jsonl``, ``results.{json,csv,md}`` to ``out_dir``.
 
@@ -212,6 +214,8 @@ def evaluate(
         gifs: front-camera GIFs with the predicted keyframes for this many episodes per task.
         labels: run -> method label for the tables (default: from the checkpoints, see :func:`method_labels`).
         runner: the function that rolls out one job (replaceable for tests).
+        backend: ``"local"`` (in-process for one worker, else a process pool) or ``"ray"`` (``workers`` Ray
+            actors at ``ray_address``, or a local Ray; :mod:`abm.ray_pool`).
 
     Returns:
         success rates of every (method, task) on ``split``, from the outcomes of exactly the planned
@@ -230,7 +234,9 @@ def evaluate(
     jobs = [j for j in plan if j.key not in done]
     bar = tqdm(total=len(jobs), desc=f"eval {split}", unit="ep", disable=not progress)
     successes = 0
-    if workers <= 1:
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
+    if workers <= 1 and backend == "local":
         for job in jobs:
             outcome = runner(job, settings)
             log.append(outcome)
@@ -238,7 +244,7 @@ def evaluate(
             bar.update(1)
             bar.set_postfix(success=f"{successes}/{bar.n}")
     else:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init) as pool:
+        with _pool(backend, workers, ray_address) as pool:
             futures = [pool.submit(runner, job, settings) for job in jobs]
             for fut in as_completed(futures):
                 outcome = fut.result()
@@ -250,6 +256,14 @@ def evaluate(
     planned = {j.key for j in plan}
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
     return write_reports(list(latest.values()), out)
+
+
+def _pool(backend: str, workers: int, ray_address: str | None) -> Any:
+    if backend == "ray":
+        from abm.ray_pool import RayActorPool
+
+        return RayActorPool(workers, address=ray_address)
+    return ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init)
 
 
 def checkpoint_of(run: str | Path) -> str:
