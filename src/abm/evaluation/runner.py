@@ -255,7 +255,16 @@ def evaluate(
     bar.close()
     planned = {j.key for j in plan}
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
+    write_training_figure({j.method: j.run for j in plan}, out / "training.png")
     return write_reports(list(latest.values()), out)
+
+
+def write_training_figure(runs: dict[str, str], path: Path) -> Path | None:
+    """Loss curves of the evaluated runs (label -> run folder) that have a ``log.csv``; ``None`` if none has."""
+    from abm.evaluation.plots import loss_curves, read_log
+
+    logs = {label: rows for label, run in runs.items() if (rows := read_log(run))}
+    return loss_curves(logs, path) if logs else None
 
 
 def _pool(backend: str, workers: int, ray_address: str | None) -> Any:
@@ -277,14 +286,21 @@ def checkpoint_of(run: str | Path) -> str:
 
 
 def write_reports(outcomes: Sequence[EpisodeOutcome], out_dir: Path) -> list[SuccessRate]:
-    """Aggregate outcomes into ``out_dir``/results.json, results.csv, results.md and report.html (the
-    per-episode view: failure reasons and rollout GIFs from ``out_dir``/gifs)."""
+    """Aggregate outcomes into ``out_dir``/results.json, results.csv, results.md, success.png (bar chart) and
+    report.html (the per-episode view: failure reasons and rollout GIFs from ``out_dir``/gifs)."""
     from abm.evaluation.html_report import write_html_report
+    from abm.evaluation.plots import success_chart
 
     rates = aggregate(outcomes)
     write_tables(rates, out_dir)
+    if rates:
+        success_chart(rates, out_dir / "success.png")
     write_html_report(outcomes, out_dir / "report.html", out_dir / "gifs")
     with (out_dir / "results.md").open("a") as f:
+        if rates:
+            f.write("\n![success rate per task, split and method; error bars: std over repeats](success.png)\n")
+        if (out_dir / "training.png").is_file():
+            f.write("\n![training losses of the evaluated runs](training.png)\n")
         sub = subgoal_rates(outcomes)
         if sub:
             f.write("\nSuccess per sub-goal (%), two-target instructions (1: X grasped, 2: X placed in Y):\n\n"
