@@ -195,3 +195,34 @@ def test_bad_inputs_give_clear_errors(tmp_path, capsys):
     assert main(["data", "export", "--format", "lerobot", "--data", str(data), "--out", str(ds)]) == 2
     assert "not an empty folder" in capsys.readouterr().err
     assert info_path.exists()  # and the existing dataset is left alone
+
+
+def test_the_export_loads_with_lerobots_parquet_loader(tmp_path):
+    """LeRobot 0.4 reads the frames with Hugging Face ``datasets`` (features mapped from info.json: shape (1,)
+    -> Value, 1-D -> Sequence, 2-D -> Array2D) and the tasks with pandas (task string as the index). The
+    lerobot package itself is not installed here (it pulls torchvision); this runs where datasets and
+    pandas are installed and is skipped elsewhere."""
+    datasets = pytest.importorskip("datasets")
+    pd = pytest.importorskip("pandas")
+    data, eps = _store(tmp_path, dense=True, seeds=(2,))
+    ds = tmp_path / "ds"
+    assert main(["data", "export", "--format", "lerobot", "--data", str(data), "--out", str(ds)]) == 0
+    info = json.loads((ds / "meta" / "info.json").read_text())
+    feats = {}
+    for key, ft in info["features"].items():
+        shape = tuple(ft["shape"])
+        if ft["dtype"] == "video":
+            continue
+        feats[key] = (datasets.Value(ft["dtype"]) if shape == (1,) else
+                      datasets.Sequence(length=shape[0], feature=datasets.Value(ft["dtype"])) if len(shape) == 1
+                      else datasets.Array2D(shape=shape, dtype=ft["dtype"]))
+    parquet = ds / info["data_path"].format(chunk_index=0, file_index=0)
+    frames = datasets.load_dataset("parquet", data_files=str(parquet), features=datasets.Features(feats), split="train",
+                                   cache_dir=str(tmp_path / "hf"))
+    assert frames.num_rows == info["total_frames"] == 9
+    row = frames.with_format("numpy")[3]
+    traj = eps[2].trajectory
+    assert np.array_equal(row["observation.depth.front"], traj.observations[3].cameras["front"].depth)
+    assert bool(row["keyframe.is_keyframe"]) and row["keyframe.kind"] == "grasp"
+    tasks = pd.read_parquet(ds / "meta" / "tasks.parquet")
+    assert tasks.index.name == "task" and tasks.loc["pick up the block 2", "task_index"] == 0

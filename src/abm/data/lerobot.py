@@ -348,7 +348,7 @@ def export_lerobot(data: str | os.PathLike, out: str | os.PathLike, frames: str 
     info_json = {
         "codebase_version": CODEBASE_VERSION, "robot_type": robot_type, "total_episodes": len(episode_rows),
         "total_frames": total, "total_tasks": len(tasks), "chunks_size": 1000,
-        "data_files_size_in_mb": 100, "video_files_size_in_mb": 500, "fps": fps,
+        "data_files_size_in_mb": 100, "video_files_size_in_mb": 500, "fps": int(fps) if fps.is_integer() else fps,
         "splits": {"train": f"0:{len(episode_rows)}"}, "data_path": DATA_PATH, "video_path": VIDEO_PATH,
         "features": features,
         "abm": {"frames": "dense" if dense else "keyframes", "cameras": cameras,
