@@ -49,3 +49,12 @@ def test_dense_generation_and_lerobot_round_trip(tmp_path, capsys):
         assert np.array_equal(a1.position, a2.position) and a1.kind == a2.kind
         assert np.array_equal(o1.cameras["front"].depth, o2.cameras["front"].depth)
     assert np.allclose(again.trajectory.joint_actions, traj.joint_actions, atol=1e-5)
+
+
+def test_a_control_rate_off_the_physics_clock_is_refused(tmp_path, capsys):
+    args = ["data", "generate", "--task", "pick_block", "--split", "seen", "--episodes", "1", "--out", str(tmp_path),
+            "--dense", "--dense-fps"]
+    for fps in ("3", "0", "1000"):
+        assert main([*args, fps]) == 2
+        assert "whole number of physics steps of 2 ms" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())  # refused before anything ran

@@ -109,8 +109,10 @@ def _generate(args: argparse.Namespace) -> int:
         raise CommandError(f"--resolution must be between 16 and 1024, got {args.resolution}")
     if args.out.exists() and not args.out.is_dir():
         raise CommandError(f"--out {args.out} is a file; give a folder")
-    if args.dense and args.dense_fps <= 0:
-        raise CommandError(f"--dense-fps must be positive, got {args.dense_fps}")
+    if args.dense:
+        from abm.sim.recorder import control_period
+
+        control_period(args.dense_fps)  # ValueError with the allowed rates
     for task in tasks:
         try:
             report = generate(task, args.split, args.episodes, args.out, workers=args.workers,

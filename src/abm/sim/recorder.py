@@ -16,9 +16,19 @@ from typing import Any
 import numpy as np
 
 from abm.geometry.rotations import matrix_to_quat
+from abm.sim.scene import PHYSICS_TIMESTEP
 from abm.types import Observation, Trajectory
 
 DEFAULT_FPS = 10.0
+
+
+def control_period(fps: float, timestep: float = PHYSICS_TIMESTEP) -> int:
+    """Physics steps per frame at ``fps``; ``ValueError`` unless ``1 / fps`` is a whole number of them."""
+    period = 1.0 / float(fps) / timestep if fps > 0 else 0.0
+    if round(period) < 1 or abs(period - round(period)) > 1e-6:
+        raise ValueError(f"--dense-fps {fps:g}: 1/fps must be a whole number of physics steps of "
+                         f"{timestep * 1000:g} ms (e.g. 5, 10, 25 or 50)")
+    return int(round(period))
 
 
 class _SteppingClock:
@@ -45,12 +55,8 @@ class DenseRecorder:
     """
 
     def __init__(self, sim: Any, fps: float = DEFAULT_FPS) -> None:
-        dt = float(sim.model.opt.timestep)
-        period = 1.0 / float(fps) / dt
-        if fps <= 0 or abs(period - round(period)) > 1e-6 or round(period) < 1:
-            raise ValueError(f"--dense-fps {fps}: 1/fps must be a whole number of physics steps of {dt * 1000:g} ms "
-                             f"(e.g. 5, 10, 25 or 50)")
-        self.sim, self.fps, self.period = sim, float(fps), int(round(period))
+        self.sim, self.fps = sim, float(fps)
+        self.period = control_period(fps, float(sim.model.opt.timestep))
         self.ticks = 0
         self.observations: list[Observation] = []
         self.joints: list[np.ndarray] = []
