@@ -414,34 +414,80 @@ def _read_parquet(path: Path):
         raise LeRobotFormatError(f"{path}: not a readable parquet file ({err})") from None
 
 
-def _decode_video(path: Path, fps: float, total: int, size: tuple[int, int]) -> np.ndarray:
-    import av
+class _VideoFrames:
+    """The frames of one camera's mp4, read in order, one episode at a time (constant memory)."""
 
-    if not path.is_file():
-        raise LeRobotFormatError(f"{path} is missing (the dataset is incomplete)")
-    out = np.zeros((total, size[0], size[1], 3), np.uint8)
-    seen = np.zeros(total, bool)
-    try:
-        with av.open(str(path)) as container:
-            for frame in container.decode(video=0):
-                i = int(round(float(frame.pts * frame.time_base) * fps))
-                if 0 <= i < total:
-                    out[i] = frame.to_ndarray(format="rgb24")
-                    seen[i] = True
-    except av.error.FFmpegError as err:
-        raise LeRobotFormatError(f"{path}: not a readable video ({err})") from None
-    if not seen.all():
-        raise LeRobotFormatError(f"{path}: {int((~seen).sum())} of {total} frames are missing from the video")
-    return out
+    def __init__(self, path: Path, fps: float) -> None:
+        import av
+
+        if not path.is_file():
+            raise LeRobotFormatError(f"{path} is missing (the dataset is incomplete)")
+        self.path, self.fps, self.next = path, fps, 0
+        try:
+            self._container = av.open(str(path))
+            self._frames = self._container.decode(video=0)
+        except av.error.FFmpegError as err:
+            raise LeRobotFormatError(f"{path}: not a readable video ({err})") from None
+
+    def take(self, lo: int, hi: int) -> np.ndarray:
+        """Frames ``lo`` to ``hi - 1`` (``lo`` must be where the previous call stopped)."""
+        import av
+
+        out = []
+        try:
+            for frame in self._frames:
+                i = int(round(float(frame.pts * frame.time_base) * self.fps))
+                if i < lo:
+                    continue
+                if i != lo + len(out):
+                    break
+                out.append(frame.to_ndarray(format="rgb24"))
+                if len(out) == hi - lo:
+                    break
+        except av.error.FFmpegError as err:
+            raise LeRobotFormatError(f"{self.path}: not a readable video ({err})") from None
+        if len(out) != hi - lo:
+            raise LeRobotFormatError(f"{self.path}: frames {lo + len(out)} to {hi - 1} are missing from the video")
+        return np.stack(out)
+
+    def close(self) -> None:
+        self._container.close()
+
+
+class _Rows:
+    """Rows of the frame parquet read row group by row group (one per episode as written), in order."""
+
+    def __init__(self, path: Path) -> None:
+        import pyarrow.parquet as pq
+
+        if not path.is_file():
+            raise LeRobotFormatError(f"{path} is missing (the dataset is incomplete)")
+        try:
+            self.file = pq.ParquetFile(path)
+        except Exception as err:  # noqa: BLE001 - pyarrow raises several types for damaged files
+            raise LeRobotFormatError(f"{path}: not a readable parquet file ({err})") from None
+        self.path, self.group, self.start, self.buffer = path, 0, 0, None
+        self.column_names = self.file.schema_arrow.names
+        self.num_rows = self.file.metadata.num_rows
+
+    def take(self, lo: int, hi: int):
+        import pyarrow as pa
+
+        while self.buffer is None or self.start + self.buffer.num_rows < hi:
+            if self.group >= self.file.num_row_groups:
+                raise LeRobotFormatError(f"{self.path}: rows {lo} to {hi - 1} are missing")
+            part = self.file.read_row_group(self.group)
+            self.group += 1
+            self.buffer = part if self.buffer is None else pa.concat_tables([self.buffer, part])
+        rows = self.buffer.slice(lo - self.start, hi - lo)
+        self.buffer, self.start = self.buffer.slice(hi - self.start), hi
+        return rows
 
 
 def import_lerobot(dataset: str | os.PathLike, out: str | os.PathLike, progress: bool = True) -> list[Path]:
     """Read a LeRobot v3 dataset written by :func:`export_lerobot` back into abm episode files under ``out``
-    (``OUT/<task>/<split>/episode_<seed>.h5``, as ``abm data generate`` lays them out). Returns the files."""
-    from tqdm import tqdm
-
-    from abm.data.episode_store import save_episode
-
+    (``OUT/<task>/<split>/episode_<seed>.h5``, as ``abm data generate`` lays them out). Returns the files.
+    Frames and videos are read episode by episode, so memory does not grow with the dataset."""
     ds, out = Path(dataset), Path(out)
     if not ds.is_dir():
         raise FileNotFoundError(f"LeRobot dataset folder not found: {ds}")
@@ -459,19 +505,32 @@ def import_lerobot(dataset: str | os.PathLike, out: str | os.PathLike, progress:
         fps = float(info["fps"])
         cameras = list(abm_info["cameras"])
         dense = abm_info["frames"] == "dense"
-        size = tuple(features[_image_key(cameras[0])]["shape"][:2])
+        if any(len(features[_image_key(c)]["shape"]) != 3 for c in cameras):
+            raise ValueError("camera features must have shape [height, width, 3]")
     except (KeyError, TypeError, ValueError, IndexError) as err:
         raise LeRobotFormatError(f"{ds}: meta/info.json is incomplete ({err!r})") from None
     if (ds / ".export-incomplete").exists():
         raise LeRobotFormatError(f"{ds}: the export did not finish (remove the folder and export again)")
-    episodes = _read_parquet(ds / EPISODES_FILE).to_pylist()
-    table = _read_parquet(ds / DATA_FILE)
-    total = table.num_rows
+    episodes = sorted(_read_parquet(ds / EPISODES_FILE).to_pylist(), key=lambda r: r.get("dataset_from_index", 0))
+    table = _Rows(ds / DATA_FILE)
     missing = [k for k, f in features.items() if f.get("dtype") != "video" and k not in table.column_names]
     if missing:
         raise LeRobotFormatError(f"{ds / DATA_FILE}: columns {missing} listed in meta/info.json are missing")
-    videos = {cam: _decode_video(ds / VIDEO_PATH.format(video_key=_image_key(cam), chunk_index=0, file_index=0),
-                                 fps, total, size) for cam in cameras}
+    videos = {cam: _VideoFrames(ds / VIDEO_PATH.format(video_key=_image_key(cam), chunk_index=0, file_index=0), fps)
+              for cam in cameras}
+    try:
+        return _import_episodes(episodes, table, videos, out, cameras, dense, fps, ds, progress)
+    finally:
+        for v in videos.values():
+            v.close()
+
+
+def _import_episodes(episodes, table: _Rows, videos: dict[str, _VideoFrames], out: Path, cameras: list[str],
+                     dense: bool, fps: float, ds: Path, progress: bool) -> list[Path]:
+    from tqdm import tqdm
+
+    from abm.data.episode_store import save_episode
+
     written = []
     for row in tqdm(episodes, desc="import", unit="ep", disable=not progress):
         try:
@@ -481,8 +540,9 @@ def import_lerobot(dataset: str | os.PathLike, out: str | os.PathLike, progress:
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise LeRobotFormatError(f"{ds / EPISODES_FILE}: episode row {row.get('episode_index')} is "
                                      f"incomplete ({err!r})") from None
-        cols = {k: table.column(k).slice(lo, hi - lo) for k in table.column_names}
-        episode = _episode_from_columns(meta, instruction, cols, {c: v[lo:hi] for c, v in videos.items()},
+        rows = table.take(lo, hi)
+        cols = {k: rows.column(k) for k in rows.column_names}
+        episode = _episode_from_columns(meta, instruction, cols, {c: v.take(lo, hi) for c, v in videos.items()},
                                         cameras, dense, fps)
         path = out / meta["source"] if meta.get("source") else \
             out / episode.task / episode.split / f"episode_{episode.seed:06d}.h5"
