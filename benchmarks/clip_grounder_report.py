@@ -11,6 +11,8 @@ JSON of ``benchmarks/clip_quality.py``; writes the markdown to ``--report`` (def
 The success bar chart (``abm.evaluation.plots``; one bar per table row) goes to ``docs/images/results/``,
 drawn from the kept JSON only, so ``--figures-only`` redraws it from what is committed.
 
+With the runs' training logs at hand it also keeps compact loss curves (``training_RUN.csv``) and draws them.
+
 Usage: python benchmarks/clip_grounder_report.py OUT [--clip runs/clip_bench] [--quality runs/clip_quality.json]
        python benchmarks/clip_grounder_report.py --figures-only
 """
@@ -18,6 +20,7 @@ Usage: python benchmarks/clip_grounder_report.py OUT [--clip runs/clip_bench] [-
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import math
 import os
@@ -33,6 +36,7 @@ from seen_unseen_report import (
     _training,
     add_figure_arguments,
     figure_markdown,
+    keep_training_log,
     redraw_only,
 )
 
@@ -76,13 +80,18 @@ def stored_rates(store: Path) -> list[dict]:
 
 def figures(store: Path, images: Path) -> list[tuple[Path, str]]:
     """The success chart of every table row, from the kept JSON; ``(png, alt text)`` pairs."""
-    from abm.evaluation.plots import success_chart
+    from abm.evaluation.plots import loss_curves, success_chart
 
     rows = [*RUNS, *SWAPPED]
     rates = stored_rates(store)
     methods = [r for r in rows if any(x["method"] == r for x in rates)]
-    return [(success_chart(rates, images / "clip_grounder_success.png", methods=methods),
-             "rollout success of each run per task, seen and unseen objects; error bars: std over repeats")]
+    out = [(success_chart(rates, images / "clip_grounder_success.png", methods=methods),
+            "rollout success of each run per task, seen and unseen objects; error bars: std over repeats")]
+    logs = {name: list(csv.DictReader((store / f"training_{name}.csv").open())) for name in RUNS
+            if (store / f"training_{name}.csv").is_file()}
+    if logs:
+        out.append((loss_curves(logs, images / "clip_grounder_losses.png"), "training losses of the runs"))
+    return out
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -237,6 +246,9 @@ def main() -> None:
     for folder in sorted(args.run_dir.glob("eval_*")):
         if (folder / "results.json").is_file():
             (store / f"results_{folder.name[len('eval_'):]}.json").write_text((folder / "results.json").read_text())
+    for name in RUNS:
+        if (args.run_dir / name / "log.csv").is_file():
+            keep_training_log(args.run_dir / name, store / f"training_{name}.csv")
     figs = figures(store, args.images)
     text, _ = report(args.run_dir, args.clip, args.command, quality, figure_markdown(figs, args.report.parent))
     _, summary = report(args.run_dir, args.clip, args.command, quality,

@@ -91,3 +91,23 @@ def test_readme_images_are_what_the_report_scripts_draw_from_the_committed_json(
         a = np.asarray(Image.open(committed).convert("RGB")).astype(int)
         b = np.asarray(Image.open(drawn[name]).convert("RGB")).astype(int)
         assert np.abs(a - b).mean() < 2.0  # the same figure (fonts may differ by a few pixels across machines)
+
+
+def test_report_scripts_keep_compact_loss_curves_and_draw_them(tmp_path):
+    seen_unseen_report = pytest.importorskip("seen_unseen_report")
+    clip_grounder_report = pytest.importorskip("clip_grounder_report")
+    run = tmp_path / "abm_clip"
+    run.mkdir()
+    (run / "log.csv").write_text("step,total,translation,rotation,gripper,elapsed_s\n" +
+                                 "".join(f"{s},{9 / s},{5 / s},{3 / s},{1 / s},{s}\n" for s in range(1, 1001)))
+    store = tmp_path / "store"
+    store.mkdir()
+    for name in ("results_seen.json", "results_unseen.json"):
+        (store / name).write_text((ROOT / "docs/results/clip_grounder" / name).read_text())
+    seen_unseen_report.keep_training_log(run, store / "training_abm_clip.csv")
+    kept = (store / "training_abm_clip.csv").read_text().splitlines()
+    assert kept[0] == "step,total,translation,rotation,gripper" and kept[-1].startswith("1000,")
+    assert 150 < len(kept) < 260  # at most ~200 rows and the last one
+    drawn = dict((png.stem, png) for png, _ in clip_grounder_report.figures(store, tmp_path / "img"))
+    assert sorted(drawn) == ["clip_grounder_losses", "clip_grounder_success"]
+    assert _has_colour(drawn["clip_grounder_losses"], TAB_BLUE)
