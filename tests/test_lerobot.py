@@ -226,3 +226,17 @@ def test_the_export_loads_with_lerobots_parquet_loader(tmp_path):
     assert bool(row["keyframe.is_keyframe"]) and row["keyframe.kind"] == "grasp"
     tasks = pd.read_parquet(ds / "meta" / "tasks.parquet")
     assert tasks.index.name == "task" and tasks.loc["pick up the block 2", "task_index"] == 0
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["data", "export"], ["LeRobot v3.0", "--frames", "--crf"]),
+    (["data", "import"], ["LeRobot v3.0", "--out"]),
+    (["data", "generate"], ["--dense", "--dense-fps", "--backend", "--ray-address"]),
+    (["eval"], ["--backend", "--ray-address"]),
+])
+def test_new_options_have_help(argv, words, capsys):
+    with pytest.raises(SystemExit) as done:
+        main([*argv, "--help"])
+    assert done.value.code == 0
+    text = capsys.readouterr().out
+    assert all(w in text for w in words), [w for w in words if w not in text]
