@@ -8,12 +8,19 @@ JSON of ``benchmarks/clip_quality.py``; writes the markdown to ``--report`` (def
 (``docs/results/clip_grounder/``) and replaces the block between ``<!-- clip-grounder:start -->`` and
 ``<!-- clip-grounder:end -->`` in the README when it has one.
 
+The success bar chart (``abm.evaluation.plots``; one bar per table row) goes to ``docs/images/results/``,
+drawn from the kept JSON only, so ``--figures-only`` redraws it from what is committed.
+
+With the runs' training logs at hand it also keeps compact loss curves (``training_RUN.csv``) and draws them.
+
 Usage: python benchmarks/clip_grounder_report.py OUT [--clip runs/clip_bench] [--quality runs/clip_quality.json]
+       python benchmarks/clip_grounder_report.py --figures-only
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import math
 import os
@@ -21,7 +28,17 @@ import shlex
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from seen_unseen_report import _cell, _eval_max_steps, _load, _machine, _training
+from seen_unseen_report import (
+    _cell,
+    _eval_max_steps,
+    _load,
+    _machine,
+    _training,
+    add_figure_arguments,
+    figure_markdown,
+    keep_training_log,
+    redraw_only,
+)
 
 START, END = "<!-- clip-grounder:start -->", "<!-- clip-grounder:end -->"
 #: run folder -> (variant, what grounds the target / carries the instruction), in table order
@@ -46,6 +63,35 @@ def run_label(name: str, rates: Sequence[Mapping]) -> str | None:
         if any(r["method"] == label for r in rates):
             return label
     return None
+
+
+def stored_rates(store: Path) -> list[dict]:
+    """The rates kept under ``store`` (``results_SPLIT[_SUFFIX].json``), each labelled with its table row."""
+    rates = _load(store / "results_seen.json") + _load(store / "results_unseen.json")
+    labels = {run_label(name, rates): name for name in RUNS}
+    out = [{**r, "method": labels[r["method"]]} for r in rates if r["method"] in labels]
+    for row, (_, suffix, _, _) in SWAPPED.items():
+        for split in ("seen", "unseen"):
+            path = store / f"results_{split}_{suffix}.json"
+            if path.is_file():
+                out += [{**r, "method": row} for r in json.loads(path.read_text())]
+    return out
+
+
+def figures(store: Path, images: Path) -> list[tuple[Path, str]]:
+    """The success chart of every table row, from the kept JSON; ``(png, alt text)`` pairs."""
+    from abm.evaluation.plots import loss_curves, success_chart
+
+    rows = [*RUNS, *SWAPPED]
+    rates = stored_rates(store)
+    methods = [r for r in rows if any(x["method"] == r for x in rates)]
+    out = [(success_chart(rates, images / "clip_grounder_success.png", methods=methods),
+            "rollout success of each run per task, seen and unseen objects; error bars: std over repeats")]
+    logs = {name: list(csv.DictReader((store / f"training_{name}.csv").open())) for name in RUNS
+            if (store / f"training_{name}.csv").is_file()}
+    if logs:
+        out.append((loss_curves(logs, images / "clip_grounder_losses.png"), "training losses of the runs"))
+    return out
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -115,7 +161,8 @@ def _grounder_setting(config: Mapping) -> tuple[str, float]:
     return options.get("normalization", DEFAULT_NORMALIZATION), float(options.get("threshold", DEFAULT_THRESHOLD))
 
 
-def report(out: Path, clip: Path, command: str, quality: Mapping | None = None) -> tuple[str, str]:
+def report(out: Path, clip: Path, command: str, quality: Mapping | None = None, figures_md: str = ""
+           ) -> tuple[str, str]:
     """The whole report and its summary for the README (everything but the mask-quality table)."""
     rates = load_rates(out)
     tasks = sorted({r["task"] for r in rates})
@@ -148,6 +195,7 @@ def report(out: Path, clip: Path, command: str, quality: Mapping | None = None) 
         "",
         table,
         "",
+        *([figures_md, ""] if figures_md else []),
     ]
     if {"abm_oracle", "abm_clip"} <= avg.keys():
         o, c = avg["abm_oracle"], avg["abm_clip"]
@@ -177,25 +225,34 @@ def report(out: Path, clip: Path, command: str, quality: Mapping | None = None) 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run_dir", type=Path, help="the folder given to scripts/clip_grounder.sh")
+    parser.add_argument("run_dir", type=Path, nargs="?", help="the folder given to scripts/clip_grounder.sh")
     parser.add_argument("--clip", type=Path, default=Path("runs/clip_bench"), help="the CLIP model folder")
     parser.add_argument("--quality", type=Path, default=Path("runs/clip_quality.json"),
                         help="benchmarks/clip_quality.py JSON (skipped when missing)")
     parser.add_argument("--report", type=Path, default=Path("docs/results/clip_grounder.md"), help="markdown file")
     parser.add_argument("--readme", default="README.md", help="README to update ('' = do not touch it)")
     parser.add_argument("--command", default="bash scripts/clip_grounder.sh", help="the command to quote")
+    add_figure_arguments(parser)
     args = parser.parse_args()
 
+    store = args.report.with_suffix("")
+    if redraw_only(args, parser, args.run_dir, figures, store):
+        return
     quality = json.loads(args.quality.read_text()) if args.quality.is_file() else None
     knobs = ("CLIP", "DATA", "TASKS", "DEMOS", "STEPS", "EVAL_EPISODES", "REPEATS", "METHODS")
     args.command = " ".join([*(f"{k}={shlex.quote(os.environ[k])}" for k in knobs if k in os.environ),
                              args.command.strip()])
-    text, summary = report(args.run_dir, args.clip, args.command, quality)
-    store = args.report.with_suffix("")
     store.mkdir(parents=True, exist_ok=True)
     for folder in sorted(args.run_dir.glob("eval_*")):
         if (folder / "results.json").is_file():
             (store / f"results_{folder.name[len('eval_'):]}.json").write_text((folder / "results.json").read_text())
+    for name in RUNS:
+        if (args.run_dir / name / "log.csv").is_file():
+            keep_training_log(args.run_dir / name, store / f"training_{name}.csv")
+    figs = figures(store, args.images)
+    text, _ = report(args.run_dir, args.clip, args.command, quality, figure_markdown(figs, args.report.parent))
+    _, summary = report(args.run_dir, args.clip, args.command, quality,
+                        figure_markdown(figs, Path(args.readme or ".").parent))
     args.report.write_text("# The learned (CLIP) grounder beside the oracle: abm, rvt and ifd\n\n" + text)
     print(text)
     if args.readme:

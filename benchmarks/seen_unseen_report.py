@@ -5,7 +5,12 @@ the training logs ``OUT/{abm,rvt}/log.csv`` and the stage times ``OUT/times.txt`
 ``docs/results/seen_unseen.md`` plus the JSON it was built from (``docs/results/seen_unseen/``) and replaces
 the block between ``<!-- seen-unseen:start -->`` and ``<!-- seen-unseen:end -->`` in the README.
 
+Figures (``abm.evaluation.plots``) go to ``docs/images/results/``: the success bar chart, the keyframe error
+against training steps and, when the training logs were there, the loss curves; they are drawn from the
+stored JSON / CSV only, so ``--figures-only`` redraws them from what is committed.
+
 Usage: python benchmarks/seen_unseen_report.py OUT [--readme README.md] [--docs docs/results]
+       python benchmarks/seen_unseen_report.py --figures-only
 """
 
 from __future__ import annotations
@@ -22,6 +27,58 @@ from abm.machine import describe_machine
 
 START, END = "<!-- seen-unseen:start -->", "<!-- seen-unseen:end -->"
 METHODS = ("abm", "rvt")
+LOSS_COLUMNS = ("step", "total", "translation", "rotation", "gripper")
+
+
+def keep_training_log(run: Path, path: Path, max_rows: int = 200) -> None:
+    """A compact copy of a run's loss curve (at most ``max_rows`` evenly spaced rows and the last one)."""
+    with (run / "log.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    keep = rows[:: max(1, len(rows) // max_rows)] + rows[-1:]
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, LOSS_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows({r["step"]: r for r in keep}.values())  # the last row may already be kept
+
+
+def figures(store: Path, images: Path, prefix: str = "seen_unseen") -> list[tuple[Path, str]]:
+    """Draw the figures from the stored results; returns ``(png, alt text)`` pairs."""
+    from abm.evaluation.plots import keyframe_error_curve, loss_curves, success_chart
+
+    rates = [r for split in ("seen", "unseen") for r in _load(store / f"results_{split}.json")]
+    out = [(success_chart(rates, images / f"{prefix}_success.png", methods=METHODS),
+            "rollout success per task, seen and unseen objects; error bars: std over repeats")]
+    kf = store / "keyframes_summary.json"
+    if kf.is_file():
+        out.append((keyframe_error_curve(json.loads(kf.read_text())["summary"], images / f"{prefix}_training.png"),
+                    "grasp keyframe error during training"))
+    logs = {m: list(csv.DictReader((store / f"training_{m}.csv").open())) for m in METHODS
+            if (store / f"training_{m}.csv").is_file()}
+    if logs:
+        out.append((loss_curves(logs, images / f"{prefix}_losses.png"), "training losses"))
+    return out
+
+
+def add_figure_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--images", type=Path, default=Path("docs/images/results"), help="folder of the figures")
+    parser.add_argument("--figures-only", action="store_true",
+                        help="only redraw the figures from the JSON kept under docs/results (no OUT needed)")
+
+
+def redraw_only(args: argparse.Namespace, parser: argparse.ArgumentParser, out: Path | None, draw, store: Path
+                ) -> bool:
+    """``--figures-only``: redraw with ``draw(store, images)`` and say so (``True``: nothing else to do)."""
+    if args.figures_only:
+        for png, _ in draw(store, args.images):
+            print(f"wrote {png}")
+        return True
+    if out is None:
+        parser.error("OUT is required (or --figures-only)")
+    return False
+
+
+def figure_markdown(figs: Sequence[tuple[Path, str]], relative_to: Path) -> str:
+    return "\n".join(f"![{alt}]({Path(os.path.relpath(png, relative_to)).as_posix()})" for png, alt in figs)
 
 
 def _load(path: Path) -> list[dict]:
@@ -168,7 +225,7 @@ def _eval_max_steps(out: Path) -> str:
     return "?"
 
 
-def report(out: Path, command: str = "bash scripts/seen_unseen.sh") -> str:
+def report(out: Path, command: str = "bash scripts/seen_unseen.sh", figures_md: str = "") -> str:
     rates = _load(out / "eval_seen" / "results.json") + _load(out / "eval_unseen" / "results.json")
     config = json.loads((out / "abm" / "config.json").read_text())
     episodes = max(r["episodes"] for r in rates)
@@ -201,6 +258,7 @@ def report(out: Path, command: str = "bash scripts/seen_unseen.sh") -> str:
         "",
         success_table(rates),
         "",
+        *([figures_md, ""] if figures_md else []),
         _goal_check(rates),
         "",
         "How the comparison is made: both methods see the same demonstrations, views, model size, "
@@ -225,14 +283,16 @@ def report(out: Path, command: str = "bash scripts/seen_unseen.sh") -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("out", type=Path, help="the folder given to scripts/seen_unseen.sh")
+    parser.add_argument("out", type=Path, nargs="?", help="the folder given to scripts/seen_unseen.sh")
     parser.add_argument("--readme", default="README.md", help="README to update ('' = do not touch it)")
     parser.add_argument("--docs", type=Path, default=Path("docs/results"))
     parser.add_argument("--command", default="bash scripts/seen_unseen.sh", help="the command to quote")
+    add_figure_arguments(parser)
     args = parser.parse_args()
 
-    text = report(args.out, args.command)
     store = args.docs / "seen_unseen"
+    if redraw_only(args, parser, args.out, figures, store):
+        return
     store.mkdir(parents=True, exist_ok=True)
     for split in ("seen", "unseen"):
         (store / f"results_{split}.json").write_text((args.out / f"eval_{split}" / "results.json").read_text())
@@ -241,7 +301,13 @@ def main() -> None:
         data = json.loads(kf.read_text())
         (store / "keyframes_summary.json").write_text(json.dumps(
             {k: data[k] for k in ("machine", "episodes", "summary")}, indent=1) + "\n")
-    (args.docs / "seen_unseen.md").write_text("# Seen vs unseen objects: abm and rvt\n\n" + text)
+    for m in METHODS:
+        if (args.out / m / "log.csv").is_file():
+            keep_training_log(args.out / m, store / f"training_{m}.csv")
+    figs = figures(store, args.images)
+    (args.docs / "seen_unseen.md").write_text("# Seen vs unseen objects: abm and rvt\n\n" + report(
+        args.out, args.command, figure_markdown(figs, args.docs)))
+    text = report(args.out, args.command, figure_markdown(figs, Path(args.readme or ".").parent))
     print(text)
     if args.readme:
         readme = Path(args.readme)

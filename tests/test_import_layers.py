@@ -16,7 +16,7 @@ import abm
 
 ROOT = Path(abm.__file__).parent
 LAYERS = [
-    ("types", "machine", "workers", "configuration", "files", "schema", "lazy"),
+    ("types", "machine", "workers", "configuration", "files", "schema", "lazy", "ray_pool"),
     ("geometry",),
     ("render", "grounding", "sim"),
     ("samples",),

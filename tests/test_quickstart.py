@@ -19,11 +19,12 @@ def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys, monke
     report = run_quickstart(cfg)
     out = capsys.readouterr()
     assert "using the ORACLE grounder" in out.err  # no CLIP weights on the test machine
-    for name in ("README.md", "results.md", "training_curves.png", "virtual_views.png", "report.html"):
+    for name in ("README.md", "results.md", "training_curves.png", "virtual_views.png", "report.html", "success.png"):
         assert (report / name).is_file(), name
     assert len(list(report.glob("*.gif"))) == 4  # 2 methods x 2 splits, one episode each
     assert len(list(report.glob("*_[0-9][0-9][0-9]_views.png"))) == 4  # the heatmap overlays of each GIF's rollout
-    assert (report / "report.html").read_text().count("<img ") == 8
+    assert (report / "report.html").read_text().count("<img ") == 9  # GIFs, their overlays and the success chart
+    assert "](success.png)" in (report / "README.md").read_text()
     logs = [tmp_path / "qs/eval" / split / "outcomes.jsonl" for split in ("seen", "unseen")]
     outcomes = [json.loads(line) for log in logs for line in log.read_text().splitlines()]
     assert sorted((o["method"], o["split"]) for o in outcomes) == [

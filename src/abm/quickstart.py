@@ -230,8 +230,9 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
     """Table, curves, example views and GIFs in one folder with a README that links them."""
     from abm.data.episode_store import EpisodeStore
     from abm.evaluation.html_report import write_html_report
+    from abm.evaluation.plots import success_chart
     from abm.evaluation.report import plot_training_curves, views_figure
-    from abm.evaluation.results import OutcomeLog
+    from abm.evaluation.results import OutcomeLog, aggregate
     from abm.policy import KeyframePolicy
     from abm.samples import collate
 
@@ -253,6 +254,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
     for picture in [*gifs, *eval_dir.glob("*/gifs/*_views.png")]:  # rollouts and their heatmap overlays
         shutil.copy(picture, report / picture.name)
     outcomes = [o for log in sorted(eval_dir.glob("*/outcomes.jsonl")) for o in OutcomeLog(log).read()]
+    if outcomes:
+        success_chart(aggregate(outcomes), report / "success.png")
     write_html_report(outcomes, report / "report.html", report, "abm quickstart")
     lines = [
         "# abm quickstart report", "",
@@ -261,6 +264,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
         f"lr {cfg.lr}; grounder: {grounder}; "
         f"{cfg.eval_episodes} evaluation episodes per task and split (max {cfg.max_steps} keyframes).", "",
         "## Success rate (%)", "", (report / "results.md").read_text(), "",
+        *(["![success rate per task and split; error bars: std over repeats](success.png)", ""]
+          if (report / "success.png").is_file() else []),
         "## Training curves", "", "![training curves](training_curves.png)", "",
         "## What the policy sees", "", *figures, "",
         "## Rollouts", "", "Failure reasons and the GIFs side by side: [report.html](report.html)", "",

@@ -188,6 +188,50 @@ class KeyframeAction:
 
 
 @dataclass
+class Trajectory:
+    """The full motion of an episode sampled at a fixed control rate (``abm data generate --dense``).
+
+    Attributes:
+        fps: frames per second (the control rate of the recording).
+        observations: ``T`` observations, frame ``t`` taken at ``t / fps`` seconds after the episode start.
+        joint_positions: ``(T, 9)`` measured arm (7) and finger (2) joint positions, rad / m.
+        joint_actions: ``(T, 8)`` the command after frame ``t``: 7 arm joint servo targets (rad) and the
+            gripper command (1 = open, 0 = close), as in effect at the next control tick.
+        ee_actions: ``(T, 8)`` the same command as an end-effector target: the TCP position (3, m) and
+            orientation ``(x, y, z, w)`` (4) reached at frame ``t + 1`` and the gripper command.
+        keyframe_frames: ``(K,)`` index of the frame each keyframe observation is (one per episode step).
+    """
+
+    fps: float
+    observations: list[Observation]
+    joint_positions: np.ndarray
+    joint_actions: np.ndarray
+    ee_actions: np.ndarray
+    keyframe_frames: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.observations)
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise ValueError(f"Trajectory.fps must be positive, got {self.fps}")
+        if n == 0 or not all(isinstance(o, Observation) for o in self.observations):
+            raise ValueError("Trajectory.observations must be a non-empty list of Observation")
+        self.joint_positions = np.asarray(self.joint_positions, np.float64)
+        self.joint_actions = np.asarray(self.joint_actions, np.float64)
+        self.ee_actions = np.asarray(self.ee_actions, np.float64)
+        self.keyframe_frames = np.asarray(self.keyframe_frames, np.int64)
+        _check_array("Trajectory.joint_positions", self.joint_positions, (n, 9))
+        _check_array("Trajectory.joint_actions", self.joint_actions, (n, 8))
+        _check_array("Trajectory.ee_actions", self.ee_actions, (n, 8))
+        _check_array("Trajectory.keyframe_frames", self.keyframe_frames, (None,))
+        if len(self.keyframe_frames) and (self.keyframe_frames.min() < 0 or self.keyframe_frames.max() >= n
+                                          or np.any(np.diff(self.keyframe_frames) < 0)):
+            raise ValueError(f"Trajectory.keyframe_frames must be non-decreasing frame indices in [0, {n})")
+
+    def __len__(self) -> int:
+        return len(self.observations)
+
+
+@dataclass
 class Episode:
     """One demonstration or rollout, stored at keyframes.
 
@@ -202,6 +246,8 @@ class Episode:
         success: whether the episode ended in success.
         seed: the scene seed the episode was generated from (``-1`` if unknown).
         metadata: free-form extra information (simulator version, timings, ...).
+        trajectory: the dense recording at a fixed control rate, when one was made (``--dense``); its
+            ``keyframe_frames`` has one entry per step.
     """
 
     task: str
@@ -214,8 +260,12 @@ class Episode:
     success: bool
     seed: int = -1
     metadata: dict[str, Any] = field(default_factory=dict)
+    trajectory: Trajectory | None = None
 
     def __post_init__(self) -> None:
+        if self.trajectory is not None and len(self.trajectory.keyframe_frames) != len(self.steps):
+            raise ValueError(f"Episode.trajectory marks {len(self.trajectory.keyframe_frames)} keyframes, "
+                             f"the episode has {len(self.steps)} steps")
         if self.split not in SPLITS:
             raise ValueError(f"Episode.split must be one of {SPLITS}, got {self.split!r}")
         if not self.instruction.strip():

@@ -9,6 +9,7 @@ from pathlib import Path
 
 def register(subparsers) -> None:
     from abm.configuration import WORKERS, clip_model_help
+    from abm.ray_pool import add_backend_arguments
 
     data = subparsers.add_parser("data", help="generate and inspect demonstration episodes")
     sub = data.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
@@ -24,7 +25,39 @@ def register(subparsers) -> None:
     gen.add_argument("--seed", type=int, default=0, help="first scene seed")
     gen.add_argument("--resolution", type=int, default=128, help="camera resolution (pixels, square)")
     gen.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
+    gen.add_argument("--dense", action="store_true",
+                     help="also record the full trajectory at a fixed control rate (camera frames, joint state, "
+                          "joint and end-effector actions) for dense policies such as ACT or diffusion")
+    gen.add_argument("--dense-fps", type=float, default=10.0,
+                     help="control rate of --dense in frames per second (default 10; 1/fps must be a whole "
+                          "number of 2 ms physics steps)")
+    add_backend_arguments(gen)
     gen.set_defaults(func=_generate)
+
+    export = sub.add_parser(
+        "export", help="write abm episodes as a LeRobot v3 dataset (parquet + mp4)",
+        description="Write every episode under --data as one LeRobot v3.0 dataset: meta/info.json, stats, "
+        "tasks and episode parquet, frames as parquet (depth, segmentation and camera calibration lossless), "
+        "camera streams as H.264 mp4. Dense episodes (generate --dense) export every control tick with "
+        "joint actions; keyframe-only episodes export one frame per keyframe at a nominal 1 fps. The "
+        "instruction is the task string; keyframe.is_keyframe flags the keyframes.")
+    export.add_argument("--format", required=True, choices=["lerobot"], help="dataset format (lerobot: v3.0)")
+    export.add_argument("--data", required=True, type=Path, help="folder of abm episodes")
+    export.add_argument("--out", required=True, type=Path, help="new (or empty) dataset folder")
+    export.add_argument("--frames", default="auto", choices=["auto", "dense", "keyframes"],
+                        help="dense control ticks or keyframes only (auto: dense when every episode has them)")
+    export.add_argument("--crf", type=int, default=18, help="H.264 quality, 0 (best) to 51 (default 18)")
+    export.set_defaults(func=_export)
+
+    imp = sub.add_parser(
+        "import", help="read a LeRobot v3 dataset written by abm data export back into abm episodes",
+        description="Rebuild abm episode files (OUT/<task>/<split>/episode_<seed>.h5) from a LeRobot v3.0 "
+        "dataset written by `abm data export`: keyframes, dense trajectories, depth, segmentation and "
+        "calibration come back exactly, camera images within the video codec's tolerance.")
+    imp.add_argument("dataset", type=Path, help="LeRobot dataset folder")
+    imp.add_argument("--format", required=True, choices=["lerobot"], help="dataset format (lerobot: v3.0)")
+    imp.add_argument("--out", required=True, type=Path, help="output folder of abm episodes")
+    imp.set_defaults(func=_import)
 
     ground = sub.add_parser(
         "ground", help="run a CLIP grounder once over every keyframe and cache the results for training",
@@ -59,6 +92,7 @@ def register(subparsers) -> None:
 def _generate(args: argparse.Namespace) -> int:
     from abm.cli import CommandError
     from abm.data.generate import EvaluationOnlyTaskError, expand_tasks, generate
+    from abm.ray_pool import RayBackendError
     from abm.sim.assets import AssetNotFoundError
     from abm.sim.splits import SplitFileError
 
@@ -76,15 +110,55 @@ def _generate(args: argparse.Namespace) -> int:
         raise CommandError(f"--resolution must be between 16 and 1024, got {args.resolution}")
     if args.out.exists() and not args.out.is_dir():
         raise CommandError(f"--out {args.out} is a file; give a folder")
+    if args.dense:
+        from abm.sim.recorder import control_period
+
+        control_period(args.dense_fps)  # ValueError with the allowed rates
     for task in tasks:
         try:
             report = generate(task, args.split, args.episodes, args.out, workers=args.workers,
-                              seed=args.seed, resolution=args.resolution, splits_path=args.splits)
-        except (SplitFileError, AssetNotFoundError) as err:
+                              seed=args.seed, resolution=args.resolution, splits_path=args.splits,
+                              dense_fps=args.dense_fps if args.dense else None, backend=args.backend,
+                              ray_address=args.ray_address)
+        except (SplitFileError, AssetNotFoundError, RayBackendError) as err:
             raise CommandError(str(err)) from None
         print(f"{task}/{args.split}: {report.created} new, {report.skipped} already present, "
               f"{len(report.failed_seeds)} expert failures, {report.seconds:.0f} s "
               f"({report.episodes_per_minute:.1f} episodes/min) -> {args.out}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from abm.cli import CommandError
+    from abm.data.episode_store import EpisodeFormatError
+    from abm.data.lerobot import export_lerobot, remove_partial
+
+    try:
+        report = export_lerobot(args.data, args.out, frames=args.frames, crf=args.crf)
+    except ImportError as err:
+        raise CommandError(f"{err}; install the export dependencies: pip install 'abm[lerobot]'") from None
+    except (EpisodeFormatError, ValueError, FileNotFoundError) as err:
+        remove_partial(args.out)
+        raise CommandError(str(err)) from None
+    kind = f"dense frames at {report.fps:g} fps" if report.dense else "keyframes (nominal 1 fps)"
+    print(f"{report.episodes} episodes, {report.frames} {kind} -> {args.out} (LeRobot v3.0, "
+          f"{report.bytes / 1e6:.1f} MB)")
+    return 0
+
+
+def _import(args: argparse.Namespace) -> int:
+    from abm.cli import CommandError
+    from abm.data.lerobot import import_lerobot
+
+    if args.out.exists() and not args.out.is_dir():
+        raise CommandError(f"--out {args.out} is a file; give a folder")
+    try:
+        written = import_lerobot(args.dataset, args.out)
+    except ImportError as err:
+        raise CommandError(f"{err}; install the import dependencies: pip install 'abm[lerobot]'") from None
+    except (ValueError, FileNotFoundError) as err:
+        raise CommandError(str(err)) from None
+    print(f"{len(written)} episodes -> {args.out}")
     return 0
 
 

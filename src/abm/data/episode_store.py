@@ -19,6 +19,14 @@ File layout (``FORMAT_VERSION`` 2); ``K`` keyframes, per camera ``H x W`` pixels
     /actions/ignore_collision  (K,)   bool
     /actions/kind              (K,)   str    keyframe kind ("approach", "grasp", ...)
     /actions/symmetry          (K,)   int64  equivalent turns about the gripper axis (0 = any)
+    /trajectory                 only for ``abm data generate --dense``: ``T`` frames at attrs["fps"]
+    /trajectory/{gripper_open,gripper_pose,step,cameras/<name>/...}   as under /observations, per frame
+    /trajectory/joint_positions (T, 9) float64  arm (7) + finger (2) joints
+    /trajectory/joint_actions   (T, 8) float64  arm servo targets (7) + gripper command (1 = open)
+    /trajectory/ee_actions      (T, 8) float64  next TCP position (3), quaternion (4) + gripper command
+    /trajectory/keyframe_frames (K,)   int64    the frame each keyframe observation is
+
+The trajectory group is optional (files without it are keyframe-only), so it did not change the version.
 
 Every dataset carries a ``crc32`` attribute (CRC-32 of its values) that :func:`verify_episode` and
 ``abm data info`` check.
@@ -44,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from abm.types import CameraFrame, Episode, KeyframeAction, Observation
+from abm.types import CameraFrame, Episode, KeyframeAction, Observation, Trajectory
 
 FORMAT_VERSION: int = 2
 EPISODE_SUFFIX = ".h5"
@@ -113,20 +121,7 @@ def save_episode(episode: Episode, path: str | os.PathLike) -> None:
             obs_g["gripper_open"] = np.array([o.gripper_open for o, _ in steps], np.float32)
             obs_g["gripper_pose"] = np.array([o.gripper_pose for o, _ in steps], np.float64).reshape(-1, 4, 4)
             obs_g["step"] = np.array([o.step for o, _ in steps], np.int64)
-            cams = obs_g.create_group("cameras")
-            for name in camera_names:
-                frames = [o.cameras[name] for o, _ in steps]
-                g = cams.create_group(name)
-                h, w = frames[0].height, frames[0].width
-                g.create_dataset("rgb", data=np.stack([c.rgb for c in frames]), chunks=(1, h, w, 3),
-                                 **_COMPRESSION)
-                g.create_dataset("depth", data=np.stack([c.depth for c in frames]).astype(np.float32),
-                                 chunks=(1, h, w), **_COMPRESSION)
-                if all(c.segmentation is not None for c in frames):
-                    g.create_dataset("segmentation", data=np.stack([c.segmentation for c in frames])
-                                     .astype(np.int32), chunks=(1, h, w), **_COMPRESSION)
-                g["intrinsics"] = np.stack([c.intrinsics for c in frames])
-                g["extrinsics"] = np.stack([c.extrinsics for c in frames])
+            _write_cameras(obs_g.create_group("cameras"), [o for o, _ in steps], camera_names)
             act = f.create_group("actions")
             act["position"] = np.array([a.position for _, a in steps], np.float64).reshape(-1, 3)
             act["quaternion"] = np.array([a.quaternion for _, a in steps], np.float64).reshape(-1, 4)
@@ -134,11 +129,70 @@ def save_episode(episode: Episode, path: str | os.PathLike) -> None:
             act["ignore_collision"] = np.array([a.ignore_collision for _, a in steps], bool)
             act.create_dataset("kind", data=[a.kind for _, a in steps], dtype=h5py.string_dtype())
             act["symmetry"] = np.array([a.symmetry for _, a in steps], np.int64)
+            if episode.trajectory is not None:
+                _write_trajectory(f.create_group("trajectory"), episode.trajectory, camera_names)
             f.visititems(_store_checksum)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _write_cameras(cams, observations: list[Observation], camera_names: list[str]) -> None:
+    """``cams/<name>/{rgb,depth,segmentation,intrinsics,extrinsics}`` of a sequence of observations."""
+    for name in camera_names:
+        frames = [o.cameras[name] for o in observations]
+        g = cams.create_group(name)
+        h, w = frames[0].height, frames[0].width
+        g.create_dataset("rgb", data=np.stack([c.rgb for c in frames]), chunks=(1, h, w, 3), **_COMPRESSION)
+        g.create_dataset("depth", data=np.stack([c.depth for c in frames]).astype(np.float32),
+                         chunks=(1, h, w), **_COMPRESSION)
+        if all(c.segmentation is not None for c in frames):
+            g.create_dataset("segmentation", data=np.stack([c.segmentation for c in frames]).astype(np.int32),
+                             chunks=(1, h, w), **_COMPRESSION)
+        g["intrinsics"] = np.stack([c.intrinsics for c in frames])
+        g["extrinsics"] = np.stack([c.extrinsics for c in frames])
+
+
+def _write_trajectory(g, trajectory: Trajectory, camera_names: list[str]) -> None:
+    """The optional ``/trajectory`` group of a ``--dense`` episode (same layout as ``/observations``, plus the
+    joint state and the joint / end-effector actions of every control tick)."""
+    obs = trajectory.observations
+    g.attrs["fps"] = float(trajectory.fps)
+    g["gripper_open"] = np.array([o.gripper_open for o in obs], np.float32)
+    g["gripper_pose"] = np.array([o.gripper_pose for o in obs], np.float64)
+    g["step"] = np.array([o.step for o in obs], np.int64)
+    g["joint_positions"] = trajectory.joint_positions
+    g["joint_actions"] = trajectory.joint_actions
+    g["ee_actions"] = trajectory.ee_actions
+    g["keyframe_frames"] = trajectory.keyframe_frames
+    _write_cameras(g.create_group("cameras"), obs, camera_names)
+
+
+def _read_observation(g, k: int, camera_names: list[str]) -> Observation:
+    """Observation ``k`` of a group written like ``/observations`` (or ``/trajectory``)."""
+    cameras = {}
+    for name in camera_names:
+        c = g["cameras"][name]
+        cameras[name] = CameraFrame(rgb=c["rgb"][k], depth=c["depth"][k], intrinsics=c["intrinsics"][k],
+                                    extrinsics=c["extrinsics"][k],
+                                    segmentation=c["segmentation"][k] if "segmentation" in c else None)
+    return Observation(cameras=cameras, gripper_open=float(g["gripper_open"][k]), gripper_pose=g["gripper_pose"][k],
+                       step=int(g["step"][k]))
+
+
+def _read_trajectory(f, path: Path, camera_names: list[str]) -> Trajectory | None:
+    if "trajectory" not in f:
+        return None
+    g = f["trajectory"]
+    try:
+        n = len(g["step"])
+        return Trajectory(fps=float(g.attrs["fps"]),
+                          observations=[_read_observation(g, k, camera_names) for k in range(n)],
+                          joint_positions=g["joint_positions"][()], joint_actions=g["joint_actions"][()],
+                          ee_actions=g["ee_actions"][()], keyframe_frames=g["keyframe_frames"][()])
+    except (KeyError, OSError, ValueError, IndexError) as err:
+        raise EpisodeFormatError(f"{path}: the dense trajectory cannot be read ({err})") from None
 
 
 def _dataset_crc32(dataset) -> int:
@@ -242,6 +296,14 @@ def _camera_signature(f, path: Path) -> str:
     return ",".join(names) + "@" + "x".join(str(int(n)) for n in shape)
 
 
+def load_metadata(path: str | os.PathLike) -> dict[str, Any]:
+    """The free-form metadata of one episode file (no image data is read)."""
+    path = Path(path)
+    f = _open(path)
+    with f:
+        return _json_attr(f, path, "metadata")
+
+
 def read_info(path: str | os.PathLike) -> EpisodeInfo:
     """Metadata of one episode file (no image data is read)."""
     path = Path(path)
@@ -252,16 +314,8 @@ def read_info(path: str | os.PathLike) -> EpisodeInfo:
 
 def _read_step(f, path: Path, k: int, camera_names: list[str]) -> tuple[Observation, KeyframeAction]:
     try:
-        obs_g, act = f["observations"], f["actions"]
-        cameras = {}
-        for name in camera_names:
-            g = obs_g["cameras"][name]
-            cameras[name] = CameraFrame(
-                rgb=g["rgb"][k], depth=g["depth"][k], intrinsics=g["intrinsics"][k],
-                extrinsics=g["extrinsics"][k],
-                segmentation=g["segmentation"][k] if "segmentation" in g else None)
-        obs = Observation(cameras=cameras, gripper_open=float(obs_g["gripper_open"][k]),
-                          gripper_pose=obs_g["gripper_pose"][k], step=int(obs_g["step"][k]))
+        act = f["actions"]
+        obs = _read_observation(f["observations"], k, camera_names)
         action = KeyframeAction(position=act["position"][k], quaternion=act["quaternion"][k],
                                 gripper_open=bool(act["gripper_open"][k]),
                                 ignore_collision=bool(act["ignore_collision"][k]),
@@ -291,7 +345,8 @@ def load_episode(path: str | os.PathLike) -> Episode:
             return Episode(task=info.task, variation=info.variation, split=info.split,
                            instruction=info.instruction, object_names=object_names,
                            target_names=list(_json_attr(f, path, "target_names")), steps=steps,
-                           success=info.success, seed=info.seed, metadata=_json_attr(f, path, "metadata"))
+                           success=info.success, seed=info.seed, metadata=_json_attr(f, path, "metadata"),
+                           trajectory=_read_trajectory(f, path, camera_names))
         except ValueError as err:
             raise EpisodeFormatError(f"{path}: invalid episode ({err})") from None
 

@@ -87,14 +87,14 @@ def _failed_marker(path: Path) -> Path:
 
 
 def generate_one(task: str, split: str, seed: int, out: str, resolution: int,
-                 splits_path: str | None) -> tuple[int, bool, str]:
+                 splits_path: str | None, dense_fps: float | None = None) -> tuple[int, bool, str]:
     """Run the expert for one seed and save it if successful. Returns ``(seed, success, note)``."""
     from abm.data.episode_store import save_episode
     from abm.sim.env import make_env, run_expert
 
     path = episode_path(Path(out), task, split, seed)
     with make_env(task, split, seed, resolution=resolution, splits_path=splits_path) as env:
-        episode = run_expert(env, record=True)
+        episode = run_expert(env, record=True, dense_fps=dense_fps)
     if episode.success:
         save_episode(episode, path)
         return seed, True, ""
@@ -104,9 +104,38 @@ def generate_one(task: str, split: str, seed: int, out: str, resolution: int,
     return seed, False, str(episode.metadata.get("motions"))
 
 
-def _check_resume_settings(folder: Path, resolution: int) -> None:
-    """Refuse to add episodes of another camera resolution to a folder (they could not be trained together)."""
-    from abm.data.episode_store import find_episode_files, read_info
+def generate_remote(task: str, split: str, seed: int, out: str, resolution: int, splits_path: str | None,
+                    dense_fps: float | None = None) -> tuple[int, bool, str, bytes]:
+    """:func:`generate_one` on a machine that may not see ``out`` (a Ray node): the episode is written to a
+    local temporary folder and returned as the file's bytes, for the driver to store."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="abm-gen-") as tmp:
+        sd, ok, note = generate_one(task, split, seed, tmp, resolution, splits_path, dense_fps)
+        path = episode_path(Path(tmp), task, split, seed)
+        return sd, ok, note, path.read_bytes() if ok else b""
+
+
+def _store_remote(out: Path, task: str, split: str, result: tuple[int, bool, str, bytes]) -> tuple[int, bool, str]:
+    """Write what :func:`generate_remote` returned where :func:`generate_one` would have (atomically)."""
+    import os
+
+    sd, ok, note, payload = result
+    path = episode_path(out, task, split, sd)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if ok:
+        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+        tmp.write_bytes(payload)
+        os.replace(tmp, path)
+    else:
+        _failed_marker(path).write_text(f"expert failed; motions: {note}\n")
+    return sd, ok, note
+
+
+def _check_resume_settings(folder: Path, resolution: int, dense_fps: float | None = None) -> None:
+    """Refuse to add episodes of another camera resolution (or dense rate) to a folder (they could not be
+    trained or exported together)."""
+    from abm.data.episode_store import find_episode_files, load_metadata, read_info
 
     existing = find_episode_files(folder) if folder.is_dir() else []
     if not existing:
@@ -116,12 +145,22 @@ def _check_resume_settings(folder: Path, resolution: int) -> None:
     if size != f"{resolution}x{resolution}":
         raise ValueError(f"{folder} holds episodes recorded at {size} pixels ({existing[0].name}); this run asks for "
                          f"--resolution {resolution}. Use the same resolution to resume, or a new --out folder.")
+    stored = load_metadata(existing[0]).get("dense_fps")
+    if (float(stored) if stored else None) != (float(dense_fps) if dense_fps else None):
+        have = f"dense at {stored} fps" if stored else "keyframes only"
+        want = f"--dense at {dense_fps} fps" if dense_fps else "keyframes only (no --dense)"
+        raise ValueError(f"{folder} holds episodes recorded {have} ({existing[0].name}); this run asks for {want}. "
+                         "Use the same setting to resume, or a new --out folder.")
 
 
 def generate(task: str, split: str, episodes: int, out: str | Path, workers: int = 1, seed: int = 0,
-             resolution: int = 128, splits_path: str | Path | None = None, progress: bool = True
+             resolution: int = 128, splits_path: str | Path | None = None, progress: bool = True,
+             dense_fps: float | None = None, backend: str = "local", ray_address: str | None = None
              ) -> GenerationReport:
-    """Make sure ``episodes`` successful demonstrations of ``task``/``split`` exist under ``out``."""
+    """Make sure ``episodes`` successful demonstrations of ``task``/``split`` exist under ``out``.
+
+    ``dense_fps`` also records the full trajectory at that control rate; ``backend`` ``"ray"`` runs the
+    workers as Ray actors (:mod:`abm.ray_pool`) on the cluster at ``ray_address`` (or a local Ray)."""
     from tqdm import tqdm
 
     from abm.sim.env import make_env
@@ -136,7 +175,7 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     pending_seeds: list[int] = []
     s = seed
     limit = seed + MAX_SEED_FACTOR * max(episodes, 1) + 10
-    _check_resume_settings(out / task / split, resolution)
+    _check_resume_settings(out / task / split, resolution, dense_fps)
     # Resume: count what exists, queue the rest.
     while done + len(pending_seeds) < episodes and s < limit:
         path = episode_path(out, task, split, s)
@@ -151,8 +190,8 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     bar = tqdm(total=episodes, initial=done, desc=f"{task}/{split}", unit="ep", disable=not progress)
     ctx = multiprocessing.get_context("spawn")
     next_seed = s
-    args = (str(out), int(resolution), str(splits_path) if splits_path else None)
-    with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx, initializer=die_with_parent) as pool:
+    args = (str(out), int(resolution), str(splits_path) if splits_path else None, dense_fps)
+    with _pool(backend, workers, ctx, ray_address) as pool:
         running: set[Future] = set()
         queue = list(pending_seeds)
 
@@ -169,14 +208,15 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
                         continue
                 else:
                     return
-                running.add(pool.submit(generate_one, task, split, sd, *args))
+                running.add(pool.submit(generate_remote if backend == "ray" else generate_one, task, split, sd,
+                                        *args))
 
         submit_more()
         while running:
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for fut in finished:
                 running.discard(fut)
-                sd, ok, note = fut.result()
+                sd, ok, note = _store_remote(out, task, split, fut.result()) if backend == "ray" else fut.result()
                 if ok:
                     created += 1
                     bar.update(1)
@@ -186,3 +226,14 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
             submit_more()
     bar.close()
     return GenerationReport(created, skipped, sorted(failed), time.perf_counter() - start)
+
+
+def _pool(backend: str, workers: int, ctx, ray_address: str | None):
+    """The executor of the generation workers: the local process pool or Ray actors."""
+    if backend == "ray":
+        from abm.ray_pool import RayActorPool
+
+        return RayActorPool(max(1, workers), address=ray_address)
+    if backend != "local":
+        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
+    return ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx, initializer=die_with_parent)

@@ -11,6 +11,7 @@ SPLITS = ("seen", "unseen", "compositional")
 def register(subparsers: argparse._SubParsersAction) -> None:
     from abm.configuration import WORKERS, add_config_arguments
     from abm.evaluation.runner import EvalSettings
+    from abm.ray_pool import add_backend_arguments
 
     p = subparsers.add_parser(
         "eval",
@@ -29,6 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, default=25, help="episodes per task and repeat (paper: 25)")
     p.add_argument("--repeats", type=int, default=5, help="repeats with different scenes (paper: 5)")
     p.add_argument("--workers", type=int, default=WORKERS, help="parallel rollout processes")
+    add_backend_arguments(p)  # --backend local|ray, --ray-address
     add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
     p.add_argument("--gifs", type=int, default=0, help="save front-camera GIFs of this many episodes per task")
     p.add_argument("--out", type=Path, default=None,
@@ -108,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from abm.configuration import config_from_args
     from abm.evaluation.results import combined_table, markdown_table, write_json
     from abm.evaluation.runner import EvalSettings, evaluate
+    from abm.ray_pool import RayBackendError
 
     for r in args.run:
         if not r.exists():
@@ -130,8 +133,12 @@ def run(args: argparse.Namespace) -> int:
                                   args.episodes, args.repeats)
     rates = []
     for split, tasks in plan.items():
-        rates += [r for r in evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers,
-                                      settings, gifs=args.gifs) if r.split == split and r.task in tasks]
+        try:
+            found = evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers, settings,
+                             gifs=args.gifs, backend=args.backend, ray_address=args.ray_address)
+        except RayBackendError as err:
+            raise CommandError(str(err)) from None
+        rates += [r for r in found if r.split == split and r.task in tasks]
     if single:
         print(markdown_table(rates))
     else:

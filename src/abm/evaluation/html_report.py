@@ -61,6 +61,10 @@ def write_html_report(outcomes: Sequence[EpisodeOutcome], path: str | Path, gif_
     rows = [[html.escape(r.method), html.escape(r.task), html.escape(r.split), f"{r.mean:.1f} ± {r.std:.1f}",
              str(r.episodes), str(r.errors)] for r in aggregate(outcomes)]
     parts.append(_table(["method", "task", "split", "success", "episodes", "crashed"], rows))
+    for name, alt in (("success.png", "success rate per task, split and method; error bars: std over repeats"),
+                      ("training.png", "training losses of the evaluated runs")):
+        if (path.parent / name).is_file():
+            parts.append(f"<p><img src='{name}' alt='{alt}' style='max-width: 100%'></p>")
 
     sub = subgoal_rates(outcomes)
     if sub:

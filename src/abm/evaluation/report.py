@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -11,35 +10,9 @@ import numpy as np
 
 def plot_training_curves(runs: Mapping[str, str | Path], path: str | Path) -> Path:
     """Plot the total and per-head training losses of runs (label -> run folder with ``log.csv``) to a PNG."""
-    import matplotlib
+    from abm.evaluation.plots import loss_curves, read_log
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    heads = ("total", "translation", "rotation", "gripper")
-    fig, axes = plt.subplots(1, len(heads), figsize=(4 * len(heads), 3.2))
-    for label, run in runs.items():
-        log = Path(run) / "log.csv"
-        if not log.is_file():
-            continue
-        with log.open() as f:
-            rows = list(csv.DictReader(f))
-        steps = [int(r["step"]) for r in rows]
-        for ax, head in zip(axes, heads, strict=True):
-            values = [float(r[head]) if r.get(head) not in (None, "") else np.nan for r in rows]
-            ax.plot(steps, values, label=label)
-    for ax, head in zip(axes, heads, strict=True):
-        ax.set_title(f"{head} loss")
-        ax.set_xlabel("step")
-        ax.set_yscale("log")
-        ax.grid(alpha=0.3)
-    axes[0].legend()
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return loss_curves({label: read_log(run) for label, run in runs.items()}, path)
 
 
 def views_figure(images: np.ndarray, mask: np.ndarray | None, view_names: list[str], path: str | Path) -> Path:

@@ -202,6 +202,8 @@ def evaluate(
     progress: bool = True,
     labels: dict[str, str] | None = None,
     runner: Callable[[EvalJob, EvalSettings], EpisodeOutcome] = run_job,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> list[SuccessRate]:
     """Evaluate policies on one split and write ``outcomes.jsonl``, ``results.{json,csv,md}`` to ``out_dir``.
 
@@ -214,6 +216,8 @@ def evaluate(
         gifs: front-camera GIFs with the predicted keyframes for this many episodes per task.
         labels: run -> method label for the tables (default: from the checkpoints, see :func:`method_labels`).
         runner: the function that rolls out one job (replaceable for tests).
+        backend: ``"local"`` (in-process for one worker, else a process pool) or ``"ray"`` (``workers`` Ray
+            actors at ``ray_address``, or a local Ray; :mod:`abm.ray_pool`).
 
     Returns:
         success rates of every (method, task) on ``split``, from the outcomes of exactly the planned
@@ -233,7 +237,9 @@ def evaluate(
     jobs = [j for j in plan if j.key not in done]
     bar = tqdm(total=len(jobs), desc=f"eval {split}", unit="ep", disable=not progress)
     successes = 0
-    if workers <= 1:
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
+    if workers <= 1 and backend == "local":
         for job in jobs:
             outcome = runner(job, settings)
             log.append(outcome)
@@ -241,7 +247,7 @@ def evaluate(
             bar.update(1)
             bar.set_postfix(success=f"{successes}/{bar.n}")
     else:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init) as pool:
+        with _pool(backend, workers, ray_address) as pool:
             futures = [pool.submit(runner, job, settings) for job in jobs]
             for fut in as_completed(futures):
                 outcome = fut.result()
@@ -252,6 +258,7 @@ def evaluate(
     bar.close()
     planned = {j.key for j in plan}
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
+    write_training_figure({j.method: j.run for j in plan}, out / "training.png")
     return write_reports(list(latest.values()), out)
 
 
@@ -283,6 +290,22 @@ def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[Eva
     path.write_text(json.dumps(wanted, indent=2) + "\n")
 
 
+def write_training_figure(runs: dict[str, str], path: Path) -> Path | None:
+    """Loss curves of the evaluated runs (label -> run folder) that have a ``log.csv``; ``None`` if none has."""
+    from abm.evaluation.plots import loss_curves, read_log
+
+    logs = {label: rows for label, run in runs.items() if (rows := read_log(run))}
+    return loss_curves(logs, path) if logs else None
+
+
+def _pool(backend: str, workers: int, ray_address: str | None) -> Any:
+    if backend == "ray":
+        from abm.ray_pool import RayActorPool
+
+        return RayActorPool(workers, address=ray_address)
+    return ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init)
+
+
 def checkpoint_of(run: str | Path) -> str:
     """The checkpoint file a run folder (or checkpoint path) resolves to; ``str(run)`` if none exists."""
     try:
@@ -294,14 +317,21 @@ def checkpoint_of(run: str | Path) -> str:
 
 
 def write_reports(outcomes: Sequence[EpisodeOutcome], out_dir: Path) -> list[SuccessRate]:
-    """Aggregate outcomes into ``out_dir``/results.json, results.csv, results.md and report.html (the
-    per-episode view: failure reasons and rollout GIFs from ``out_dir``/gifs)."""
+    """Aggregate outcomes into ``out_dir``/results.json, results.csv, results.md, success.png (bar chart) and
+    report.html (the per-episode view: failure reasons and rollout GIFs from ``out_dir``/gifs)."""
     from abm.evaluation.html_report import write_html_report
+    from abm.evaluation.plots import success_chart
 
     rates = aggregate(outcomes)
     write_tables(rates, out_dir)
+    if rates:
+        success_chart(rates, out_dir / "success.png")
     write_html_report(outcomes, out_dir / "report.html", out_dir / "gifs")
     with (out_dir / "results.md").open("a") as f:
+        if rates:
+            f.write("\n![success rate per task, split and method; error bars: std over repeats](success.png)\n")
+        if (out_dir / "training.png").is_file():
+            f.write("\n![training losses of the evaluated runs](training.png)\n")
         sub = subgoal_rates(outcomes)
         if sub:
             f.write("\nSuccess per sub-goal (%), two-target instructions (1: X grasped, 2: X placed in Y):\n\n"

@@ -146,21 +146,26 @@ def executed_action(action: KeyframeAction, flipped: bool) -> KeyframeAction:
     return dataclasses.replace(action, quaternion=canonical_gripper_quat(matrix_to_quat(executed), action.symmetry))
 
 
-def run_expert(env: TaskEnv, record: bool = True) -> Episode:
+def run_expert(env: TaskEnv, record: bool = True, dense_fps: float | None = None) -> Episode:
     """Roll out the scripted expert; returns the episode of (observation, keyframe) pairs.
 
     The metadata holds each executed keyframe's motion status (``motions``), the wall time
     (``seconds``) and, for tasks that label them (:meth:`Task.keyframe_subgoal`, e.g. put_in_container),
     ``subgoals``: per executed keyframe the index into ``target_names`` of the object it works on.
+    With ``dense_fps`` the whole motion is also recorded at that control rate (``episode.trajectory``,
+    see :mod:`abm.sim.recorder`).
     """
+    from abm.sim.recorder import DenseRecorder
+
     start = time.perf_counter()
     env.reset()
     sim = env._require_sim()
+    recorder = DenseRecorder(sim, dense_fps) if dense_fps else None
     steps: list[tuple[Observation, KeyframeAction]] = []
     motions = []
     subgoals: list[int | None] = []
     for action in env.expert_actions():
-        obs = sim.observe() if record else None
+        obs = (recorder.keyframe() if recorder else sim.observe()) if record else None
         motion = sim.execute(action)
         motions.append(motion.status)
         subgoals.append(env.task.keyframe_subgoal(action))
@@ -168,11 +173,16 @@ def run_expert(env: TaskEnv, record: bool = True) -> Episode:
             steps.append((obs, executed_action(action, motion.flipped)))
         if motion.status == "unreachable":
             break
+    trajectory = recorder.detach() if recorder else None
     success = env.success()
     extra: dict[str, Any] = {"motions": motions, "seconds": round(time.perf_counter() - start, 3)}
     if any(g is not None for g in subgoals):
         extra["subgoals"] = subgoals
-    return _episode(env, steps, success, extra)
+    episode = _episode(env, steps, success, extra)
+    if trajectory is not None and record:
+        episode.trajectory = trajectory
+        episode.metadata["dense_fps"] = trajectory.fps
+    return episode
 
 
 def run_policy(env: TaskEnv, policy: Policy, max_steps: int | None = None) -> Episode:

@@ -29,6 +29,7 @@ ARM_KV = (60.0, 60.0, 50.0, 50.0, 40.0, 30.0, 30.0)
 TABLE_HALF = (0.65, 0.75, 0.025)
 TABLE_CENTER_X = 0.45
 OBJECT_PREFIX = "obj{}_"
+PHYSICS_TIMESTEP = 0.002  # s
 
 
 @dataclass
@@ -176,7 +177,7 @@ def build_spec(scene: SceneSpec, cameras: tuple[CameraSpec, ...] = CAMERAS):
 
     spec = robot_spec(with_actuators=True)
     spec.modelname = "abm_bench"
-    spec.option.timestep = 0.002
+    spec.option.timestep = PHYSICS_TIMESTEP
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.option.noslip_iterations = 3
     spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC

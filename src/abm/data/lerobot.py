@@ -1,0 +1,610 @@
+"""abm episodes <-> LeRobot datasets (``abm data export --format lerobot`` / ``abm data import``).
+
+Writes the LeRobot **v3.0** layout (``codebase_version`` "v3.0", the layout of lerobot 0.4)::
+
+    DS/meta/info.json                                 features (dtype, shape, names), fps, counts, paths
+    DS/meta/stats.json                                mean / std / min / max / count per feature
+    DS/meta/tasks.parquet                             task string (the instruction) -> task_index
+    DS/meta/episodes/chunk-000/file-000.parquet       one row per episode: length, frame range, video ranges,
+                                                      and ``abm/episode`` (JSON: task, split, seed, objects, ...)
+    DS/data/chunk-000/file-000.parquet                one row per frame, one row group per episode
+    DS/videos/observation.images.<camera>/chunk-000/file-000.mp4   all episodes of a camera, back to back
+
+A frame is a dense control tick (episodes generated with ``--dense``) or, for keyframe-only episodes, a
+keyframe (then ``fps`` is a nominal 1 and ``action`` is the keyframe target). Depth and segmentation go
+into the parquet as float32 / int32 ``(H, W)`` arrays (lossless; mp4 codecs are not), and the camera
+calibration as float64 ``(3, 3)`` intrinsics and ``(4, 4)`` camera-to-world extrinsics per frame, so the
+point cloud can be rebuilt. RGB is H.264 (yuv420p) and therefore lossy: an import gives the images back
+within codec tolerance and everything else exactly (actions of dense frames are float32).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from abm.types import CameraFrame, Episode, KeyframeAction, Observation, Trajectory
+
+CODEBASE_VERSION = "v3.0"
+KEYFRAME_FPS = 1.0  # nominal rate of keyframe-only exports
+DATA_FILE = "data/chunk-000/file-000.parquet"
+EPISODES_FILE = "meta/episodes/chunk-000/file-000.parquet"
+DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+STATE_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open"]
+JOINT_NAMES = [f"joint{i}" for i in range(1, 8)] + ["finger_left", "finger_right"]
+JOINT_ACTION_NAMES = [f"joint{i}" for i in range(1, 8)] + ["gripper"]
+EE_ACTION_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper"]
+
+
+class LeRobotFormatError(ValueError):
+    """A dataset folder that is not a LeRobot v3 dataset abm can import (the message says why)."""
+
+
+@dataclass
+class ExportReport:
+    episodes: int
+    frames: int
+    fps: float
+    dense: bool
+    bytes: int
+
+
+def _image_key(camera: str) -> str:
+    return f"observation.images.{camera}"
+
+
+def _features(cameras: list[str], size: tuple[int, int], dense: bool, segmentation: bool, fps: float,
+              crf: int) -> dict[str, dict[str, Any]]:
+    h, w = size
+    feats: dict[str, dict[str, Any]] = {}
+    for cam in cameras:
+        feats[_image_key(cam)] = {
+            "dtype": "video", "shape": [h, w, 3], "names": ["height", "width", "channels"],
+            "info": {"video.height": h, "video.width": w, "video.codec": "h264", "video.pix_fmt": "yuv420p",
+                     "video.is_depth_map": False, "video.fps": fps, "video.channels": 3, "video.crf": crf,
+                     "has_audio": False}}
+        feats[f"observation.depth.{cam}"] = {"dtype": "float32", "shape": [h, w], "names": ["height", "width"],
+                                             "info": {"unit": "m, along the camera +z axis; 0 = no measurement"}}
+        if segmentation:
+            feats[f"observation.segmentation.{cam}"] = {"dtype": "int32", "shape": [h, w],
+                                                        "names": ["height", "width"],
+                                                        "info": {"values": "object id (abm/episode object_names), "
+                                                                           "-1 = none"}}
+        feats[f"observation.intrinsics.{cam}"] = {"dtype": "float64", "shape": [3, 3], "names": None,
+                                                  "info": {"convention": "OpenCV pinhole, pixels"}}
+        feats[f"observation.extrinsics.{cam}"] = {"dtype": "float64", "shape": [4, 4], "names": None,
+                                                  "info": {"convention": "camera-to-world, OpenCV camera axes"}}
+    feats["observation.state"] = {"dtype": "float32", "shape": [8], "names": STATE_NAMES,
+                                  "info": {"meaning": "TCP position (m) and orientation in the robot base frame, "
+                                                      "gripper opening in [0, 1]"}}
+    feats["observation.gripper_pose"] = {"dtype": "float64", "shape": [4, 4], "names": None}
+    feats["observation.step"] = {"dtype": "int64", "shape": [1], "names": None}
+    if dense:
+        feats["observation.joint_positions"] = {"dtype": "float64", "shape": [9], "names": JOINT_NAMES}
+        feats["action"] = {"dtype": "float32", "shape": [8], "names": JOINT_ACTION_NAMES,
+                           "info": {"meaning": "arm joint servo targets (rad) and gripper command (1 = open) "
+                                               "of the next control tick"}}
+        feats["action.ee"] = {"dtype": "float32", "shape": [8], "names": EE_ACTION_NAMES,
+                              "info": {"meaning": "TCP pose of the next control tick and gripper command"}}
+    else:
+        feats["action"] = {"dtype": "float32", "shape": [8], "names": EE_ACTION_NAMES,
+                           "info": {"meaning": "the next keyframe: TCP target and gripper open"}}
+    feats["keyframe.is_keyframe"] = {"dtype": "bool", "shape": [1], "names": None}
+    feats["keyframe.index"] = {"dtype": "int64", "shape": [1], "names": None,
+                               "info": {"meaning": "the keyframe this frame moves to (its observation if "
+                                                   "is_keyframe)"}}
+    feats["keyframe.position"] = {"dtype": "float64", "shape": [3], "names": ["x", "y", "z"]}
+    feats["keyframe.quaternion"] = {"dtype": "float64", "shape": [4], "names": ["qx", "qy", "qz", "qw"]}
+    feats["keyframe.gripper_open"] = {"dtype": "bool", "shape": [1], "names": None}
+    feats["keyframe.ignore_collision"] = {"dtype": "bool", "shape": [1], "names": None}
+    feats["keyframe.kind"] = {"dtype": "string", "shape": [1], "names": None}
+    feats["keyframe.symmetry"] = {"dtype": "int64", "shape": [1], "names": None}
+    for key in ("timestamp",):
+        feats[key] = {"dtype": "float32", "shape": [1], "names": None}
+    for key in ("frame_index", "episode_index", "index", "task_index"):
+        feats[key] = {"dtype": "int64", "shape": [1], "names": None}
+    return feats
+
+
+def _arrow_type(feature: dict[str, Any]):
+    import pyarrow as pa
+
+    base = {"float32": pa.float32(), "float64": pa.float64(), "int32": pa.int32(), "int64": pa.int64(),
+            "bool": pa.bool_(), "string": pa.string()}[feature["dtype"]]
+    shape = feature["shape"]
+    if shape == [1]:
+        return base
+    for n in reversed(shape):
+        base = pa.list_(base, n)
+    return base
+
+
+def _column(feature: dict[str, Any], values: np.ndarray | list):
+    import pyarrow as pa
+
+    typ = _arrow_type(feature)
+    if feature["shape"] == [1]:
+        return pa.array(values, type=typ)
+    arr = np.ascontiguousarray(values)
+    flat = pa.array(arr.reshape(-1), type=typ.value_type if len(feature["shape"]) == 1 else None)
+    out = flat
+    for n in reversed(feature["shape"]):
+        out = pa.FixedSizeListArray.from_arrays(out, n)
+    return out
+
+
+class _Stats:
+    """Running mean / std / min / max of one feature (over frames; per element for vectors, per channel for
+    videos, over everything for 2-D arrays)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.sum = self.sq = self.min = self.max = None
+
+    def add(self, values: np.ndarray, axes: tuple[int, ...]) -> None:
+        v = np.asarray(values, np.float64)
+        s, q = v.sum(axis=axes), (v * v).sum(axis=axes)
+        lo, hi = v.min(axis=axes), v.max(axis=axes)
+        count = int(np.prod([v.shape[a] for a in axes]))
+        if self.sum is None:
+            self.sum, self.sq, self.min, self.max = s, q, lo, hi
+        else:
+            self.sum, self.sq = self.sum + s, self.sq + q
+            self.min, self.max = np.minimum(self.min, lo), np.maximum(self.max, hi)
+        self.n += count
+
+    def result(self, shape: tuple[int, ...]) -> dict[str, Any]:
+        mean = self.sum / self.n
+        std = np.sqrt(np.maximum(self.sq / self.n - mean * mean, 0.0))
+        return {k: np.asarray(v).reshape(shape).tolist() for k, v in
+                (("mean", mean), ("std", std), ("min", self.min), ("max", self.max))} | {"count": [self.n]}
+
+
+def _frames_of(episode: Episode, dense: bool) -> tuple[list[Observation], np.ndarray, np.ndarray]:
+    """Observations of the exported frames, the keyframe each frame moves to, and the is-keyframe flags."""
+    if not dense:
+        k = np.arange(len(episode.steps))
+        return [o for o, _ in episode.steps], k, np.ones(len(k), bool)
+    traj = episode.trajectory
+    assert traj is not None
+    n = len(traj)
+    flags = np.zeros(n, bool)
+    flags[traj.keyframe_frames] = True
+    segment = np.searchsorted(traj.keyframe_frames, np.arange(n), side="right") - 1
+    return traj.observations, np.clip(segment, 0, max(len(episode.steps) - 1, 0)), flags
+
+
+def _source_name(path: Path, root: Path) -> str:
+    try:
+        return path.relative_to(root).as_posix()
+    except ValueError:
+        return path.name
+
+
+def export_lerobot(data: str | os.PathLike, out: str | os.PathLike, frames: str = "auto", crf: int = 18,
+                   robot_type: str = "franka_panda", progress: bool = True) -> ExportReport:
+    """Write every episode under ``data`` as one LeRobot v3 dataset in ``out`` (a new or empty folder).
+
+    Args:
+        frames: ``"dense"`` (the ``--dense`` trajectories), ``"keyframes"``, or ``"auto"`` (dense when every
+            episode has a trajectory).
+        crf: H.264 quality of the camera videos (0 = best, 51 = worst; 18 is visually lossless).
+    """
+    import av
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from tqdm import tqdm
+
+    from abm.data.episode_store import EpisodeStore, load_episode
+
+    data, out = Path(data), Path(out)
+    if not data.is_dir():
+        raise FileNotFoundError(f"--data {data} is not a folder of abm episodes")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ValueError(f"--out {out} exists and is not an empty folder; give a new folder")
+    if frames not in ("auto", "dense", "keyframes"):
+        raise ValueError(f"--frames must be auto, dense or keyframes, got {frames!r}")
+    if not 0 <= crf <= 51:
+        raise ValueError(f"--crf must be between 0 and 51, got {crf}")
+    store = EpisodeStore(data)
+    if not len(store):
+        raise ValueError(f"no abm episodes (*.h5) under {data}")
+    store.check_consistent(range(len(store)))
+    first = load_episode(store.episodes[0].path)
+    cameras = list(first.steps[0][0].cameras)
+    cam0 = first.steps[0][0].cameras[cameras[0]]
+    size = (cam0.height, cam0.width)
+    if size[0] % 2 or size[1] % 2:
+        raise ValueError(f"the episodes' images are {size[0]}x{size[1]}; H.264 video (yuv420p) needs even sizes")
+    segmentation = all(c.segmentation is not None for c in first.steps[0][0].cameras.values())
+    dense_all = all("dense_fps" in _metadata(i.path) for i in store.episodes)
+    if frames == "dense" and not dense_all:
+        missing = next(i.path for i in store.episodes if "dense_fps" not in _metadata(i.path))
+        raise ValueError(f"--frames dense: {missing} has no dense trajectory (generate with --dense)")
+    dense = frames == "dense" or (frames == "auto" and dense_all)
+    fps = float(first.trajectory.fps) if dense and first.trajectory is not None else KEYFRAME_FPS
+    features = _features(cameras, size, dense, segmentation, fps, crf)
+    schema = pa.schema([(k, _arrow_type(f)) for k, f in features.items() if f["dtype"] != "video"])
+
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / ".export-incomplete"
+    tmp.write_text("abm data export is writing this dataset\n")
+    (out / DATA_FILE).parent.mkdir(parents=True, exist_ok=True)
+    writer = pq.ParquetWriter(out / DATA_FILE, schema, compression="zstd")
+    containers, streams = {}, {}
+    rate = Fraction(fps).limit_denominator(1000)
+    for cam in cameras:
+        path = out / VIDEO_PATH.format(video_key=_image_key(cam), chunk_index=0, file_index=0)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        containers[cam] = av.open(str(path), "w")
+        stream = containers[cam].add_stream("libx264", rate=rate)
+        stream.width, stream.height, stream.pix_fmt = size[1], size[0], "yuv420p"
+        stream.time_base = 1 / rate
+        stream.options = {"crf": str(crf), "g": "10"}
+        streams[cam] = stream
+    stats = {k: _Stats() for k, f in features.items() if f["dtype"] not in ("string", "bool")}
+    tasks: dict[str, int] = {}
+    episode_rows: list[dict[str, Any]] = []
+    total = 0
+    for ep_index, info in enumerate(tqdm(store.episodes, desc="export", unit="ep", disable=not progress)):
+        episode = load_episode(info.path) if ep_index else first
+        if dense and episode.trajectory is None:
+            raise ValueError(f"{info.path} has no dense trajectory (generate with --dense)")
+        if dense and abs(episode.trajectory.fps - fps) > 1e-9:
+            raise ValueError(f"{info.path} was recorded at {episode.trajectory.fps} fps, the first episode at {fps}")
+        observations, target, flags = _frames_of(episode, dense)
+        n = len(observations)
+        task_index = tasks.setdefault(episode.instruction, len(tasks))
+        actions = [a for _, a in episode.steps]
+        cols: dict[str, Any] = {}
+        for cam in cameras:
+            cf = [o.cameras[cam] for o in observations]
+            cols[f"observation.depth.{cam}"] = np.stack([c.depth for c in cf]).astype(np.float32)
+            if segmentation:
+                cols[f"observation.segmentation.{cam}"] = np.stack([c.segmentation for c in cf]).astype(np.int32)
+            cols[f"observation.intrinsics.{cam}"] = np.stack([c.intrinsics for c in cf])
+            cols[f"observation.extrinsics.{cam}"] = np.stack([c.extrinsics for c in cf])
+            rgb = np.stack([c.rgb for c in cf])
+            for i, img in enumerate(rgb):
+                frame = av.VideoFrame.from_ndarray(img, format="rgb24")
+                frame.pts = total + i
+                for packet in streams[cam].encode(frame):
+                    containers[cam].mux(packet)
+            stats[_image_key(cam)].add(rgb / 255.0, (0, 1, 2))
+        poses = np.stack([o.gripper_pose for o in observations])
+        from abm.geometry.rotations import matrix_to_quat
+
+        cols["observation.state"] = np.concatenate(
+            [poses[:, :3, 3], matrix_to_quat(poses[:, :3, :3]),
+             np.array([[o.gripper_open] for o in observations])], axis=1).astype(np.float32)
+        cols["observation.gripper_pose"] = poses
+        cols["observation.step"] = np.array([o.step for o in observations], np.int64)
+        kf_pos = np.array([actions[k].position for k in target]).reshape(n, 3)
+        kf_quat = np.array([actions[k].quaternion for k in target]).reshape(n, 4)
+        kf_open = np.array([actions[k].gripper_open for k in target], bool)
+        if dense:
+            traj = episode.trajectory
+            cols["observation.joint_positions"] = traj.joint_positions
+            cols["action"] = traj.joint_actions.astype(np.float32)
+            cols["action.ee"] = traj.ee_actions.astype(np.float32)
+        else:
+            cols["action"] = np.concatenate([kf_pos, kf_quat, kf_open[:, None]], axis=1).astype(np.float32)
+        cols["keyframe.is_keyframe"] = flags
+        cols["keyframe.index"] = target.astype(np.int64)
+        cols["keyframe.position"] = kf_pos
+        cols["keyframe.quaternion"] = kf_quat
+        cols["keyframe.gripper_open"] = kf_open
+        cols["keyframe.ignore_collision"] = np.array([actions[k].ignore_collision for k in target], bool)
+        cols["keyframe.kind"] = [actions[k].kind for k in target]
+        cols["keyframe.symmetry"] = np.array([actions[k].symmetry for k in target], np.int64)
+        cols["frame_index"] = np.arange(n, dtype=np.int64)
+        cols["timestamp"] = (np.arange(n) / fps).astype(np.float32)
+        cols["episode_index"] = np.full(n, ep_index, np.int64)
+        cols["index"] = np.arange(total, total + n, dtype=np.int64)
+        cols["task_index"] = np.full(n, task_index, np.int64)
+        writer.write_table(pa.table({k: _column(features[k], cols[k]) for k in schema.names}, schema=schema))
+        for k, st in stats.items():
+            if features[k]["dtype"] == "video":
+                continue
+            v = np.asarray(cols[k], np.float64)
+            st.add(v.reshape(n, -1) if v.ndim <= 2 else v, (0,) if v.ndim <= 2 else tuple(range(v.ndim)))
+        meta = {"task": episode.task, "split": episode.split, "variation": episode.variation,
+                "object_names": {str(k): v for k, v in episode.object_names.items()},
+                "target_names": list(episode.target_names), "success": bool(episode.success),
+                "seed": int(episode.seed), "metadata": episode.metadata, "cameras": cameras,
+                "source": _source_name(info.path, data), "frames": "dense" if dense else "keyframes"}
+        row: dict[str, Any] = {"episode_index": ep_index, "tasks": [episode.instruction], "length": n,
+                               "data/chunk_index": 0, "data/file_index": 0, "dataset_from_index": total,
+                               "dataset_to_index": total + n}
+        for cam in cameras:
+            key = _image_key(cam)
+            row |= {f"videos/{key}/chunk_index": 0, f"videos/{key}/file_index": 0,
+                    f"videos/{key}/from_timestamp": total / fps, f"videos/{key}/to_timestamp": (total + n) / fps}
+        row |= {"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0,
+                "abm/episode": json.dumps(meta, default=_json_default)}
+        episode_rows.append(row)
+        total += n
+    writer.close()
+    for cam in cameras:
+        for packet in streams[cam].encode():
+            containers[cam].mux(packet)
+        containers[cam].close()
+
+    (out / EPISODES_FILE).parent.mkdir(parents=True, exist_ok=True)
+    pq.write_table(pa.Table.from_pylist(episode_rows), out / EPISODES_FILE)
+    _write_tasks(out / "meta" / "tasks.parquet", tasks)
+    shapes = {k: ([3, 1, 1] if f["dtype"] == "video" else (f["shape"] if len(f["shape"]) == 1 else [1]))
+              for k, f in features.items()}
+    (out / "meta" / "stats.json").write_text(json.dumps(
+        {k: st.result(tuple(shapes[k])) for k, st in stats.items() if st.n}, indent=1))
+    info_json = {
+        "codebase_version": CODEBASE_VERSION, "robot_type": robot_type, "total_episodes": len(episode_rows),
+        "total_frames": total, "total_tasks": len(tasks), "chunks_size": 1000,
+        "data_files_size_in_mb": 100, "video_files_size_in_mb": 500, "fps": int(fps) if fps.is_integer() else fps,
+        "splits": {"train": f"0:{len(episode_rows)}"}, "data_path": DATA_PATH, "video_path": VIDEO_PATH,
+        "features": features,
+        "abm": {"frames": "dense" if dense else "keyframes", "cameras": cameras,
+                "written_by": "abm data export --format lerobot",
+                "note": "depth, segmentation and calibration are parquet columns; RGB is H.264 mp4"}}
+    (out / "meta" / "info.json").write_text(json.dumps(info_json, indent=2))
+    tmp.unlink()
+    size_bytes = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    return ExportReport(len(episode_rows), total, fps, dense, size_bytes)
+
+
+def _metadata(path: Path) -> dict[str, Any]:
+    from abm.data.episode_store import load_metadata
+
+    return load_metadata(path)
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def _write_tasks(path: Path, tasks: dict[str, int]) -> None:
+    """``meta/tasks.parquet``: the task strings as the (pandas) index, ``task_index`` as the column."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    names = list(tasks)
+    table = pa.table({"task_index": pa.array([tasks[t] for t in names], pa.int64()),
+                      "task": pa.array(names, pa.string())})
+    pandas_meta = {"index_columns": ["task"], "column_indexes": [],
+                   "columns": [{"name": "task_index", "field_name": "task_index", "pandas_type": "int64",
+                                "numpy_type": "int64", "metadata": None},
+                               {"name": "task", "field_name": "task", "pandas_type": "unicode",
+                                "numpy_type": "object", "metadata": None}],
+                   "creator": {"library": "pyarrow", "version": pa.__version__}, "pandas_version": "2.2.0"}
+    pq.write_table(table.replace_schema_metadata({"pandas": json.dumps(pandas_meta)}), path)
+
+
+# --- import ---------------------------------------------------------------------------------------
+
+
+def _read_json(path: Path, what: str) -> dict[str, Any]:
+    if not path.is_file():
+        raise LeRobotFormatError(f"{path.parent.parent}: not a LeRobot dataset ({what} {path} is missing)")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise LeRobotFormatError(f"{path}: not valid JSON ({err})") from None
+
+
+def _read_parquet(path: Path):
+    import pyarrow.parquet as pq
+
+    if not path.is_file():
+        raise LeRobotFormatError(f"{path} is missing (the dataset is incomplete)")
+    try:
+        return pq.read_table(path)
+    except Exception as err:  # noqa: BLE001 - pyarrow raises several types for damaged files
+        raise LeRobotFormatError(f"{path}: not a readable parquet file ({err})") from None
+
+
+class _VideoFrames:
+    """The frames of one camera's mp4, read in order, one episode at a time (constant memory)."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        import av
+
+        if not path.is_file():
+            raise LeRobotFormatError(f"{path} is missing (the dataset is incomplete)")
+        self.path, self.fps, self.next = path, fps, 0
+        try:
+            self._container = av.open(str(path))
+            self._frames = self._container.decode(video=0)
+        except av.error.FFmpegError as err:
+            raise LeRobotFormatError(f"{path}: not a readable video ({err})") from None
+
+    def take(self, lo: int, hi: int) -> np.ndarray:
+        """Frames ``lo`` to ``hi - 1`` (``lo`` must be where the previous call stopped)."""
+        import av
+
+        out = []
+        try:
+            for frame in self._frames:
+                i = int(round(float(frame.pts * frame.time_base) * self.fps))
+                if i < lo:
+                    continue
+                if i != lo + len(out):
+                    break
+                out.append(frame.to_ndarray(format="rgb24"))
+                if len(out) == hi - lo:
+                    break
+        except av.error.FFmpegError as err:
+            raise LeRobotFormatError(f"{self.path}: not a readable video ({err})") from None
+        if len(out) != hi - lo:
+            raise LeRobotFormatError(f"{self.path}: frames {lo + len(out)} to {hi - 1} are missing from the video")
+        return np.stack(out)
+
+    def close(self) -> None:
+        self._container.close()
+
+
+class _Rows:
+    """Rows of the frame parquet read row group by row group (one per episode as written), in order."""
+
+    def __init__(self, path: Path) -> None:
+        import pyarrow.parquet as pq
+
+        if not path.is_file():
+            raise LeRobotFormatError(f"{path} is missing (the dataset is incomplete)")
+        try:
+            self.file = pq.ParquetFile(path)
+        except Exception as err:  # noqa: BLE001 - pyarrow raises several types for damaged files
+            raise LeRobotFormatError(f"{path}: not a readable parquet file ({err})") from None
+        self.path, self.group, self.start, self.buffer = path, 0, 0, None
+        self.column_names = self.file.schema_arrow.names
+        self.num_rows = self.file.metadata.num_rows
+
+    def take(self, lo: int, hi: int):
+        import pyarrow as pa
+
+        while self.buffer is None or self.start + self.buffer.num_rows < hi:
+            if self.group >= self.file.num_row_groups:
+                raise LeRobotFormatError(f"{self.path}: rows {lo} to {hi - 1} are missing")
+            part = self.file.read_row_group(self.group)
+            self.group += 1
+            self.buffer = part if self.buffer is None else pa.concat_tables([self.buffer, part])
+        rows = self.buffer.slice(lo - self.start, hi - lo)
+        self.buffer, self.start = self.buffer.slice(hi - self.start), hi
+        return rows
+
+
+def import_lerobot(dataset: str | os.PathLike, out: str | os.PathLike, progress: bool = True) -> list[Path]:
+    """Read a LeRobot v3 dataset written by :func:`export_lerobot` back into abm episode files under ``out``
+    (``OUT/<task>/<split>/episode_<seed>.h5``, as ``abm data generate`` lays them out). Returns the files.
+    Frames and videos are read episode by episode, so memory does not grow with the dataset."""
+    ds, out = Path(dataset), Path(out)
+    if not ds.is_dir():
+        raise FileNotFoundError(f"LeRobot dataset folder not found: {ds}")
+    info = _read_json(ds / "meta" / "info.json", "meta/info.json")
+    version = info.get("codebase_version")
+    if version != CODEBASE_VERSION:
+        raise LeRobotFormatError(f"{ds}: LeRobot dataset version {version!r}; abm reads {CODEBASE_VERSION!r} "
+                                 "(convert older datasets with lerobot's v2.1 -> v3.0 converter)")
+    features = info.get("features")
+    abm_info = info.get("abm")
+    if not isinstance(features, dict) or not isinstance(abm_info, dict):
+        raise LeRobotFormatError(f"{ds}: meta/info.json has no abm section; only datasets written by `abm data "
+                                 "export` carry the depth, calibration and keyframe columns an abm episode needs")
+    try:
+        fps = float(info["fps"])
+        cameras = list(abm_info["cameras"])
+        dense = abm_info["frames"] == "dense"
+        if any(len(features[_image_key(c)]["shape"]) != 3 for c in cameras):
+            raise ValueError("camera features must have shape [height, width, 3]")
+    except (KeyError, TypeError, ValueError, IndexError) as err:
+        raise LeRobotFormatError(f"{ds}: meta/info.json is incomplete ({err!r})") from None
+    if (ds / ".export-incomplete").exists():
+        raise LeRobotFormatError(f"{ds}: the export did not finish (remove the folder and export again)")
+    episodes = sorted(_read_parquet(ds / EPISODES_FILE).to_pylist(), key=lambda r: r.get("dataset_from_index", 0))
+    table = _Rows(ds / DATA_FILE)
+    missing = [k for k, f in features.items() if f.get("dtype") != "video" and k not in table.column_names]
+    if missing:
+        raise LeRobotFormatError(f"{ds / DATA_FILE}: columns {missing} listed in meta/info.json are missing")
+    videos = {cam: _VideoFrames(ds / VIDEO_PATH.format(video_key=_image_key(cam), chunk_index=0, file_index=0), fps)
+              for cam in cameras}
+    try:
+        return _import_episodes(episodes, table, videos, out, cameras, dense, fps, ds, progress)
+    finally:
+        for v in videos.values():
+            v.close()
+
+
+def _import_episodes(episodes, table: _Rows, videos: dict[str, _VideoFrames], out: Path, cameras: list[str],
+                     dense: bool, fps: float, ds: Path, progress: bool) -> list[Path]:
+    from tqdm import tqdm
+
+    from abm.data.episode_store import save_episode
+
+    written = []
+    for row in tqdm(episodes, desc="import", unit="ep", disable=not progress):
+        try:
+            meta = json.loads(row["abm/episode"])
+            lo, hi = int(row["dataset_from_index"]), int(row["dataset_to_index"])
+            instruction = row["tasks"][0]
+        except (KeyError, TypeError, ValueError, IndexError) as err:
+            raise LeRobotFormatError(f"{ds / EPISODES_FILE}: episode row {row.get('episode_index')} is "
+                                     f"incomplete ({err!r})") from None
+        rows = table.take(lo, hi)
+        cols = {k: rows.column(k) for k in rows.column_names}
+        episode = _episode_from_columns(meta, instruction, cols, {c: v.take(lo, hi) for c, v in videos.items()},
+                                        cameras, dense, fps)
+        path = out / meta["source"] if meta.get("source") else \
+            out / episode.task / episode.split / f"episode_{episode.seed:06d}.h5"
+        save_episode(episode, path)
+        written.append(path)
+    return written
+
+
+def _np(col, shape: list[int], dtype) -> np.ndarray:
+    n = len(col)
+    if shape == [1]:
+        return np.asarray(col.to_numpy(zero_copy_only=False), dtype)
+    flat = col.combine_chunks()
+    for _ in shape:
+        flat = flat.flatten()
+    return np.asarray(flat.to_numpy(zero_copy_only=False), dtype).reshape(n, *shape)
+
+
+def _episode_from_columns(meta: dict[str, Any], instruction: str, cols: dict[str, Any], rgb: dict[str, np.ndarray],
+                          cameras: list[str], dense: bool, fps: float) -> Episode:
+    n = len(cols["frame_index"])
+    depth = {c: _np(cols[f"observation.depth.{c}"], [*rgb[c].shape[1:3]], np.float32) for c in cameras}
+    seg = {c: (_np(cols[f"observation.segmentation.{c}"], [*rgb[c].shape[1:3]], np.int32)
+               if f"observation.segmentation.{c}" in cols else None) for c in cameras}
+    intr = {c: _np(cols[f"observation.intrinsics.{c}"], [3, 3], np.float64) for c in cameras}
+    extr = {c: _np(cols[f"observation.extrinsics.{c}"], [4, 4], np.float64) for c in cameras}
+    state = _np(cols["observation.state"], [8], np.float32)
+    poses = _np(cols["observation.gripper_pose"], [4, 4], np.float64)
+    step = _np(cols["observation.step"], [1], np.int64)
+    observations = [Observation(
+        cameras={c: CameraFrame(rgb=rgb[c][i], depth=depth[c][i], intrinsics=intr[c][i], extrinsics=extr[c][i],
+                                segmentation=None if seg[c] is None else seg[c][i]) for c in cameras},
+        gripper_open=float(state[i, 7]), gripper_pose=poses[i], step=int(step[i])) for i in range(n)]
+    flags = _np(cols["keyframe.is_keyframe"], [1], bool)
+    target = _np(cols["keyframe.index"], [1], np.int64)
+    pos = _np(cols["keyframe.position"], [3], np.float64)
+    quat = _np(cols["keyframe.quaternion"], [4], np.float64)
+    grip = _np(cols["keyframe.gripper_open"], [1], bool)
+    ignore = _np(cols["keyframe.ignore_collision"], [1], bool)
+    kinds = cols["keyframe.kind"].to_pylist()
+    symmetry = _np(cols["keyframe.symmetry"], [1], np.int64)
+    frames = np.flatnonzero(flags)
+    if not np.array_equal(target[frames], np.arange(len(frames))):
+        raise LeRobotFormatError(f"episode {meta.get('source')}: keyframe flags and keyframe.index disagree")
+    steps = [(observations[i], KeyframeAction(pos[i], quat[i], bool(grip[i]), bool(ignore[i]), kinds[i],
+                                              int(symmetry[i]))) for i in frames]
+    trajectory = None
+    if dense:
+        trajectory = Trajectory(fps=fps, observations=observations,
+                                joint_positions=_np(cols["observation.joint_positions"], [9], np.float64),
+                                joint_actions=_np(cols["action"], [8], np.float64),
+                                ee_actions=_np(cols["action.ee"], [8], np.float64), keyframe_frames=frames)
+    try:
+        return Episode(task=meta["task"], variation=int(meta["variation"]), split=meta["split"],
+                       instruction=instruction, object_names={int(k): v for k, v in meta["object_names"].items()},
+                       target_names=list(meta["target_names"]), steps=steps, success=bool(meta["success"]),
+                       seed=int(meta["seed"]), metadata=meta.get("metadata", {}), trajectory=trajectory)
+    except (KeyError, TypeError, ValueError) as err:
+        raise LeRobotFormatError(f"episode {meta.get('source')}: metadata incomplete ({err!r})") from None
+
+
+def remove_partial(out: Path) -> None:
+    """Remove an export folder left incomplete by an error (only if it carries the incomplete marker)."""
+    if (out / ".export-incomplete").exists():
+        shutil.rmtree(out)
