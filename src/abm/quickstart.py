@@ -96,10 +96,18 @@ BENCHMARK_CLIP_ENV = "ABM_BENCHMARK_CLIP"
 DEFAULT_BENCHMARK_CLIP = "~/.cache/abm/benchmark-clip"
 
 
+ZOO_BENCHMARK_CLIP = Path("models/benchmark-clip")  # committed with the model zoo (abm zoo list)
+
+
 def benchmark_clip_dir() -> Path:
     """Where the quickstart looks for the benchmark CLIP (``abm clip train --out DIR``): ``$ABM_BENCHMARK_CLIP``,
-    else ``~/.cache/abm/benchmark-clip``."""
-    return Path(os.environ.get(BENCHMARK_CLIP_ENV) or DEFAULT_BENCHMARK_CLIP).expanduser()
+    else the model zoo's copy in a repository checkout (``models/benchmark-clip``, relative to the working
+    folder), else ``~/.cache/abm/benchmark-clip``."""
+    if os.environ.get(BENCHMARK_CLIP_ENV):
+        return Path(os.environ[BENCHMARK_CLIP_ENV]).expanduser()
+    if (ZOO_BENCHMARK_CLIP / "config.json").is_file():
+        return ZOO_BENCHMARK_CLIP
+    return Path(DEFAULT_BENCHMARK_CLIP).expanduser()
 
 
 def hub_reachable(host: str = "huggingface.co", timeout_s: float = 3.0) -> bool:
