@@ -27,7 +27,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from seen_unseen_report import _cell, _machine, _stage_minutes, _training
+from seen_unseen_report import _cell, _machine, _stage_minutes, _training, replace_block
 
 START, END = "<!-- paper-tables:start -->", "<!-- paper-tables:end -->"
 TASKS = ("close_jar", "insert_peg", "pick_block", "place_food", "place_wine", "put_in_shelf", "take_off_pan",
@@ -283,14 +283,8 @@ def main() -> None:
     detail = ["", "## Every run on every task", "", detail_table(cells, list(RUNS)), ""]
     (args.docs / "paper_tables.md").write_text("# The paper's tables on ABM-Bench\n\n" + text + "\n".join(detail))
     if args.readme:
-        readme = Path(args.readme)
-        body = readme.read_text()
-        if START not in body or END not in body:
-            raise SystemExit(f"{readme} has no {START} ... {END} block to replace")
-        head, rest = body.split(START, 1)
-        tail = rest.split(END, 1)[1]
-        readme.write_text(f"{head}{START}\n{text}Full report: [docs/results/paper_tables.md]"
-                          f"(docs/results/paper_tables.md).\n{END}{tail}")
+        replace_block(Path(args.readme), START, END,
+                      f"{text}Full report: [docs/results/paper_tables.md](docs/results/paper_tables.md).\n")
     print(f"wrote {args.docs / 'paper_tables.json'} ({len(records(cells))} records), "
           f"{args.docs / 'paper_tables.md'}" + (" and the README block" if args.readme else ""))
 

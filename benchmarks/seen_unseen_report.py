@@ -187,6 +187,16 @@ def _stage_minutes(times: Path) -> dict[str, float]:
     return total
 
 
+def replace_block(readme: Path, start: str, end: str, text: str) -> None:
+    """Replace what stands between the markers ``start`` and ``end`` of ``readme`` with ``text``."""
+    body = readme.read_text()
+    if start not in body or end not in body:
+        raise SystemExit(f"{readme} has no {start} ... {end} block to replace")
+    head, rest = body.split(start, 1)
+    _, tail = rest.split(end, 1)
+    readme.write_text(f"{head}{start}\n{text}{end}{tail}")
+
+
 def _machine() -> str:
     """The machine without the report process's own thread count (training threads are stated apart)."""
     text = describe_machine()
@@ -310,14 +320,8 @@ def main() -> None:
     text = report(args.out, args.command, figure_markdown(figs, Path(args.readme or ".").parent))
     print(text)
     if args.readme:
-        readme = Path(args.readme)
-        body = readme.read_text()
-        if START not in body or END not in body:
-            raise SystemExit(f"{readme} has no {START} ... {END} block to replace")
-        head, rest = body.split(START, 1)
-        _, tail = rest.split(END, 1)
-        readme.write_text(f"{head}{START}\n{text}{END}{tail}")
-        print(f"updated {readme}")
+        replace_block(Path(args.readme), START, END, text)
+        print(f"updated {args.readme}")
 
 
 if __name__ == "__main__":
