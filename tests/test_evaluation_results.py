@@ -165,7 +165,8 @@ def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch
     run = tmp_path / "run"
     train(TrainConfig(method="abm", out=run, steps=1, batch=1, checkpoint_every=1, progress=False,
                       policy_overrides=tiny), synthetic_episodes(1, camera_resolution=32))
-    base = ["eval", "--run", str(run), "--episodes", "1", "--repeats", "1", "--out", str(tmp_path / "ev")]
+    base = ["eval", "--run", str(run), "--episodes", "1", "--repeats", "1", "--workers", "1",
+            "--out", str(tmp_path / "ev")]
     assert cli_main(base + ["--split", "compositional", "--tasks", "pick_block"]) == 2
     err = capsys.readouterr().err
     assert "pick_block has no objects in the 'compositional' split (it defines: seen, unseen)" in err
@@ -240,7 +241,7 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
                               settings=job.settings)
 
     monkeypatch.setattr(runner, "evaluate", functools.partial(runner.evaluate, runner=fake, progress=False))
-    assert cli_main(["eval", "--run", str(run), "--episodes", "2", "--repeats", "1"]) == 0
+    assert cli_main(["eval", "--run", str(run), "--episodes", "2", "--repeats", "1", "--workers", "1"]) == 0
     out = capsys.readouterr()
     assert "tasks seen: pick_block; unseen: pick_block (trained on: pick_block" in caplog.text
     summary = (run / "eval_summary.md").read_text()
@@ -249,10 +250,11 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
         logged = OutcomeLog(run / f"eval_{split}" / "outcomes.jsonl").read()
         assert {(o.task, o.split) for o in logged} == {("pick_block", split)} and len(logged) == 2
     # another task set into the same folders is refused before any rollout
-    assert cli_main(["eval", "--run", str(run), "--tasks", "place_food", "--episodes", "2", "--repeats", "1"]) == 2
+    assert cli_main(["eval", "--run", str(run), "--tasks", "place_food", "--episodes", "2", "--repeats", "1",
+                     "--workers", "1"]) == 2
     assert "holds the outcomes of another evaluation" in capsys.readouterr().err
     assert len(OutcomeLog(run / "eval_seen" / "outcomes.jsonl").read()) == 2
     # the scripts' explicit single-split form writes its tables straight into --out
     assert cli_main(["eval", "--run", str(run), "--split", "seen", "--episodes", "1", "--repeats", "1",
-                     "--out", str(tmp_path / "ev")]) == 0
+                     "--workers", "1", "--out", str(tmp_path / "ev")]) == 0
     assert json.loads((tmp_path / "ev" / "results.json").read_text())[0]["successes"] == 1
