@@ -1,4 +1,4 @@
-"""Imports flow one way: types (and the small helpers machine, workers, configuration, lazy) -> geometry
+"""Imports flow one way: types (and the small helpers machine, workers, configuration, lazy, progress) -> geometry
 -> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot -> commands (quickstart,
 cli, every ``*.commands`` module).
 
@@ -15,7 +15,7 @@ import abm
 
 ROOT = Path(abm.__file__).parent
 LAYERS = [
-    ("types", "machine", "workers", "configuration", "lazy"),
+    ("types", "machine", "workers", "configuration", "lazy", "progress"),
     ("geometry",),
     ("render", "grounding", "sim"),
     ("samples",),

@@ -122,8 +122,7 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
              resolution: int = 128, splits_path: str | Path | None = None, progress: bool = True
              ) -> GenerationReport:
     """Make sure ``episodes`` successful demonstrations of ``task``/``split`` exist under ``out``."""
-    from tqdm import tqdm
-
+    from abm.progress import Progress
     from abm.sim.env import make_env
     from abm.sim.tasks import get_task
 
@@ -148,7 +147,7 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     skipped = done
     failed: list[int] = []
     created = 0
-    bar = tqdm(total=episodes, initial=done, desc=f"{task}/{split}", unit="ep", disable=not progress)
+    bar = Progress(episodes, f"generate {task}/{split}", "episodes", initial=done, bar=progress)
     ctx = multiprocessing.get_context("spawn")
     next_seed = s
     args = (str(out), int(resolution), str(splits_path) if splits_path else None)

@@ -10,7 +10,8 @@ import numpy as np
 
 
 def plot_training_curves(runs: Mapping[str, str | Path], path: str | Path) -> Path:
-    """Plot the total and per-head training losses of runs (label -> run folder with ``log.csv``) to a PNG."""
+    """Plot the total and per-head training losses of runs (label -> run folder with ``log.csv``) to a PNG,
+    with the validation loss (``val_total``, dashed) beside the total when the run logged one."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -27,7 +28,10 @@ def plot_training_curves(runs: Mapping[str, str | Path], path: str | Path) -> Pa
         steps = [int(r["step"]) for r in rows]
         for ax, head in zip(axes, heads, strict=True):
             values = [float(r[head]) if r.get(head) not in (None, "") else np.nan for r in rows]
-            ax.plot(steps, values, label=label)
+            line = ax.plot(steps, values, label=label)[0]
+        held_out = [(int(r["step"]), float(r["val_total"])) for r in rows if r.get("val_total") not in (None, "")]
+        if held_out:  # the validation loss (abm train --val-data) beside the total training loss
+            axes[0].plot(*zip(*held_out, strict=True), "o--", color=line.get_color(), label=f"{label} validation")
     for ax, head in zip(axes, heads, strict=True):
         ax.set_title(f"{head} loss")
         ax.set_xlabel("step")

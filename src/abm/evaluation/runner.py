@@ -219,7 +219,7 @@ def evaluate(
         success rates of every (method, task) on ``split``, from the outcomes of exactly the planned
         rollouts (same checkpoints, same settings); older lines of the log are kept but not reported.
     """
-    from tqdm import tqdm
+    from abm.progress import Progress
 
     settings = settings or EvalSettings()
     out = Path(out_dir)
@@ -231,15 +231,14 @@ def evaluate(
             for j in plan_jobs(runs, tasks, split, episodes, repeats, out, gifs, labels)]
     check_same_evaluation(log.read(), plan, out)
     jobs = [j for j in plan if j.key not in done]
-    bar = tqdm(total=len(jobs), desc=f"eval {split}", unit="ep", disable=not progress)
+    bar = Progress(len(jobs), f"eval {split}", "episodes", bar=progress)
     successes = 0
     if workers <= 1:
         for job in jobs:
             outcome = runner(job, settings)
             log.append(outcome)
             successes += outcome.success
-            bar.update(1)
-            bar.set_postfix(success=f"{successes}/{bar.n}")
+            bar.update(1, success=f"{successes}/{bar.n + 1}")
     else:
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init) as pool:
             futures = [pool.submit(runner, job, settings) for job in jobs]
@@ -247,8 +246,7 @@ def evaluate(
                 outcome = fut.result()
                 log.append(outcome)
                 successes += outcome.success
-                bar.update(1)
-                bar.set_postfix(success=f"{successes}/{bar.n}")
+                bar.update(1, success=f"{successes}/{bar.n + 1}")
     bar.close()
     planned = {j.key for j in plan}
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too

@@ -24,6 +24,8 @@ class TrainConfig:
         data: episode store folder (from ``abm data generate``; ``None`` when episodes are passed in memory).
         tasks: tasks to train on (default: all in the store).
         splits: episode splits to use.
+        val_data: episode store of held-out demonstrations (same tasks, other scenes): their loss (no
+            augmentation) is logged at every checkpoint and at the end (``val_total`` in log.csv).
         steps: total optimiser steps.
         batch: samples per step *per process*.
         lr: peak learning rate (the measured CPU recipe's; the paper used LAMB at 0.003 for batch 30).
@@ -59,6 +61,7 @@ class TrainConfig:
     data: Path | None = None
     tasks: list[str] | None = None
     splits: list[str] | None = field(default_factory=lambda: ["seen"])
+    val_data: Path | None = None
     steps: int = field(default=1000, metadata={"required": True})
     batch: int = 8
     lr: float | None = 1e-3
