@@ -217,6 +217,42 @@ def test_failure_reasons_and_the_html_report(tmp_path) -> None:
     assert "<th>grasp missed</th>" in page and "<th>timeout</th>" in page
     assert page.count("<img ") == 3 and "src='gifs/abm_pick_block_seen_001.gif'" in page
     assert "http" not in page  # nothing fetched from the network
+    assert "Success per target object" not in page  # outcomes recorded without their instruction
+    # with the instruction and target recorded, captions show them and failures are traced to objects
+    for o, target in zip(outcomes, ("red block", "teapot", "teapot"), strict=True):
+        o.instruction, o.target = f"pick up the {target}", target
+    log.path.unlink()
+    for o in outcomes:
+        log.append(o)
+    assert [(o.instruction, o.target) for o in log.read()][1] == ("pick up the teapot", "teapot")
+    page = write_html_report(log.read(), tmp_path / "report.html", gifs).read_text()
+    assert "<i>pick up the teapot</i> (target: teapot)" in page
+    assert "<td>abm</td><td>pick_block</td><td>seen</td><td>teapot</td><td>0/1</td>" in page
+    assert "<td>abm</td><td>pick_block</td><td>seen</td><td>red block</td><td>1/1</td>" in page
+
+
+def test_rollout_gif_frames_carry_instruction_step_and_result(tmp_path) -> None:
+    from PIL import Image
+
+    from abm.evaluation.runner import save_rollout_gif
+    from abm.train.synthetic import synthetic_episodes
+
+    episode = synthetic_episodes(1, camera_resolution=32)[0]
+    path = tmp_path / "r.gif"
+    save_rollout_gif(episode, path, result="grasp missed")
+    plain = tmp_path / "plain.gif"
+    episode.instruction = ""
+    save_rollout_gif(episode, plain)
+    with Image.open(path) as gif, Image.open(plain) as other:
+        assert gif.n_frames == len(episode.steps) == 2
+        assert gif.size[1] > 64 + 24 and gif.size == other.size  # two caption lines under the 64-px frame
+        gif.seek(1)
+        last = gif.convert("L")
+        other.seek(1)
+        caption = last.crop((0, 64, gif.size[0], gif.size[1])).tobytes()
+        assert max(caption) > 128  # white text on the black strip
+        # the captions differ (instruction, "step 2/2: grasp missed" vs an empty line and "step 2/2")
+        assert caption != other.convert("L").crop((0, 64, gif.size[0], gif.size[1])).tobytes()
 
 
 def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, capsys, caplog, monkeypatch):

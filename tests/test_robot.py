@@ -97,12 +97,16 @@ def test_run_on_a_recording_with_a_dry_run_arm(recording, checkpoint, tmp_path) 
 
 
 def test_abm_run_cli_with_sim_and_dry_run(recording, checkpoint, tmp_path, capsys) -> None:
-    folder, _ = recording
+    folder, episode = recording
     replay = tmp_path / "replay.yaml"
     replay.write_text(f"cameras: {{kind: replay, path: {folder}}}\narm: {{kind: dry-run}}\n" + OPEN_YAML)
     assert cli_main(["run", "--robot", str(replay), "--run", str(checkpoint), "--steps", "2",
                      "--log", str(tmp_path / "a")]) == 0
-    assert "abm run: 2 keyframes" in capsys.readouterr().out
+    out = capsys.readouterr()
+    assert "abm run: 2 keyframes" in out.out
+    assert out.err.count(f"abm run: {episode.instruction!r} (target: ") == 1  # the instruction, logged once
+    first = json.loads((tmp_path / "a/steps.jsonl").read_text().splitlines()[0])
+    assert first["instruction"] == episode.instruction
     sim = tmp_path / "sim.yaml"
     sim.write_text("arm: {kind: sim, task: pick_block, split: seen, seed: 1, resolution: 48}\n" + OPEN_YAML)
     assert cli_main(["run", "--robot", str(sim), "--run", str(checkpoint), "--steps", "2",
@@ -163,3 +167,4 @@ def test_hand_eye_calibration_recovers_a_known_camera(tmp_path, capsys) -> None:
     assert "not in the recording" in capsys.readouterr().err
     assert cli_main(["calibrate", "--recording", str(tmp_path / "rec"), "--camera", "front", "--out", str(out),
                      "--board", "5x7"]) == 2
+

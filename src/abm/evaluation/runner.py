@@ -112,10 +112,12 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
 
     start = time.perf_counter()
     steps = 0
+    instruction = target = ""
     try:
         policy = _load_policy(job.checkpoint or job.run, settings)
         with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
                       splits_path=settings.splits_path) as env:
+            instruction, target = env.instruction, ", ".join(env.target_names)
             policy.reset()
             explained: list[Any] = []
 
@@ -127,22 +129,24 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
 
             episode = run_policy(env, act)
             steps = len(episode.steps)
+            meta = episode.metadata
+            held = bool(meta.get("held_target"))
+            failure = failure_reason(bool(episode.success), "", meta.get("motions", []), held)
             if job.gif_path:
-                save_rollout_gif(episode, job.gif_path)
+                save_rollout_gif(episode, job.gif_path, result="success" if episode.success else failure)
                 save_views_figure(explained, views_path(job.gif_path))
-        meta = episode.metadata
-        held = bool(meta.get("held_target"))
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
                               bool(episode.success), steps, time.perf_counter() - start,
-                              checkpoint=job.checkpoint, settings=job.settings,
-                              failure=failure_reason(bool(episode.success), "", meta.get("motions", []), held),
-                              subgoals=subgoal_results(_roles(episode), held, bool(episode.success)))
+                              checkpoint=job.checkpoint, settings=job.settings, failure=failure,
+                              subgoals=subgoal_results(_roles(episode), held, bool(episode.success)),
+                              instruction=instruction, target=target)
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
         text = f"{type(err).__name__}: {err}"
         tb = traceback.format_exc(limit=3).strip().splitlines()
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, False,
                               steps, time.perf_counter() - start, error=f"{text} | {tb[-3] if len(tb) > 2 else ''}",
-                              checkpoint=job.checkpoint, settings=job.settings, failure="crashed")
+                              checkpoint=job.checkpoint, settings=job.settings, failure="crashed",
+                              instruction=instruction, target=target)
 
 
 def _worker_init() -> None:
@@ -319,14 +323,16 @@ def write_tables(rates: Sequence[SuccessRate], out_dir: Path) -> None:
     (out_dir / "results.md").write_text(markdown_table(rates, splits=["seen", "unseen", "compositional"]) + "\n")
 
 
-def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seconds_per_frame: float = 0.6) -> None:
-    """Write a GIF of one camera over the rollout, each frame marked with the keyframe predicted from it."""
+def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seconds_per_frame: float = 0.6,
+                     result: str = "") -> None:
+    """Write a GIF of one camera over the rollout, each frame marked with the keyframe predicted from it and
+    captioned with the instruction, the step (``step 2/5``) and, on the last frame, ``result``."""
     from PIL import Image, ImageDraw
 
     from abm.geometry import project_to_camera
 
     frames = []
-    for obs, action in episode.steps:
+    for k, (obs, action) in enumerate(episode.steps):
         frame = obs.camera(camera)
         img = Image.fromarray(frame.rgb).resize((frame.width * 2, frame.height * 2), Image.NEAREST)
         u, v, z = project_to_camera(action.position[None], frame.intrinsics, frame.extrinsics)[0]
@@ -335,11 +341,27 @@ def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seco
             cx, cy = 2 * u + 1, 2 * v + 1
             color = (0, 255, 0) if action.gripper_open else (255, 0, 255)
             draw.ellipse([cx - 5, cy - 5, cx + 5, cy + 5], outline=color, width=2)
-        frames.append(img)
+        last = k == len(episode.steps) - 1
+        frames.append(_caption(img, episode.instruction,
+                               f"step {k + 1}/{len(episode.steps)}" + (f": {result}" if last and result else "")))
     if frames:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(seconds_per_frame * 1000),
                        loop=0)
+
+
+def _caption(img: Any, *lines: str) -> Any:
+    """``img`` (PIL) with a black strip of text lines under it (PIL's default font, cut to the width)."""
+    from PIL import Image, ImageDraw
+
+    chars = max(8, img.width // 6)
+    out = Image.new("RGB", (img.width, img.height + 12 * len(lines) + 4), (0, 0, 0))
+    out.paste(img, (0, 0))
+    draw = ImageDraw.Draw(out)
+    for i, line in enumerate(lines):
+        draw.text((3, img.height + 2 + 12 * i), line if len(line) <= chars else line[:chars - 3] + "...",
+                  fill=(255, 255, 255))
+    return out
 
 
 def _roles(episode: Any) -> int:

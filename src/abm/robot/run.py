@@ -114,6 +114,16 @@ class RobotConfig:
                          "configure the real arm (kind ur; a dry run only reads its pose)")
 
 
+def _target_note(instruction: str) -> str:
+    """`` (target: X)`` for the log line of :func:`run_robot`, or ``""`` when the instruction does not split."""
+    from abm.grounding.instruction import InstructionError, decompose_instruction
+
+    try:
+        return f" (target: {decompose_instruction(instruction)[0]})"
+    except (InstructionError, ValueError):
+        return ""
+
+
 def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path
               ) -> list[dict[str, Any]]:
     """Run the loop for ``steps`` keyframes (or until a simulated arm reports success).
@@ -126,6 +136,8 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
     log_dir.mkdir(parents=True, exist_ok=True)
     records: list[dict[str, Any]] = []
     names = getattr(camera, "object_names", None) or None
+    log.info("abm run: %r%s, %d keyframe(s) at most, log in %s", instruction, _target_note(instruction), steps,
+             log_dir)
     policy.reset()
     with (log_dir / "steps.jsonl").open("w") as out:
         for k in range(steps):
@@ -139,7 +151,8 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
             if "mask" in views:
                 arrays["mask"] = views["mask"][0, :, 0].cpu().numpy()
             np.savez_compressed(log_dir / f"step_{k:03d}.npz", **arrays)
-            record = {"step": k, "position": action.position.round(4).tolist(),
+            record = {"step": k, **({"instruction": instruction} if k == 0 else {}),
+                      "position": action.position.round(4).tolist(),
                       "quaternion": action.quaternion.round(4).tolist(), "gripper_open": action.gripper_open,
                       "ignore_collision": action.ignore_collision, "timings": policy.last_timings}
             try:
