@@ -154,7 +154,7 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     import torch
 
     from abm.data.generate import generate
-    from abm.evaluation.results import markdown_table
+    from abm.evaluation.results import combined_table
     from abm.evaluation.runner import EvalSettings, evaluate, write_tables
     from abm.policy.config import PolicyConfig
     from abm.train.config import TrainConfig
@@ -205,9 +205,9 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
                           repeats=1, workers=cfg.workers, settings=settings, gifs=1)
 
     print(f"[4/4] report -> {report}")
-    table = markdown_table(rates, splits=["seen", "unseen"])
+    table = combined_table(rates)
     write_tables(rates, report)
-    write_report(report, runs, eval_dir, data, cfg, grounder_text)
+    write_report(report, runs, eval_dir, data, cfg, grounder_text, rates)
     print(table)
     print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
     return report
@@ -226,12 +226,13 @@ def _train_with_threads(config, threads: int) -> dict:
 
 
 def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path, cfg: QuickstartConfig,
-                 grounder: str) -> None:
-    """Table, curves, example views and GIFs in one folder with a README that links them."""
+                 grounder: str, rates: list | None = None) -> None:
+    """Table, curves, example views and GIFs in one folder with a README that links them (``rates``: the
+    success rates, for the combined seen / unseen table)."""
     from abm.data.episode_store import EpisodeStore
     from abm.evaluation.html_report import write_html_report
     from abm.evaluation.report import plot_training_curves, views_figure
-    from abm.evaluation.results import OutcomeLog
+    from abm.evaluation.results import OutcomeLog, combined_table
     from abm.policy import KeyframePolicy
     from abm.samples import collate
 
@@ -260,7 +261,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
         f"`small` preset with {cfg.policy_overrides}, {cfg.steps} steps, batch {cfg.batch}, {cfg.optimizer} "
         f"lr {cfg.lr}; grounder: {grounder}; "
         f"{cfg.eval_episodes} evaluation episodes per task and split (max {cfg.max_steps} keyframes).", "",
-        "## Success rate (%)", "", (report / "results.md").read_text(), "",
+        "## Success rate (%)", "", *([combined_table(rates), "", "Per split:", ""] if rates else []),
+        (report / "results.md").read_text(), "",
         "## Training curves", "", "![training curves](training_curves.png)", "",
         "## What the policy sees", "", *figures, "",
         "## Rollouts", "", "Failure reasons and the GIFs side by side: [report.html](report.html)", "",
