@@ -342,19 +342,23 @@ def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seco
             color = (0, 255, 0) if action.gripper_open else (255, 0, 255)
             draw.ellipse([cx - 5, cy - 5, cx + 5, cy + 5], outline=color, width=2)
         last = k == len(episode.steps) - 1
-        frames.append(_caption(img, episode.instruction,
-                               f"step {k + 1}/{len(episode.steps)}" + (f": {result}" if last and result else "")))
+        frames.append(_caption(img, episode.instruction, f"step {k + 1}/{len(episode.steps)}",
+                               result if last else ""))
     if frames:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(seconds_per_frame * 1000),
                        loop=0)
 
 
-def _caption(img: Any, *lines: str) -> Any:
-    """``img`` (PIL) with a black strip of text lines under it (PIL's default font, cut to the width)."""
+def _caption(img: Any, instruction: str, step: str, result: str) -> Any:
+    """``img`` (PIL) above a black strip: the instruction (wrapped to the width), the step and the result
+    (one line each, the same height on every frame so the GIF's frames match)."""
+    import textwrap
+
     from PIL import Image, ImageDraw
 
-    chars = max(8, img.width // 6)
+    chars = max(8, img.width // 6)  # PIL's default font is ~6 px per character
+    lines = [*(textwrap.wrap(instruction, chars) or [""]), step, result]
     out = Image.new("RGB", (img.width, img.height + 12 * len(lines) + 4), (0, 0, 0))
     out.paste(img, (0, 0))
     draw = ImageDraw.Draw(out)
