@@ -66,7 +66,8 @@ def test_train_logs_summary_validation_loss_plain_lines_and_curve(tmp_path, caps
                  "--set", "layers_joint=1", "--set", "stem_channels=8", "--set", "lang_dim=16"]) == 0
     err = capsys.readouterr().err
     assert "abm train: abm (small+custom, " in err and "parameters, 32² views) on 2 episodes / " in err
-    assert "4 steps of batch 2 x 1 process(es), adamw lr 0.001, warm-up 50, device cpu" in err
+    assert "4 steps of batch 2 x 1 process(es), adamw lr 0.001, warm-up 50 (not shorter than the run: the lr never " \
+           "reaches its peak), device cpu" in err
     assert "validation: " in err and "held-out keyframes from" in err
     assert "train abm/small: step 2, loss " in err and ", validation loss " in err
     assert "train abm/small: 4/4 steps (100 %)" in err and "\r" not in err

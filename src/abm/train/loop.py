@@ -437,7 +437,9 @@ class Trainer:
                 f"parameters, {self.policy_config.resolution}² views) on {self.episodes_used} episodes / {keyframes} "
                 f"keyframes{f' of {cfg.data}' if cfg.data else ''}{val}\n"
                 f"abm train: {cfg.steps} steps of batch {cfg.batch} x {self.dinfo.world_size} process(es), "
-                f"{cfg.optimizer} lr {self.lr:g}, warm-up {self.warmup}, device {self.device}, grounder "
+                f"{cfg.optimizer} lr {self.lr:g}, warm-up {self.warmup}"
+                f"{' (not shorter than the run: the lr never reaches its peak)' if self.warmup >= cfg.steps else ''}"
+                f", device {self.device}, grounder "
                 f"{self.grounder_spec['kind']}, from step {self.start}; run folder {self.run}")
 
     def fit(self, on_step: Callable[[int, dict[str, float]], None] | None = None) -> dict[str, Any]:
