@@ -90,3 +90,15 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=str))
+
+    def to_recipe(self) -> dict[str, Any]:
+        """These options as a recipe (``abm train --config FILE``): every set option but the run folder's
+        (``out``, ``resume``, ``overwrite``, ``progress``), policy overrides under ``policy``, the CLIP options
+        as ``clip_model`` / ``clip_device``. Every run writes its own to ``RUN/recipe.yaml``."""
+        data = self.to_dict()
+        recipe = {k: v for k, v in data.items() if v is not None and k not in (
+            "out", "resume", "overwrite", "progress", "grounder_options", "policy_overrides")}
+        recipe.update({f"clip_{k}": v for k, v in data["grounder_options"].items() if k in ("model", "device")})
+        if data["policy_overrides"]:
+            recipe["policy"] = data["policy_overrides"]
+        return recipe

@@ -9,9 +9,9 @@
   CPU, nccl on CUDA) and wraps the model in ``DistributedDataParallel``; rank 0 logs and saves.
 * :class:`Trainer` splits a run into build / step / save-restore / fit; :func:`train` runs one.
   Messages go through :mod:`logging` (logger ``abm.train.loop``; the ``abm`` command shows INFO).
-* Outputs in the run folder: ``config.json``, ``log.csv``, ``tb/`` (TensorBoard),
-  ``checkpoints/step_XXXXXXXX.pt`` (every ``checkpoint_every`` steps, at the end, and on Ctrl-C),
-  ``summary.json``.
+* Outputs in the run folder: ``config.json``, ``recipe.yaml`` (``abm train --config``), ``log.csv``,
+  ``tb/`` (TensorBoard), ``checkpoints/step_XXXXXXXX.pt`` (every ``checkpoint_every`` steps, at the end,
+  and on Ctrl-C), ``summary.json``.
 """
 
 from __future__ import annotations
@@ -327,6 +327,11 @@ class Trainer:
             (self.run / "config.json").write_text(json.dumps(
                 {"train": cfg.to_dict(), "policy": self.policy_config.to_dict(), "language": self.language_spec,
                  "grounder": gspec, "world_size": world, "lr": self.lr, "warmup": self.warmup}, indent=2))
+            import yaml
+
+            (self.run / "recipe.yaml").write_text(  # the run's options as a file: abm train --config RUN/recipe.yaml
+                "# written by abm train: retrain with  abm train --config THIS_FILE --out NEW_RUN\n"
+                + yaml.safe_dump(cfg.to_recipe(), sort_keys=False))
         sampler = StepSampler(len(self.dataset), cfg.batch, cfg.steps, self.start, world, dinfo.rank, cfg.seed)
         self.loader = torch.utils.data.DataLoader(
             self.dataset, batch_size=cfg.batch, sampler=sampler, num_workers=cfg.workers, collate_fn=collate,
