@@ -24,7 +24,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import CPU_CLIP_MODEL, GPU_CLIP_MODEL, MAX_KEYFRAMES, WORKERS
+from abm.configuration import CAMERA_RESOLUTION, CPU_CLIP_MODEL, GPU_CLIP_MODEL, MAX_KEYFRAMES, WORKERS
 from abm.workers import die_with_parent
 
 #: The quickstart's training recipe (``configs/quickstart.yaml``; also ``abm train --config quickstart``): steps,
@@ -85,7 +85,7 @@ class QuickstartConfig:
     eval_episodes: int = 10
     max_steps: int = MAX_KEYFRAMES
     workers: int = WORKERS
-    resolution: int = field(default=128, metadata={"flag": "--camera-resolution"})
+    resolution: int = field(default=CAMERA_RESOLUTION, metadata={"flag": "--camera-resolution"})
     device: str = "cpu"
     clip_model: str | None = None
     offline: bool = False

@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
-    from abm.configuration import WORKERS, clip_model_help
+    from abm.configuration import CAMERA_RESOLUTION, WORKERS, clip_model_help
 
     data = subparsers.add_parser("data", help="generate and inspect demonstration episodes")
     sub = data.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
@@ -22,7 +22,7 @@ def register(subparsers) -> None:
     gen.add_argument("--out", required=True, type=Path, help="output directory")
     gen.add_argument("--workers", type=int, default=WORKERS, help="parallel worker processes")
     gen.add_argument("--seed", type=int, default=0, help="first scene seed")
-    gen.add_argument("--resolution", type=int, default=128, help="camera resolution (pixels, square)")
+    gen.add_argument("--resolution", type=int, default=CAMERA_RESOLUTION, help="camera resolution (pixels, square)")
     gen.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
     gen.set_defaults(func=_generate)
 

@@ -13,6 +13,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass
 from pathlib import Path
 
+from abm.configuration import CAMERA_RESOLUTION
 from abm.workers import die_with_parent
 
 MAX_SEED_FACTOR = 3  # give up after trying this many seeds per requested episode
@@ -119,7 +120,7 @@ def _check_resume_settings(folder: Path, resolution: int) -> None:
 
 
 def generate(task: str, split: str, episodes: int, out: str | Path, workers: int = 1, seed: int = 0,
-             resolution: int = 128, splits_path: str | Path | None = None, progress: bool = True
+             resolution: int = CAMERA_RESOLUTION, splits_path: str | Path | None = None, progress: bool = True
              ) -> GenerationReport:
     """Make sure ``episodes`` successful demonstrations of ``task``/``split`` exist under ``out``."""
     from abm.progress import Progress

@@ -20,7 +20,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import MAX_KEYFRAMES
+from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
 from abm.evaluation.results import (
     EpisodeOutcome,
     OutcomeLog,
@@ -73,7 +73,7 @@ class EvalSettings:
 
     device: str = "cpu"
     grounder: str | None = field(default=None, metadata={"choices": ["clip", "oracle", "tracking"]})
-    resolution: int = 128
+    resolution: int = CAMERA_RESOLUTION
     max_steps: int = MAX_KEYFRAMES
     splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
     clip_model: str | None = None
