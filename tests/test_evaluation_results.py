@@ -260,6 +260,7 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
     """`abm eval --run RUN` evaluates the run's trained tasks on both splits into one combined table, refuses
     to append other tasks to those folders, and `--split seen --out DIR` keeps the single-folder layout."""
     import functools
+    import shutil
 
     from abm.cli import main as cli_main
     from abm.evaluation import runner
@@ -291,6 +292,10 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
                      "--workers", "1"]) == 2
     assert "holds the outcomes of another evaluation" in capsys.readouterr().err
     assert len(OutcomeLog(run / "eval_seen" / "outcomes.jsonl").read()) == 2
+    shutil.rmtree(run / "eval_seen")  # only eval_unseen conflicts now: still nothing runs, on any split
+    assert cli_main(["eval", "--run", str(run), "--tasks", "place_food", "--episodes", "2", "--repeats", "1",
+                     "--workers", "1"]) == 2
+    assert not (run / "eval_seen").exists()
     # the scripts' explicit single-split form writes its tables straight into --out
     assert cli_main(["eval", "--run", str(run), "--split", "seen", "--episodes", "1", "--repeats", "1",
                      "--workers", "1", "--out", str(tmp_path / "ev")]) == 0

@@ -260,10 +260,11 @@ def evaluate(
 PROTOCOL_FILE = "evaluation.json"
 
 
-def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[EvalJob], out: Path) -> None:
+def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[EvalJob], out: Path,
+                          record: bool = True) -> None:
     """Refuse (``ValueError``) to add rollouts to a folder whose outcomes were made with other evaluation
     settings or on other tasks / splits, so a table never mixes two protocols and an accidental call does not
-    append to a finished evaluation; then record this protocol in ``out/evaluation.json``. More episodes,
+    append to a finished evaluation; then (``record``) note this protocol in ``out/evaluation.json``. More episodes,
     repeats or runs, and newer checkpoints, are allowed (and resume works as before).
 
     Folders written before ``evaluation.json`` existed are checked against their outcomes instead: other
@@ -282,7 +283,8 @@ def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[Eva
     if problems:
         raise ValueError(f"{out} holds the outcomes of another evaluation ({'; '.join(problems)}): evaluate into "
                          f"a new --out folder, or delete {out / 'outcomes.jsonl'} and {path.name} to start over")
-    path.write_text(json.dumps(wanted, indent=2) + "\n")
+    if record:
+        path.write_text(json.dumps(wanted, indent=2) + "\n")
 
 
 def checkpoint_of(run: str | Path) -> str:
