@@ -32,6 +32,9 @@ def test_a_line_per_interval_when_work_is_slow_and_a_final_line() -> None:
     bar.close()
     assert [line.split(",")[0] for line in out.getvalue().splitlines()] == [
         "eval seen: 11/1000 episodes (1 %)", "eval seen: 12/1000 episodes (1 %)"]  # close adds nothing new
+    done = io.StringIO()
+    Progress(0, "eval unseen", "episodes", stream=done).close()  # a resumed evaluation with nothing left
+    assert done.getvalue() == ""
 
 
 def test_a_bar_on_a_terminal_plain_lines_without_bar_nothing_when_disabled() -> None:

@@ -99,7 +99,7 @@ class Progress:
             return
         if self._bar is not None:
             self._bar.close()
-        elif self.n != self._last_n or self.n == self._start_n == 0:
+        elif self.n != self._last_n:  # nothing was done (a resumed job already complete): nothing to say
             self._line(time.monotonic())
 
     def _line(self, now: float) -> None:
