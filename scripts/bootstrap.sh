@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up abm on a fresh machine: a virtual environment in .venv with the CPU build of torch
-# installed first (so nothing pulls CUDA wheels), then abm with all extras.
+# installed first (so nothing pulls CUDA wheels), then abm with all extras, the simulation assets and, as
+# root, what the documented commands need from the system (Mesa EGL, Chromium for abm view --screenshot).
 # Idempotent: re-running only installs what is missing. Usage: bash scripts/bootstrap.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -39,6 +40,16 @@ if ! ldconfig -p 2>/dev/null | grep -q "libEGL.so.1"; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libegl1 libgl1-mesa-dri libegl-mesa0 >/dev/null
   else
     echo "[bootstrap] WARNING: libEGL.so.1 not found; install libegl1 + libgl1-mesa-dri (or libosmesa6 and set MUJOCO_GL=osmesa)" >&2
+  fi
+fi
+# Headless Chromium for `abm view --screenshot` and the viewer's browser test (tests/test_viewer.py).
+if ! command -v chromium chromium-browser google-chrome google-chrome-stable >/dev/null; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    echo "[bootstrap] installing Chromium (apt) for abm view --screenshot"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+  else
+    echo "[bootstrap] NOTE: no Chromium found; abm view --screenshot (and the viewer's browser test) need one:" \
+      "sudo apt-get install chromium (or put chromium / google-chrome on PATH)" >&2
   fi
 fi
 "$VENV/bin/python" -c "import abm, torch; print(f'[bootstrap] abm {abm.__version__} with torch {torch.__version__} ready in $VENV')"

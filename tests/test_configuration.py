@@ -148,3 +148,25 @@ def test_train_config_file_with_flags_overriding_it(tmp_path, monkeypatch, capsy
     with pytest.raises(SystemExit):
         main(["train", "--config", str(tmp_path / "nope.yaml"), "--synthetic", "1"])
     assert "built-in recipe: cpu, quickstart, seen_unseen" in capsys.readouterr().err
+
+
+def test_every_run_writes_the_recipe_that_retrains_it(tmp_path, monkeypatch) -> None:
+    """RUN/recipe.yaml, given back to `abm train --config`, yields the same options (only --out differs)."""
+    import abm.train.loop as loop
+    from abm.cli import main
+
+    flags = ["train", "--method", "rvt", "--synthetic", "1", "--camera-resolution", "32", "--steps", "1",
+             "--batch", "1", "--lr", "0.002", "--no-augment", "--cameras", "front", "wrist", "--set", "resolution=32",
+             "--set", "width=32", "--set", "heads=2", "--set", "layers_within=1", "--set", "layers_joint=1",
+             "--set", "stem_channels=8", "--set", "lang_dim=16", "--workspace-center", "0.5", "0", "0.2"]
+    seen = []
+    real_train = loop.train
+    monkeypatch.setattr(loop, "train", lambda cfg, episodes=None: seen.append(cfg) or real_train(cfg, episodes))
+    assert main([*flags, "--out", str(tmp_path / "a")]) == 0
+    recipe = tmp_path / "a" / "recipe.yaml"
+    assert "lr: 0.002" in recipe.read_text()
+    monkeypatch.setattr(loop, "train", lambda cfg, episodes=None: seen.append(cfg) or {
+        "steps": 0, "final_loss": {}, "checkpoint": ""})
+    assert main(["train", "--config", str(recipe), "--synthetic", "1", "--out", str(tmp_path / "b")]) == 0
+    first, again = seen
+    assert dataclasses.replace(again, out=first.out) == first

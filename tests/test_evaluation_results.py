@@ -165,7 +165,8 @@ def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch
     run = tmp_path / "run"
     train(TrainConfig(method="abm", out=run, steps=1, batch=1, checkpoint_every=1, progress=False,
                       policy_overrides=tiny), synthetic_episodes(1, camera_resolution=32))
-    base = ["eval", "--run", str(run), "--episodes", "1", "--repeats", "1", "--out", str(tmp_path / "ev")]
+    base = ["eval", "--run", str(run), "--episodes", "1", "--repeats", "1", "--workers", "1",
+            "--out", str(tmp_path / "ev")]
     assert cli_main(base + ["--split", "compositional", "--tasks", "pick_block"]) == 2
     err = capsys.readouterr().err
     assert "pick_block has no objects in the 'compositional' split (it defines: seen, unseen)" in err
@@ -216,12 +217,50 @@ def test_failure_reasons_and_the_html_report(tmp_path) -> None:
     assert "<th>grasp missed</th>" in page and "<th>timeout</th>" in page
     assert page.count("<img ") == 3 and "src='gifs/abm_pick_block_seen_001.gif'" in page
     assert "http" not in page  # nothing fetched from the network
+    assert "Success per target object" not in page  # outcomes recorded without their instruction
+    # with the instruction and target recorded, captions show them and failures are traced to objects
+    for o, target in zip(outcomes, ("red block", "teapot", "teapot"), strict=True):
+        o.instruction, o.target = f"pick up the {target}", target
+    log.path.unlink()
+    for o in outcomes:
+        log.append(o)
+    assert [(o.instruction, o.target) for o in log.read()][1] == ("pick up the teapot", "teapot")
+    page = write_html_report(log.read(), tmp_path / "report.html", gifs).read_text()
+    assert "<i>pick up the teapot</i> (target: teapot)" in page
+    assert "<td>abm</td><td>pick_block</td><td>seen</td><td>teapot</td><td>0/1</td>" in page
+    assert "<td>abm</td><td>pick_block</td><td>seen</td><td>red block</td><td>1/1</td>" in page
+
+
+def test_rollout_gif_frames_carry_instruction_step_and_result(tmp_path) -> None:
+    from PIL import Image
+
+    from abm.evaluation.runner import save_rollout_gif
+    from abm.train.synthetic import synthetic_episodes
+
+    episode = synthetic_episodes(1, camera_resolution=32)[0]
+    path = tmp_path / "r.gif"
+    save_rollout_gif(episode, path, result="grasp missed")
+    plain = tmp_path / "plain.gif"
+    episode.instruction = ""
+    save_rollout_gif(episode, plain)
+    with Image.open(path) as gif, Image.open(plain) as other:
+        assert gif.n_frames == len(episode.steps) == 2
+        # under the 64-px frame: the instruction wrapped to the width, the step and the result, one line each
+        assert gif.size[1] >= 64 + 12 * 4 > other.size[1] == 64 + 12 * 3 + 4
+        gif.seek(1)
+        last = gif.convert("L")
+        other.seek(1)
+        assert max(last.crop((0, 64, gif.size[0], gif.size[1])).tobytes()) > 128  # white text on the black strip
+        result = last.crop((0, gif.size[1] - 14, gif.size[0], gif.size[1])).tobytes()  # "grasp missed"
+        assert max(result) > 128
+        assert max(other.convert("L").crop((0, other.size[1] - 14, other.size[0], other.size[1])).tobytes()) < 128
 
 
 def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, capsys, caplog, monkeypatch):
     """`abm eval --run RUN` evaluates the run's trained tasks on both splits into one combined table, refuses
     to append other tasks to those folders, and `--split seen --out DIR` keeps the single-folder layout."""
     import functools
+    import shutil
 
     from abm.cli import main as cli_main
     from abm.evaluation import runner
@@ -240,7 +279,7 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
                               settings=job.settings)
 
     monkeypatch.setattr(runner, "evaluate", functools.partial(runner.evaluate, runner=fake, progress=False))
-    assert cli_main(["eval", "--run", str(run), "--episodes", "2", "--repeats", "1"]) == 0
+    assert cli_main(["eval", "--run", str(run), "--episodes", "2", "--repeats", "1", "--workers", "1"]) == 0
     out = capsys.readouterr()
     assert "tasks seen: pick_block; unseen: pick_block (trained on: pick_block" in caplog.text
     summary = (run / "eval_summary.md").read_text()
@@ -249,10 +288,15 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
         logged = OutcomeLog(run / f"eval_{split}" / "outcomes.jsonl").read()
         assert {(o.task, o.split) for o in logged} == {("pick_block", split)} and len(logged) == 2
     # another task set into the same folders is refused before any rollout
-    assert cli_main(["eval", "--run", str(run), "--tasks", "place_food", "--episodes", "2", "--repeats", "1"]) == 2
+    assert cli_main(["eval", "--run", str(run), "--tasks", "place_food", "--episodes", "2", "--repeats", "1",
+                     "--workers", "1"]) == 2
     assert "holds the outcomes of another evaluation" in capsys.readouterr().err
     assert len(OutcomeLog(run / "eval_seen" / "outcomes.jsonl").read()) == 2
+    shutil.rmtree(run / "eval_seen")  # only eval_unseen conflicts now: still nothing runs, on any split
+    assert cli_main(["eval", "--run", str(run), "--tasks", "place_food", "--episodes", "2", "--repeats", "1",
+                     "--workers", "1"]) == 2
+    assert not (run / "eval_seen").exists()
     # the scripts' explicit single-split form writes its tables straight into --out
     assert cli_main(["eval", "--run", str(run), "--split", "seen", "--episodes", "1", "--repeats", "1",
-                     "--out", str(tmp_path / "ev")]) == 0
+                     "--workers", "1", "--out", str(tmp_path / "ev")]) == 0
     assert json.loads((tmp_path / "ev" / "results.json").read_text())[0]["successes"] == 1

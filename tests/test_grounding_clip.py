@@ -134,10 +134,21 @@ def test_missing_weights_explain_how_to_provide_them(tmp_path, monkeypatch):
         load_clip("openai/clip-vit-large-patch14-336", device="cpu")
     message = str(err.value)
     assert "huggingface-cli download openai/clip-vit-large-patch14-336" in message
-    assert "HF_HOME" in message and "local directory" in message
+    assert "HF_HOME" in message and "local directory" in message and "\n" not in message
     with pytest.raises(ClipWeightsNotFoundError, match="config.json"):
         load_clip(str(tmp_path / "no_such_dir"))
     assert issubclass(ClipWeightsNotFoundError, FileNotFoundError)
+
+
+def test_missing_weights_are_one_error_line_of_the_command(tmp_path, capsys):
+    from abm.cli import main
+
+    missing = tmp_path / "no_such_dir"
+    assert main(["ground", "--grounder", "clip", "--clip-model", str(missing), "--resolution", "32",
+                 "--out", str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"abm: error: CLIP weights '{missing}' are not available")
+    assert "abm clip train --out DIR" in err[0] and "huggingface-cli" not in err[0]  # a folder: no hub advice
 
 
 def test_presets_have_the_real_architectures():

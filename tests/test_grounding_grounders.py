@@ -166,6 +166,30 @@ def test_ground_command_writes_pngs(tmp_path):
     assert main(["ground", "--out", str(out), "--instruction", "sing a song"]) == 2
 
 
+def test_ground_command_reports_a_target_the_scene_does_not_hold(tmp_path, capsys):
+    """Not a silent "0 points masked": a warning naming the scene's objects, NOT FOUND on the images, and
+    with --strict a non-zero exit (the images are still written)."""
+    from PIL import Image
+
+    from abm.cli import main
+
+    out = tmp_path / "g"
+    args = ["ground", "--out", str(out), "--instruction", "put the purple teapot in the plate", "--resolution", "32"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    summary = json.loads((out / "summary.json").read_text())
+    held = summary["scene_objects"]
+    assert not summary["target_in_scene"] and not summary["found"] and held
+    assert f"target 'purple teapot' is not in the scene; the scene holds: {', '.join(held)}" in err
+    for name in ("views.png", "topdown.png", "camera_front.png"):
+        assert Image.open(out / name).getpixel((1, 1)) == (200, 0, 0)  # the red NOT FOUND caption
+    assert main(args + ["--strict"]) == 2
+    assert "abm: error: target 'purple teapot' is not in the scene" in capsys.readouterr().err
+    assert main(["ground", "--out", str(tmp_path / "ok"), "--resolution", "32", "--strict",
+                 "--instruction", f"put the {held[0]} in the plate"]) == 0
+    assert Image.open(tmp_path / "ok" / "views.png").getpixel((1, 1)) != (200, 0, 0)
+
+
 def test_ground_command_bad_inputs_are_one_line_errors(tmp_path, capsys):
     import torch
 

@@ -1,5 +1,5 @@
 """Imports flow one way: types (and the small helpers machine, workers, configuration, files,
-schema, lazy) -> geometry
+schema, lazy, progress, ray_pool) -> geometry
 -> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot -> commands (quickstart, zoo,
 cli, every ``*.commands`` module).
 
@@ -16,7 +16,7 @@ import abm
 
 ROOT = Path(abm.__file__).parent
 LAYERS = [
-    ("types", "machine", "workers", "configuration", "files", "schema", "lazy", "ray_pool"),
+    ("types", "machine", "workers", "configuration", "files", "schema", "lazy", "progress", "ray_pool"),
     ("geometry",),
     ("render", "grounding", "sim"),
     ("samples",),

@@ -30,9 +30,12 @@ def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys, monke
     assert sorted((o["method"], o["split"]) for o in outcomes) == [
         ("abm", "seen"), ("abm", "unseen"), ("rvt", "seen"), ("rvt", "unseen")]
     assert all(o["error"] == "" for o in outcomes), [o["error"] for o in outcomes]
+    assert all(o["target"] and o["target"] in o["instruction"] for o in outcomes)  # traceable to an object
     table = (report / "results.md").read_text()
     assert "**seen**" in table and "**unseen**" in table and "| abm |" in table and "| rvt |" in table
-    assert "| method | pick_block | avg |" in out.out
+    readme = (report / "README.md").read_text()  # the combined seen / unseen table with successes / episodes
+    assert "| method | pick_block seen | pick_block unseen | seen avg | unseen avg | unseen / seen |" in readme
+    assert "| method | pick_block seen | pick_block unseen | seen avg | unseen avg | unseen / seen |" in out.out
     # re-running resumes: nothing is generated, trained or evaluated again
     run_quickstart(cfg)
     assert sum(len(log.read_text().splitlines()) for log in logs) == 4

@@ -24,7 +24,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import CPU_CLIP_MODEL, GPU_CLIP_MODEL, MAX_KEYFRAMES, WORKERS
+from abm.configuration import CAMERA_RESOLUTION, CPU_CLIP_MODEL, GPU_CLIP_MODEL, MAX_KEYFRAMES, WORKERS
 from abm.workers import die_with_parent
 
 #: The quickstart's training recipe (``configs/quickstart.yaml``; also ``abm train --config quickstart``): steps,
@@ -85,7 +85,7 @@ class QuickstartConfig:
     eval_episodes: int = 10
     max_steps: int = MAX_KEYFRAMES
     workers: int = WORKERS
-    resolution: int = field(default=128, metadata={"flag": "--camera-resolution"})
+    resolution: int = field(default=CAMERA_RESOLUTION, metadata={"flag": "--camera-resolution"})
     device: str = "cpu"
     clip_model: str | None = None
     offline: bool = False
@@ -162,7 +162,7 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     import torch
 
     from abm.data.generate import generate
-    from abm.evaluation.results import markdown_table
+    from abm.evaluation.results import combined_table
     from abm.evaluation.runner import EvalSettings, evaluate, write_tables
     from abm.policy.config import PolicyConfig
     from abm.train.config import TrainConfig
@@ -213,9 +213,9 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
                           repeats=1, workers=cfg.workers, settings=settings, gifs=1)
 
     print(f"[4/4] report -> {report}")
-    table = markdown_table(rates, splits=["seen", "unseen"])
+    table = combined_table(rates)
     write_tables(rates, report)
-    write_report(report, runs, eval_dir, data, cfg, grounder_text)
+    write_report(report, runs, eval_dir, data, cfg, grounder_text, rates)
     print(table)
     print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
     return report
@@ -234,13 +234,14 @@ def _train_with_threads(config, threads: int) -> dict:
 
 
 def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path, cfg: QuickstartConfig,
-                 grounder: str) -> None:
-    """Table, curves, example views and GIFs in one folder with a README that links them."""
+                 grounder: str, rates: list | None = None) -> None:
+    """Table, curves, example views and GIFs in one folder with a README that links them (``rates``: the
+    success rates, for the combined seen / unseen table)."""
     from abm.data.episode_store import EpisodeStore
     from abm.evaluation.html_report import write_html_report
     from abm.evaluation.plots import success_chart
     from abm.evaluation.report import plot_training_curves, views_figure
-    from abm.evaluation.results import OutcomeLog, aggregate
+    from abm.evaluation.results import OutcomeLog, aggregate, combined_table
     from abm.policy import KeyframePolicy
     from abm.samples import collate
 
@@ -271,7 +272,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
         f"`small` preset with {cfg.policy_overrides}, {cfg.steps} steps, batch {cfg.batch}, {cfg.optimizer} "
         f"lr {cfg.lr}; grounder: {grounder}; "
         f"{cfg.eval_episodes} evaluation episodes per task and split (max {cfg.max_steps} keyframes).", "",
-        "## Success rate (%)", "", (report / "results.md").read_text(), "",
+        "## Success rate (%)", "", *([combined_table(rates), "", "Per split:", ""] if rates else []),
+        (report / "results.md").read_text(), "",
         *(["![success rate per task and split; error bars: std over repeats](success.png)", ""]
           if (report / "success.png").is_file() else []),
         "## Training curves", "", "![training curves](training_curves.png)", "",

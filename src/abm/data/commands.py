@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
-    from abm.configuration import WORKERS, clip_model_help
+    from abm.configuration import CAMERA_RESOLUTION, WORKERS, clip_model_help
     from abm.ray_pool import add_backend_arguments
 
     data = subparsers.add_parser("data", help="generate and inspect demonstration episodes")
@@ -23,7 +23,7 @@ def register(subparsers) -> None:
     gen.add_argument("--out", required=True, type=Path, help="output directory")
     gen.add_argument("--workers", type=int, default=WORKERS, help="parallel worker processes")
     gen.add_argument("--seed", type=int, default=0, help="first scene seed")
-    gen.add_argument("--resolution", type=int, default=128, help="camera resolution (pixels, square)")
+    gen.add_argument("--resolution", type=int, default=CAMERA_RESOLUTION, help="camera resolution (pixels, square)")
     gen.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
     gen.add_argument("--dense", action="store_true",
                      help="also record the full trajectory at a fixed control rate (camera frames, joint state, "

@@ -13,6 +13,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass
 from pathlib import Path
 
+from abm.configuration import CAMERA_RESOLUTION
 from abm.workers import die_with_parent
 
 MAX_SEED_FACTOR = 3  # give up after trying this many seeds per requested episode
@@ -154,15 +155,14 @@ def _check_resume_settings(folder: Path, resolution: int, dense_fps: float | Non
 
 
 def generate(task: str, split: str, episodes: int, out: str | Path, workers: int = 1, seed: int = 0,
-             resolution: int = 128, splits_path: str | Path | None = None, progress: bool = True,
+             resolution: int = CAMERA_RESOLUTION, splits_path: str | Path | None = None, progress: bool = True,
              dense_fps: float | None = None, backend: str = "local", ray_address: str | None = None
              ) -> GenerationReport:
     """Make sure ``episodes`` successful demonstrations of ``task``/``split`` exist under ``out``.
 
     ``dense_fps`` also records the full trajectory at that control rate; ``backend`` ``"ray"`` runs the
     workers as Ray actors (:mod:`abm.ray_pool`) on the cluster at ``ray_address`` (or a local Ray)."""
-    from tqdm import tqdm
-
+    from abm.progress import Progress
     from abm.sim.env import make_env
     from abm.sim.tasks import get_task
 
@@ -187,7 +187,7 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     skipped = done
     failed: list[int] = []
     created = 0
-    bar = tqdm(total=episodes, initial=done, desc=f"{task}/{split}", unit="ep", disable=not progress)
+    bar = Progress(episodes, f"generate {task}/{split}", "episodes", initial=done, bar=progress)
     ctx = multiprocessing.get_context("spawn")
     next_seed = s
     args = (str(out), int(resolution), str(splits_path) if splits_path else None, dense_fps)

@@ -309,7 +309,7 @@ class KeyframeDataset(Dataset):
     def precompute(self, show_progress: bool = True) -> int:
         """Compute (in this process) and cache the missing grounding results and CLIP point features;
         returns how many keyframes were computed."""
-        from tqdm import tqdm
+        from abm.progress import Progress
 
         todo = self.missing_cache_entries()
         if not todo:
@@ -317,7 +317,8 @@ class KeyframeDataset(Dataset):
         assert self.cache_dir is not None
         self.cache_dir.mkdir(parents=True, exist_ok=True)
         grounder = make_grounder_from_spec(self.grounder_spec)
-        for j, k in tqdm(todo, desc="grounding keyframes", disable=not show_progress):
+        bar = Progress(len(todo), "grounding keyframes", "keyframes", bar=show_progress)
+        for j, k in todo:
             obs, _ = self.source.load_step(j, k)
             scene = self._scene(j, obs, grounder, self.mask, self.features)
             arrays: dict[str, np.ndarray] = {}
@@ -330,6 +331,8 @@ class KeyframeDataset(Dataset):
             tmp = path.with_name(path.name + f".tmp{os.getpid()}.npz")
             np.savez(tmp, **arrays)
             os.replace(tmp, path)
+            bar.update(1)
+        bar.close()
         return len(todo)
 
     # ------------------------------------------------------------------ samples

@@ -108,8 +108,8 @@ def run(args: argparse.Namespace) -> int:
 
     from abm.cli import CommandError
     from abm.configuration import config_from_args
-    from abm.evaluation.results import combined_table, markdown_table, write_json
-    from abm.evaluation.runner import EvalSettings, evaluate
+    from abm.evaluation.results import OutcomeLog, combined_table, markdown_table, write_json
+    from abm.evaluation.runner import EvalJob, EvalSettings, check_same_evaluation, evaluate
     from abm.ray_pool import RayBackendError
 
     for r in args.run:
@@ -131,6 +131,10 @@ def run(args: argparse.Namespace) -> int:
     logging.getLogger("abm").info("abm eval: %d rollouts (%d run(s) x %s x %d episodes x %d repeats)", rollouts,
                                   len(args.run), " + ".join(f"{len(t)} {s} task(s)" for s, t in plan.items()),
                                   args.episodes, args.repeats)
+    for split, tasks in plan.items():  # a folder of another protocol is refused before any split rolls out
+        check_same_evaluation(OutcomeLog(outs[split] / "outcomes.jsonl").read(),
+                              [EvalJob("", "", t, split, 0, 0, 0, settings=settings.signature()) for t in tasks],
+                              outs[split], record=False)
     rates = []
     for split, tasks in plan.items():
         try:

@@ -36,6 +36,14 @@ def views_name(outcome: EpisodeOutcome) -> str:
     return gif_name(outcome).removesuffix(".gif") + "_views.png"
 
 
+def _said(outcome: EpisodeOutcome) -> str:
+    """The caption's instruction and target line (empty for outcomes recorded without them)."""
+    if not outcome.instruction:
+        return ""
+    target = f" (target: {html.escape(outcome.target)})" if outcome.target else ""
+    return f"<br><i>{html.escape(outcome.instruction)}</i>{target}"
+
+
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
@@ -85,6 +93,18 @@ def write_html_report(outcomes: Sequence[EpisodeOutcome], path: str | Path, gif_
             for (m, t, s), c in sorted(counts.items())]
     parts.append(_table(["method", "task", "split", *used], rows) if rows else "<p>No failed episodes.</p>")
 
+    by_target: dict[tuple[str, str, str, str], list[EpisodeOutcome]] = defaultdict(list)
+    for o in outcomes:
+        if o.target:
+            by_target[(o.method, o.task, o.split, o.target)].append(o)
+    if by_target:
+        parts.append("<h2>Success per target object</h2><p>Which objects the failures come from (the "
+                     "instruction's target, from outcomes.jsonl).</p>")
+        rows = [[html.escape(m), html.escape(t), html.escape(s), html.escape(target),
+                 f"{sum(o.success for o in items)}/{len(items)}"]
+                for (m, t, s, target), items in sorted(by_target.items())]
+        parts.append(_table(["method", "task", "split", "target", "successes / episodes"], rows))
+
     if gif_dir is not None:
         gif_dir = Path(gif_dir)
         parts.append("<h2>Rollouts</h2><p>Front camera; each frame shows the keyframe predicted from it. Below "
@@ -109,7 +129,7 @@ def write_html_report(outcomes: Sequence[EpisodeOutcome], path: str | Path, gif_
                                    "alt='virtual views with mask and heatmaps'></a>")
                     figs.append(f"<figure><img src='{html.escape(src)}' width='192'>{overlay}"
                                 f"<figcaption class='{css}'>{html.escape(o.method)} · episode {o.episode} · "
-                                f"{html.escape(note)}</figcaption></figure>")
+                                f"{html.escape(note)}{_said(o)}</figcaption></figure>")
                 parts.append(f"<div><h4>{label}</h4>{''.join(figs) or '<p>none</p>'}</div>")
             parts.append("</div>")
     parts.append("</body></html>")

@@ -46,6 +46,8 @@ class EpisodeOutcome:
         failure: why a failed rollout failed (:func:`failure_reason`; ``""`` on success or in older logs).
         subgoals: whether each sub-goal was reached, for two-target instructions (``[grasped X, X placed in
             Y]``, :func:`subgoal_results`); empty for one-target instructions and in older logs.
+        instruction: the episode's instruction; ``target``: the object(s) it names, comma-separated (``""`` in
+            older logs, or when the scene could not be built).
     """
 
     method: str
@@ -62,6 +64,8 @@ class EpisodeOutcome:
     settings: str = ""
     failure: str = ""
     subgoals: list[bool] = field(default_factory=list)
+    instruction: str = ""
+    target: str = ""
 
     @property
     def key(self) -> tuple[str, str, str, int, int, str, str]:

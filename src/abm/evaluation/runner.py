@@ -20,7 +20,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import MAX_KEYFRAMES
+from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
 from abm.evaluation.results import (
     EpisodeOutcome,
     OutcomeLog,
@@ -73,7 +73,7 @@ class EvalSettings:
 
     device: str = "cpu"
     grounder: str | None = field(default=None, metadata={"choices": ["clip", "oracle", "tracking"]})
-    resolution: int = 128
+    resolution: int = CAMERA_RESOLUTION
     max_steps: int = MAX_KEYFRAMES
     splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
     clip_model: str | None = None
@@ -112,10 +112,12 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
 
     start = time.perf_counter()
     steps = 0
+    instruction = target = ""
     try:
         policy = _load_policy(job.checkpoint or job.run, settings)
         with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
                       splits_path=settings.splits_path) as env:
+            instruction, target = env.instruction, ", ".join(env.target_names)
             policy.reset()
             explained: list[Any] = []
 
@@ -127,22 +129,24 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
 
             episode = run_policy(env, act)
             steps = len(episode.steps)
+            meta = episode.metadata
+            held = bool(meta.get("held_target"))
+            failure = failure_reason(bool(episode.success), "", meta.get("motions", []), held)
             if job.gif_path:
-                save_rollout_gif(episode, job.gif_path)
+                save_rollout_gif(episode, job.gif_path, result="success" if episode.success else failure)
                 save_views_figure(explained, views_path(job.gif_path))
-        meta = episode.metadata
-        held = bool(meta.get("held_target"))
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
                               bool(episode.success), steps, time.perf_counter() - start,
-                              checkpoint=job.checkpoint, settings=job.settings,
-                              failure=failure_reason(bool(episode.success), "", meta.get("motions", []), held),
-                              subgoals=subgoal_results(_roles(episode), held, bool(episode.success)))
+                              checkpoint=job.checkpoint, settings=job.settings, failure=failure,
+                              subgoals=subgoal_results(_roles(episode), held, bool(episode.success)),
+                              instruction=instruction, target=target)
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
         text = f"{type(err).__name__}: {err}"
         tb = traceback.format_exc(limit=3).strip().splitlines()
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, False,
                               steps, time.perf_counter() - start, error=f"{text} | {tb[-3] if len(tb) > 2 else ''}",
-                              checkpoint=job.checkpoint, settings=job.settings, failure="crashed")
+                              checkpoint=job.checkpoint, settings=job.settings, failure="crashed",
+                              instruction=instruction, target=target)
 
 
 def _worker_init() -> None:
@@ -223,7 +227,7 @@ def evaluate(
         success rates of every (method, task) on ``split``, from the outcomes of exactly the planned
         rollouts (same checkpoints, same settings); older lines of the log are kept but not reported.
     """
-    from tqdm import tqdm
+    from abm.progress import Progress
 
     settings = settings or EvalSettings()
     out = Path(out_dir)
@@ -235,7 +239,7 @@ def evaluate(
             for j in plan_jobs(runs, tasks, split, episodes, repeats, out, gifs, labels)]
     check_same_evaluation(log.read(), plan, out)
     jobs = [j for j in plan if j.key not in done]
-    bar = tqdm(total=len(jobs), desc=f"eval {split}", unit="ep", disable=not progress)
+    bar = Progress(len(jobs), f"eval {split}", "episodes", bar=progress)
     successes = 0
     if backend not in ("local", "ray"):
         raise ValueError(f"unknown backend {backend!r}; choose local or ray")
@@ -244,8 +248,7 @@ def evaluate(
             outcome = runner(job, settings)
             log.append(outcome)
             successes += outcome.success
-            bar.update(1)
-            bar.set_postfix(success=f"{successes}/{bar.n}")
+            bar.update(1, success=f"{successes}/{bar.n + 1}")
     else:
         with _pool(backend, workers, ray_address) as pool:
             futures = [pool.submit(runner, job, settings) for job in jobs]
@@ -253,8 +256,7 @@ def evaluate(
                 outcome = fut.result()
                 log.append(outcome)
                 successes += outcome.success
-                bar.update(1)
-                bar.set_postfix(success=f"{successes}/{bar.n}")
+                bar.update(1, success=f"{successes}/{bar.n + 1}")
     bar.close()
     planned = {j.key for j in plan}
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
@@ -265,10 +267,11 @@ def evaluate(
 PROTOCOL_FILE = "evaluation.json"
 
 
-def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[EvalJob], out: Path) -> None:
+def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[EvalJob], out: Path,
+                          record: bool = True) -> None:
     """Refuse (``ValueError``) to add rollouts to a folder whose outcomes were made with other evaluation
     settings or on other tasks / splits, so a table never mixes two protocols and an accidental call does not
-    append to a finished evaluation; then record this protocol in ``out/evaluation.json``. More episodes,
+    append to a finished evaluation; then (``record``) note this protocol in ``out/evaluation.json``. More episodes,
     repeats or runs, and newer checkpoints, are allowed (and resume works as before).
 
     Folders written before ``evaluation.json`` existed are checked against their outcomes instead: other
@@ -287,7 +290,8 @@ def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[Eva
     if problems:
         raise ValueError(f"{out} holds the outcomes of another evaluation ({'; '.join(problems)}): evaluate into "
                          f"a new --out folder, or delete {out / 'outcomes.jsonl'} and {path.name} to start over")
-    path.write_text(json.dumps(wanted, indent=2) + "\n")
+    if record:
+        path.write_text(json.dumps(wanted, indent=2) + "\n")
 
 
 def write_training_figure(runs: dict[str, str], path: Path) -> Path | None:
@@ -351,14 +355,16 @@ def write_tables(rates: Sequence[SuccessRate], out_dir: Path) -> None:
     (out_dir / "results.md").write_text(markdown_table(rates, splits=["seen", "unseen", "compositional"]) + "\n")
 
 
-def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seconds_per_frame: float = 0.6) -> None:
-    """Write a GIF of one camera over the rollout, each frame marked with the keyframe predicted from it."""
+def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seconds_per_frame: float = 0.6,
+                     result: str = "") -> None:
+    """Write a GIF of one camera over the rollout, each frame marked with the keyframe predicted from it and
+    captioned with the instruction, the step (``step 2/5``) and, on the last frame, ``result``."""
     from PIL import Image, ImageDraw
 
     from abm.geometry import project_to_camera
 
     frames = []
-    for obs, action in episode.steps:
+    for k, (obs, action) in enumerate(episode.steps):
         frame = obs.camera(camera)
         img = Image.fromarray(frame.rgb).resize((frame.width * 2, frame.height * 2), Image.NEAREST)
         u, v, z = project_to_camera(action.position[None], frame.intrinsics, frame.extrinsics)[0]
@@ -367,11 +373,31 @@ def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seco
             cx, cy = 2 * u + 1, 2 * v + 1
             color = (0, 255, 0) if action.gripper_open else (255, 0, 255)
             draw.ellipse([cx - 5, cy - 5, cx + 5, cy + 5], outline=color, width=2)
-        frames.append(img)
+        last = k == len(episode.steps) - 1
+        frames.append(_caption(img, episode.instruction, f"step {k + 1}/{len(episode.steps)}",
+                               result if last else ""))
     if frames:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(seconds_per_frame * 1000),
                        loop=0)
+
+
+def _caption(img: Any, instruction: str, step: str, result: str) -> Any:
+    """``img`` (PIL) above a black strip: the instruction (wrapped to the width), the step and the result
+    (one line each, the same height on every frame so the GIF's frames match)."""
+    import textwrap
+
+    from PIL import Image, ImageDraw
+
+    chars = max(8, img.width // 6)  # PIL's default font is ~6 px per character
+    lines = [*(textwrap.wrap(instruction, chars) or [""]), step, result]
+    out = Image.new("RGB", (img.width, img.height + 12 * len(lines) + 4), (0, 0, 0))
+    out.paste(img, (0, 0))
+    draw = ImageDraw.Draw(out)
+    for i, line in enumerate(lines):
+        draw.text((3, img.height + 2 + 12 * i), line if len(line) <= chars else line[:chars - 3] + "...",
+                  fill=(255, 255, 255))
+    return out
 
 
 def _roles(episode: Any) -> int:

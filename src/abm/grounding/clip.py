@@ -67,18 +67,16 @@ class ClipWeightsNotFoundError(FileNotFoundError):
 
 
 def _missing_weights_message(name: str, reason: str) -> str:
-    return (
-        f"CLIP weights {name!r} are not available on this machine ({reason}).\n"
-        "Provide them in one of these ways:\n"
-        f"  1. on a machine with internet: `huggingface-cli download {name}` (or `hf download {name}`),\n"
-        "     copy its Hugging Face cache folder here and point HF_HOME at it (the default cache is\n"
-        "     ~/.cache/huggingface); the weights are then found offline;\n"
-        f"  2. or save a local directory there with `CLIPModel.from_pretrained({name!r}).save_pretrained(DIR)`\n"
-        "     plus the same for `CLIPTokenizer`, copy DIR here and pass it as the model\n"
-        "     (`abm ground --clip-model DIR`, `make_grounder('clip', model=DIR)`);\n"
-        "  3. or, on a connected machine, allow the download (`allow_download=True`, `--allow-download`).\n"
-        "In simulation, the oracle grounder (`--grounder oracle`) needs no weights."
-    )
+    """One line (the ``abm: error:`` line of every command): what is missing and how to provide it."""
+    if _is_local_path(name):
+        fix = ("give a folder written by `abm clip train --out DIR` or by CLIPModel/CLIPTokenizer.save_pretrained, "
+               "or a hub name such as openai/clip-vit-base-patch16")
+    else:
+        fix = (f"fetch them once on a connected machine with `huggingface-cli download {name}` and point HF_HOME "
+               "at that cache, or allow the download (--allow-download / allow_download=True), or pass a local "
+               "directory saved with save_pretrained or trained with `abm clip train --out DIR`")
+    return (f"CLIP weights {name!r} are not available on this machine ({reason}): {fix}; in simulation "
+            "--grounder oracle needs no weights (docs/grounding.md)")
 
 
 def _is_local_path(name: str) -> bool:

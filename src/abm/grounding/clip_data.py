@@ -495,7 +495,7 @@ def build_dataset(folder: str | Path, shards: int, config: RenderConfig | None =
     ``folder/dataset.json`` records the configuration, class list and seed; a folder rendered with other
     settings is refused rather than mixed. Returns ``folder``.
     """
-    from tqdm import tqdm
+    from abm.progress import Progress
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -514,8 +514,7 @@ def build_dataset(folder: str | Path, shards: int, config: RenderConfig | None =
     if not todo:
         return folder
     start = time.perf_counter()
-    bar = tqdm(total=shards, initial=shards - len(todo), desc=f"render {folder.name}", unit="shard",
-               disable=not progress)
+    bar = Progress(shards, f"render {folder.name}", "shards", initial=shards - len(todo), bar=progress)
     jobs = [(str(folder), s, int(base_seed), config.to_json(), classes) for s in todo]
     if workers <= 1:
         for job in jobs:

@@ -364,7 +364,7 @@ def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None,
     Raises:
         FileExistsError: ``out`` holds a checkpoint and ``resume`` is False.
     """
-    from tqdm import tqdm
+    from abm.progress import Progress
 
     config = config or TrainConfig()
     out = Path(out)
@@ -405,7 +405,7 @@ def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None,
                     "torch_rng": torch.get_rng_state(), "mean": mean, "std": std, "config": asdict(config)}, tmp)
         tmp.replace(ckpt_path)
 
-    bar = tqdm(total=config.steps, initial=step, desc="clip train", unit="step", disable=not progress)
+    bar = Progress(config.steps, "clip train", "steps", initial=step, bar=progress)
     running: dict[str, float] = {}
     window_start, window_images = time.perf_counter(), 0
     try:
@@ -440,8 +440,8 @@ def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None,
                 writer.writerow([row[k] for k in ("step", "loss", "contrastive", "dense", "lr", "logit_scale",
                                                   "elapsed_s", "images_per_s")])
                 csv_file.flush()
-                bar.set_postfix(loss=f"{avg['loss']:.3f}", con=f"{avg['contrastive']:.3f}",
-                                dense=f"{avg['dense']:.3f}", ips=f"{speed:.1f}")
+                bar.postfix.update(loss=f"{avg['loss']:.3f}", con=f"{avg['contrastive']:.3f}",
+                                   dense=f"{avg['dense']:.3f}", ips=f"{speed:.1f}")
                 running, window_start, window_images = {}, time.perf_counter(), 0
             if step % config.checkpoint_every == 0 or last:
                 checkpoint()

@@ -7,13 +7,17 @@ sample scene (default). Writes to ``--out``:
 * ``topdown.png`` — the mask field seen from above (RGB, heatmap, mask) over the workspace;
 * ``views.png`` / ``view_<name>.png`` — the five virtual views with the center pixel marked, above the
   re-rendered binary mask;
-* ``summary.json`` — instruction, target, skill, prompt, point counts, mask centre.
+* ``summary.json`` — instruction, target, skill, prompt, point counts, mask centre, the scene's objects.
+
+A target that is not in the scene (or that the grounder does not find) is a warning naming the objects the
+scene holds, a red "NOT FOUND" caption on the images, and, with ``--strict``, a non-zero exit.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -46,6 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--resolution", type=int, default=220, help="virtual view side in pixels")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     p.add_argument("--out", type=Path, default=Path("out/ground"), help="output folder (default out/ground)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit non-zero (after writing the images) when the target is not found in the scene")
     p.set_defaults(func=run)
     from abm.grounding import clip_commands
 
@@ -151,6 +157,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--clip-model, --normalization and --threshold apply to --grounder clip only")
     grounder = make_grounder(args.grounder, **options)
     field = grounder.ground(obs, cloud, target, names)
+    scene_objects = sorted(set(names.values()))
+    missing = not field.found or not field.mask.any()
+    notice = f"target {target!r} NOT FOUND" if missing else ""
 
     renderer = OrthographicRenderer(workspace, args.resolution, splat_radius=1, device=args.device)
     views = renderer.render(torch.from_numpy(cloud.xyz), torch.from_numpy(cloud.rgb))
@@ -158,8 +167,8 @@ def run(args: argparse.Namespace) -> int:
 
     args.out.mkdir(parents=True, exist_ok=True)
     for name, panel in _camera_panels(obs, cloud, field).items():
-        Image.fromarray(panel).save(args.out / f"camera_{name}.png")
-    Image.fromarray(_topdown(cloud, field, workspace)).save(args.out / "topdown.png")
+        Image.fromarray(_flag(panel, notice)).save(args.out / f"camera_{name}.png")
+    Image.fromarray(_flag(_topdown(cloud, field, workspace), notice)).save(args.out / "topdown.png")
     tiles = []
     for vi, view in enumerate(renderer.views):
         rgb = upscale(to_uint8(views.rgb[0, vi].permute(1, 2, 0).cpu().numpy()), 2)
@@ -167,9 +176,9 @@ def run(args: argparse.Namespace) -> int:
         rgb = mark_pixels(rgb, [(2 * r + 1, 2 * c + 1) for r, c in zip(rows, cols, strict=True)], radius=7)
         full = upscale(gray(mviews.full[vi].cpu().numpy()), 2)
         tile = vstack([label(rgb, f"{view} (center pixel marked)"), label(full, "re-rendered mask")])
-        Image.fromarray(tile).save(args.out / f"view_{view}.png")
+        Image.fromarray(_flag(tile, notice)).save(args.out / f"view_{view}.png")
         tiles.append(tile)
-    Image.fromarray(hstack(tiles)).save(args.out / "views.png")
+    Image.fromarray(_flag(hstack(tiles), notice)).save(args.out / "views.png")
 
     center = field.center(cloud.xyz)
     summary = {
@@ -177,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
         "grounder": args.grounder, "prompt": field.prompt, "found": field.found,
         "points": len(cloud), "mask_points": int(field.mask.sum()),
         "mask_center_m": None if center is None else [round(float(c), 4) for c in center],
+        "scene_objects": scene_objects, "target_in_scene": target in scene_objects,
         "center_pixels": {v: [int(x) for x in np.argwhere(mviews.center[i].cpu().numpy()).reshape(-1)]
                           for i, v in enumerate(renderer.views)},
     }
@@ -187,4 +197,24 @@ def run(args: argparse.Namespace) -> int:
     print(f"{where}: {instruction!r} -> target {target!r}, skill {skill!r}")
     print(f"{args.grounder} grounder: {summary['mask_points']} of {len(cloud)} points masked, found={field.found}")
     print(f"wrote camera_*.png, topdown.png, views.png, view_*.png and summary.json to {args.out}/")
+    if missing:
+        absent = ("is not in the scene" if target not in scene_objects
+                  else f"was not found by the {args.grounder} grounder")
+        message = (f"target {target!r} {absent}; the scene holds: {', '.join(scene_objects)} "
+                   "(the images are marked NOT FOUND)")
+        if args.strict:
+            raise CommandError(f"{message}; --strict")
+        logging.getLogger("abm").warning("abm ground: WARNING: %s", message)
     return 0
+
+
+def _flag(image: np.ndarray, notice: str) -> np.ndarray:
+    """``image`` with a red caption strip saying ``notice`` on top (unchanged when there is none)."""
+    if not notice:
+        return image
+    import numpy as np
+    from PIL import Image, ImageDraw
+
+    strip = Image.new("RGB", (image.shape[1], 16), (200, 0, 0))
+    ImageDraw.Draw(strip).text((3, 2), notice, fill=(255, 255, 255))
+    return np.concatenate([np.asarray(strip), image], axis=0)

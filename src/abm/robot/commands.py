@@ -30,6 +30,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--log", type=Path, default=Path("runs/robot_log"), help="log folder (default: runs/robot_log)")
     p.set_defaults(func=run)
 
+    r = subparsers.add_parser(
+        "record", help="record a scripted-expert episode in the simulator as frames abm run can replay",
+        description="Run the scripted expert on one seeded ABM-Bench scene and write its camera frames, gripper "
+        "states, object names and instruction to a recording folder: `cameras: {kind: replay, path: OUT}` in a "
+        "robot YAML plays it back (examples/robot_replay.yaml).")
+    r.add_argument("--task", default="pick_block", help="ABM-Bench task (abm tasks lists them)")
+    r.add_argument("--split", default="seen", choices=["seen", "unseen"], help="object split of the scene")
+    r.add_argument("--seed", type=int, default=0, help="scene seed")
+    r.add_argument("--resolution", type=int, default=64, help="camera image side in pixels")
+    r.add_argument("--out", type=Path, required=True, help="recording folder to write")
+    r.set_defaults(func=run_record)
+
     c = subparsers.add_parser(
         "calibrate", help="hand-eye calibration of a fixed camera from a recording of a gripper-held ChArUco board",
         description="Reads a recording (abm.robot.record_observations) in which the arm showed a ChArUco board "
@@ -67,6 +79,18 @@ def calibrate(args: argparse.Namespace) -> int:
     save_calibration(args.out, cameras)
     print(f"abm calibrate: {args.camera} from {stats['views']} views (reprojection {stats['reprojection_px']:.2f} px)"
           f" -> {args.out}")
+    return 0
+
+
+def run_record(args: argparse.Namespace) -> int:
+    from abm.robot.devices import record_observations
+    from abm.sim.env import TaskEnv, run_expert
+
+    with TaskEnv(args.task, args.split, args.seed, resolution=args.resolution) as env:
+        episode = run_expert(env)
+    record_observations([obs for obs, _ in episode.steps], args.out, episode.object_names, episode.instruction)
+    print(f"abm record: {len(episode.steps)} frames of {episode.instruction!r} -> {args.out} (replay it with "
+          f"cameras: {{kind: replay, path: {args.out}}}, e.g. examples/robot_replay.yaml)")
     return 0
 
 

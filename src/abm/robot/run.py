@@ -167,6 +167,16 @@ def no_target_message(instruction: str, object_names: dict[int, str] | None) -> 
             "scene, or pass --allow-no-target to move on an empty mask anyway")
 
 
+def _target_note(instruction: str) -> str:
+    """`` (target: X)`` for the log line of :func:`run_robot`, or ``""`` when the instruction does not split."""
+    from abm.grounding.instruction import InstructionError, decompose_instruction
+
+    try:
+        return f" (target: {decompose_instruction(instruction)[0]})"
+    except (InstructionError, ValueError):
+        return ""
+
+
 def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path,
               allow_no_target: bool = False) -> list[dict[str, Any]]:
     """Run the loop for ``steps`` keyframes (or until a simulated arm reports success).
@@ -184,6 +194,8 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
     log_dir.mkdir(parents=True, exist_ok=True)
     records: list[dict[str, Any]] = []
     names = getattr(camera, "object_names", None) or None
+    log.info("abm run: %r%s, %d keyframe(s) at most, log in %s", instruction, _target_note(instruction), steps,
+             log_dir)
     policy.reset()
     with (log_dir / "steps.jsonl").open("w") as out:
         for k in range(steps):
@@ -202,7 +214,8 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
                 out.write(json.dumps({"step": k, "status": "refused", "reason": reason}) + "\n")
                 raise NoTargetError(reason)
             action = policy.act(obs, instruction, names)
-            record = {"step": k, "position": action.position.round(4).tolist(),
+            record = {"step": k, **({"instruction": instruction} if k == 0 else {}),
+                      "position": action.position.round(4).tolist(),
                       "quaternion": action.quaternion.round(4).tolist(), "gripper_open": action.gripper_open,
                       "ignore_collision": action.ignore_collision, "timings": policy.last_timings}
             try:

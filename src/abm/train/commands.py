@@ -118,4 +118,9 @@ def run(args: argparse.Namespace) -> int:
     if int(os.environ.get("RANK", "0")) == 0:
         loss = summary["final_loss"].get("total", float("nan"))
         print(f"abm train: {summary['steps']} steps, final loss {loss:.4f}, checkpoint {summary['checkpoint']}")
+        if (Path(cfg.out) / "log.csv").is_file():
+            from abm.evaluation.report import plot_training_curves
+
+            curve = plot_training_curves({cfg.method: cfg.out}, Path(cfg.out) / "training_curve.png")
+            print(f"abm train: training curve {curve}")
     return 0

@@ -24,6 +24,8 @@ class TrainConfig:
         data: episode store folder (from ``abm data generate``; ``None`` when episodes are passed in memory).
         tasks: tasks to train on (default: all in the store).
         splits: episode splits to use.
+        val_data: episode store of held-out demonstrations (same tasks, other scenes): their loss (no
+            augmentation) is logged at every checkpoint and at the end (``val_total`` in log.csv).
         steps: total optimiser steps.
         batch: samples per step *per process*.
         lr: peak learning rate (the measured CPU recipe's; the paper used LAMB at 0.003 for batch 30).
@@ -63,6 +65,7 @@ class TrainConfig:
     data: Path | None = None
     tasks: list[str] | None = None
     splits: list[str] | None = field(default_factory=lambda: ["seen"])
+    val_data: Path | None = None
     steps: int = field(default=1000, metadata={"required": True})
     batch: int = 8
     lr: float | None = 1e-3
@@ -93,3 +96,15 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=str))
+
+    def to_recipe(self) -> dict[str, Any]:
+        """These options as a recipe (``abm train --config FILE``): every set option but the run folder's
+        (``out``, ``resume``, ``overwrite``, ``progress``), policy overrides under ``policy``, the CLIP options
+        as ``clip_model`` / ``clip_device``. Every run writes its own to ``RUN/recipe.yaml``."""
+        data = self.to_dict()
+        recipe = {k: v for k, v in data.items() if v is not None and k not in (
+            "out", "resume", "overwrite", "progress", "grounder_options", "policy_overrides")}
+        recipe.update({f"clip_{k}": v for k, v in data["grounder_options"].items() if k in ("model", "device")})
+        if data["policy_overrides"]:
+            recipe["policy"] = data["policy_overrides"]
+        return recipe

@@ -9,9 +9,9 @@
   CPU, nccl on CUDA) and wraps the model in ``DistributedDataParallel``; rank 0 logs and saves.
 * :class:`Trainer` splits a run into build / step / save-restore / fit; :func:`train` runs one.
   Messages go through :mod:`logging` (logger ``abm.train.loop``; the ``abm`` command shows INFO).
-* Outputs in the run folder: ``config.json``, ``log.csv``, ``tb/`` (TensorBoard),
-  ``checkpoints/step_XXXXXXXX.pt`` (every ``checkpoint_every`` steps, at the end, and on Ctrl-C),
-  ``summary.json``.
+* Outputs in the run folder: ``config.json``, ``recipe.yaml`` (``abm train --config``), ``log.csv``,
+  ``tb/`` (TensorBoard), ``checkpoints/step_XXXXXXXX.pt`` (every ``checkpoint_every`` steps, at the end,
+  and on Ctrl-C), ``summary.json``.
 """
 
 from __future__ import annotations
@@ -59,8 +59,9 @@ from abm.types import Episode
 
 log = logging.getLogger(__name__)
 
-LOG_FIELDS = ("step", "lr", "total", "translation", "rotation", "gripper", "collision", "samples_per_s",
-              "elapsed_s")
+LOG_FIELDS = ("step", "lr", "total", "translation", "rotation", "gripper", "collision", "val_total",
+              "samples_per_s", "elapsed_s")
+VAL_SAMPLES = 64  # held-out keyframes per validation loss (the first ones, the same every time)
 
 
 @dataclass
@@ -163,17 +164,19 @@ def language_spec(cfg: TrainConfig, lang_dim: int) -> dict[str, Any]:
     raise ValueError(f"unknown language encoder {kind!r}; use 'hash' or 'clip'")
 
 
-def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None) -> EpisodeSource:
+def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None, data: Path | None = None,
+                    splits: list[str] | None = None) -> EpisodeSource:
     if episodes is not None:
         return EpisodeSource(list(episodes))
-    if cfg.data is None:
+    data, splits = (data, splits) if data is not None else (cfg.data, cfg.splits)
+    if data is None:
         raise ValueError("no training data: give --data DIR (an episode store) or --synthetic N")
     from abm.data.episode_store import EpisodeStore  # owned by the data package
 
-    store = EpisodeStore(cfg.data)
-    indices = store.select(tasks=cfg.tasks, splits=cfg.splits)
+    store = EpisodeStore(data)
+    indices = store.select(tasks=cfg.tasks, splits=splits)
     if not indices:
-        raise ValueError(f"no episodes in {cfg.data} for tasks {cfg.tasks} and splits {cfg.splits}")
+        raise ValueError(f"no episodes in {data} for tasks {cfg.tasks} and splits {splits}")
     store.check_consistent(indices)
     return EpisodeSource(store, indices)
 
@@ -213,6 +216,8 @@ class _Logger:
                 self.tb.add_scalar(f"loss/{k}", row[k], step)
             self.tb.add_scalar("lr", row["lr"], step)
             self.tb.add_scalar("samples_per_s", row["samples_per_s"], step)
+            if row.get("val_total", "") != "":
+                self.tb.add_scalar("loss/val_total", row["val_total"], step)
 
     def close(self) -> None:
         if self.tb is not None:
@@ -300,8 +305,13 @@ class Trainer:
             self.policy.compile_network()
         source = _episode_source(cfg, self.episodes)
         check_inside_workspace(source, self.policy.workspace)  # every rank, before anything is written
+        val_source = _episode_source(cfg, None, Path(cfg.val_data)) if cfg.val_data is not None else None
+        if val_source is not None:
+            check_inside_workspace(val_source, self.policy.workspace)
         _claim_run_folder(self.run, cfg, dinfo)  # options are valid: now the folder may be written
         self.dataset = self._dataset(source)
+        self.val_dataset = self._dataset(val_source, augment=False) if val_source is not None else None
+        self.episodes_used = len(source.indices)
 
         world = dinfo.world_size
         self.lr = cfg.lr if cfg.lr is not None else 1e-4 * cfg.batch * world
@@ -321,6 +331,11 @@ class Trainer:
             (self.run / "config.json").write_text(json.dumps(
                 {"train": cfg.to_dict(), "policy": self.policy_config.to_dict(), "language": self.language_spec,
                  "grounder": gspec, "world_size": world, "lr": self.lr, "warmup": self.warmup}, indent=2))
+            import yaml
+
+            (self.run / "recipe.yaml").write_text(  # the run's options as a file: abm train --config RUN/recipe.yaml
+                "# written by abm train: retrain with  abm train --config THIS_FILE --out NEW_RUN\n"
+                + yaml.safe_dump(cfg.to_recipe(), sort_keys=False))
         sampler = StepSampler(len(self.dataset), cfg.batch, cfg.steps, self.start, world, dinfo.rank, cfg.seed)
         self.loader = torch.utils.data.DataLoader(
             self.dataset, batch_size=cfg.batch, sampler=sampler, num_workers=cfg.workers, collate_fn=collate,
@@ -341,19 +356,20 @@ class Trainer:
                              f"with --steps {ckpt['step']} or more")
         return ckpt
 
-    def _dataset(self, source: EpisodeSource) -> KeyframeDataset:
+    def _dataset(self, source: EpisodeSource, augment: bool | None = None) -> KeyframeDataset:
         cfg, dinfo = self.cfg, self.dinfo
+        augment = cfg.augment if augment is None else augment
         cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else self.run / "cache"
         opts = self.policy.sample_options()
         if dinfo.main and ((opts["mask"] and self.grounder_spec["kind"] != "oracle") or opts["features"]):
             # the explicit grounding step (what `abm data ground` does ahead of time); resumable
             made = ground_keyframes(source, self.policy.workspace, self.grounder_spec, cache, mask=opts["mask"],
-                                    features=opts["features"], augment=cfg.augment, camera_names=cfg.camera_names,
+                                    features=opts["features"], augment=augment, camera_names=cfg.camera_names,
                                     show_progress=cfg.progress)
             log.info("abm train: grounded %d keyframes with %s into %s", made, self.grounder_spec["kind"], cache)
         if dinfo.enabled:
             dist.barrier()  # rank 0 has filled the grounding cache
-        return KeyframeDataset(source, self.policy.workspace, self.grounder_spec, **opts, augment=cfg.augment,
+        return KeyframeDataset(source, self.policy.workspace, self.grounder_spec, **opts, augment=augment,
                                cache_dir=cache, seed=cfg.seed, camera_names=cfg.camera_names)
 
     # ------------------------------------------------------------------ checkpoints
@@ -402,9 +418,42 @@ class Trainer:
             vals /= self.dinfo.world_size
         return dict(zip(LOSS_TERMS, vals.tolist(), strict=True))
 
+    def validation_loss(self) -> float | None:
+        """Mean total loss on the first :data:`VAL_SAMPLES` held-out keyframes (``--val-data``), or ``None``."""
+        if self.val_dataset is None or len(self.val_dataset) == 0:
+            return None
+        indices = list(range(min(VAL_SAMPLES, len(self.val_dataset))))
+        total, count = 0.0, 0
+        self.policy.eval()
+        try:
+            with torch.no_grad():
+                for i in range(0, len(indices), self.cfg.batch):
+                    chunk = indices[i:i + self.cfg.batch]
+                    loss, _ = self.policy(collate([self.val_dataset[j] for j in chunk]))
+                    total += float(loss) * len(chunk)
+                    count += len(chunk)
+        finally:
+            self.train_policy.train()
+        return total / count
+
+    def startup_summary(self) -> str:
+        """What is trained on what, where: the first lines of a training log."""
+        cfg = self.cfg
+        keyframes = len(self.dataset)
+        val = (f"; validation: {len(self.val_dataset)} held-out keyframes from {cfg.val_data}"
+               if self.val_dataset is not None else "")
+        return (f"abm train: {cfg.method} ({self.policy_config.preset}, {self.policy.model.num_parameters():,} "
+                f"parameters, {self.policy_config.resolution}² views) on {self.episodes_used} episodes / {keyframes} "
+                f"keyframes{f' of {cfg.data}' if cfg.data else ''}{val}\n"
+                f"abm train: {cfg.steps} steps of batch {cfg.batch} x {self.dinfo.world_size} process(es), "
+                f"{cfg.optimizer} lr {self.lr:g}, warm-up {self.warmup}"
+                f"{' (not shorter than the run: the lr never reaches its peak)' if self.warmup >= cfg.steps else ''}"
+                f", device {self.device}, grounder "
+                f"{self.grounder_spec['kind']}, from step {self.start}; run folder {self.run}")
+
     def fit(self, on_step: Callable[[int, dict[str, float]], None] | None = None) -> dict[str, Any]:
         """Train from the current step to ``cfg.steps``; returns the run summary (also ``summary.json``)."""
-        from tqdm import tqdm
+        from abm.progress import Progress
 
         cfg, dinfo = self.cfg, self.dinfo
         world = dinfo.world_size
@@ -412,21 +461,28 @@ class Trainer:
         step, last = self.start, {}
         self._t0 = time.perf_counter()
         tick, tick_step = self._t0, step
-        bar = tqdm(total=cfg.steps, initial=step, desc=f"train {cfg.method}/{cfg.preset}",
-                   disable=not (dinfo.main and cfg.progress), dynamic_ncols=True)
+        if dinfo.main:
+            log.info(self.startup_summary())
+        bar = Progress(cfg.steps, f"train {cfg.method}/{cfg.preset}", "steps", initial=step, bar=cfg.progress,
+                       enabled=dinfo.main)
         try:
             self.train_policy.train()
             for batch in self.loader:
                 last = self.step(batch)
                 step += 1
-                bar.update(1)
-                bar.set_postfix(loss=f"{last['total']:.3f}")
-                if step % cfg.log_every == 0 or step == cfg.steps:
+                checkpoint = step % cfg.checkpoint_every == 0 or step == cfg.steps
+                val = self.validation_loss() if checkpoint and dinfo.main else None
+                if val is not None:
+                    bar.postfix["val"] = round(val, 4)
+                    bar.write(f"train {cfg.method}/{cfg.preset}: step {step}, loss {last['total']:.4f}, "
+                              f"validation loss {val:.4f}")
+                bar.update(1, loss=round(last["total"], 4))
+                if step % cfg.log_every == 0 or step == cfg.steps or val is not None:
                     now = time.perf_counter()
                     sps = (step - tick_step) * cfg.batch * world / max(now - tick, 1e-9)
                     tick, tick_step = now, step
                     logger.log({"step": step, "lr": self.scheduler.get_last_lr()[0], **last, "samples_per_s": sps,
-                                "elapsed_s": self.elapsed_s()})
+                                "elapsed_s": self.elapsed_s(), "val_total": "" if val is None else val})
                 if on_step is not None:
                     on_step(step, last)
                 if step % cfg.checkpoint_every == 0 and step != cfg.steps:

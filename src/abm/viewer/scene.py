@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from abm.configuration import MAX_KEYFRAMES
+from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
 from abm.geometry import Workspace
 from abm.grounding.conditioning import condition_scene, make_grounder_from_spec, split_instruction
 from abm.grounding.visualize import overlay_views
@@ -185,8 +185,8 @@ def scene_from_episode(
     return scene
 
 
-def rollout_scene(policy: Any, task: str, split: str = "seen", seed: int = 1_000_000, resolution: int = 128,
-                  max_steps: int = MAX_KEYFRAMES) -> ViewerScene:
+def rollout_scene(policy: Any, task: str, split: str = "seen", seed: int = 1_000_000,
+                  resolution: int = CAMERA_RESOLUTION, max_steps: int = MAX_KEYFRAMES) -> ViewerScene:
     """Roll ``policy`` out on one seeded ABM-Bench scene (as ``abm eval`` does) and keep every step's view.
 
     ``seed`` is the scene seed (``abm eval`` writes it into its outcome log); the scene, the instruction
