@@ -34,6 +34,7 @@ never leaves a complete-looking partial file. Any unreadable, incomplete or wron
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import zlib
@@ -44,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from abm.files import write_error
 from abm.types import CameraFrame, Episode, KeyframeAction, Observation
 
 FORMAT_VERSION: int = 2
@@ -87,15 +89,19 @@ def save_episode(episode: Episode, path: str | os.PathLike) -> None:
     import h5py
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise write_error(path, err) from None
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     steps = episode.steps
     camera_names = list(steps[0][0].cameras) if steps else []
     for k, (obs, _) in enumerate(steps):
         if list(obs.cameras) != camera_names:
             raise ValueError(f"keyframe {k} has cameras {list(obs.cameras)}, expected {camera_names}")
+    buffer = io.BytesIO()  # built in memory, then written in one go: a full disk fails in Python, cleanly
     try:
-        with h5py.File(tmp, "w") as f:
+        with h5py.File(buffer, "w") as f:
             attrs = f.attrs
             attrs["format_version"] = FORMAT_VERSION
             attrs["task"] = episode.task
@@ -135,7 +141,10 @@ def save_episode(episode: Episode, path: str | os.PathLike) -> None:
             act.create_dataset("kind", data=[a.kind for _, a in steps], dtype=h5py.string_dtype())
             act["symmetry"] = np.array([a.symmetry for _, a in steps], np.int64)
             f.visititems(_store_checksum)
+        tmp.write_bytes(buffer.getbuffer())
         os.replace(tmp, path)
+    except OSError as err:  # a full disk: one clear error, and the temporary file goes (finally)
+        raise write_error(path, err) from None
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -44,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from abm.configuration import config_from_args
     from abm.evaluation.results import markdown_table
     from abm.evaluation.runner import EvalSettings, evaluate
+    from abm.files import FolderLock
     from abm.sim.tasks import TASKS
 
     for r in args.run:
@@ -62,8 +63,9 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise CommandError(f"--out {out} is a file; give a folder")
     settings = config_from_args(EvalSettings, args)
-    rates = evaluate(args.run, tasks, args.split, out, args.episodes, args.repeats, args.workers, settings,
-                     gifs=args.gifs)
+    with FolderLock(out, "abm eval"):  # one writer per results folder
+        rates = evaluate(args.run, tasks, args.split, out, args.episodes, args.repeats, args.workers, settings,
+                         gifs=args.gifs)
     print(markdown_table([r for r in rates if r.split == args.split and r.task in tasks]))
     errors = sum(r.errors for r in rates)
     print(f"results: {out / 'results.md'} (also .json, .csv; per-episode outcomes in outcomes.jsonl)")

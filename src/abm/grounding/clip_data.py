@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from abm.files import atomic_path
 from abm.grounding.clip_captions import BACKGROUND_CLASSES, FLOOR, ROBOT, TABLE, caption, class_names
 
 log = logging.getLogger("abm")
@@ -473,9 +474,8 @@ def _write_shard(folder: Path, shard: int, base_seed: int, config: RenderConfig,
     ensure_headless_gl()
     arrays = render_shard(shard, base_seed, config, classes)
     path = shard_path(folder, shard)
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez_compressed(tmp, **arrays)
-    tmp.replace(path)
+    with atomic_path(path) as tmp, tmp.open("wb") as fh:
+        np.savez_compressed(fh, **arrays)
     return int(arrays["kind"].shape[0])
 
 

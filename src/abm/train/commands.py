@@ -66,6 +66,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--out", required=True, help="the exported .pt file")
     e.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), default="float32",
                    help="storage dtype of the floating-point weights (default: float32, unchanged)")
+    e.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     e.set_defaults(func=run_export)
 
 
@@ -74,11 +75,14 @@ def run_export(args: argparse.Namespace) -> int:
 
     import torch
 
-    from abm.policy.checkpoint import export_checkpoint, resolve_checkpoint
+    from abm.files import FolderLock
+    from abm.policy.checkpoint import check_export_target, export_checkpoint, resolve_checkpoint
 
     src = resolve_checkpoint(args.run)
     dtype = None if args.dtype == "float32" else getattr(torch, args.dtype)
-    out = export_checkpoint(src, args.out, dtype)
+    check_export_target(src, args.out, args.overwrite)
+    with FolderLock(Path(args.out).parent, "abm export"):  # not while another command writes that folder
+        out = export_checkpoint(src, args.out, dtype)
     logging.getLogger("abm").info("exported %s (%.1f MiB) -> %s (%.1f MiB)", src, src.stat().st_size / 2**20,
                                   out, out.stat().st_size / 2**20)
     return 0

@@ -43,6 +43,7 @@ from abm.data.keyframes import (
     ground_keyframes,
     worker_init,
 )
+from abm.files import FolderLock, write_text_atomic
 from abm.grounding.conditioning import make_grounder_from_spec
 from abm.policy.checkpoint import (
     checkpoint_path,
@@ -314,7 +315,7 @@ class Trainer:
             self.train_policy = DistributedDataParallel(
                 self.policy, device_ids=[device.index] if device.type == "cuda" else None)
         if dinfo.main:
-            (self.run / "config.json").write_text(json.dumps(
+            write_text_atomic(self.run / "config.json", json.dumps(
                 {"train": cfg.to_dict(), "policy": self.policy_config.to_dict(), "language": self.language_spec,
                  "grounder": gspec, "world_size": world, "lr": self.lr, "warmup": self.warmup}, indent=2))
         sampler = StepSampler(len(self.dataset), cfg.batch, cfg.steps, self.start, world, dinfo.rank, cfg.seed)
@@ -454,7 +455,7 @@ class Trainer:
             "seconds": time.perf_counter() - self._t0, "checkpoint": str(checkpoint_path(self.run, step)),
         }
         if dinfo.main:
-            (self.run / "summary.json").write_text(json.dumps(summary, indent=2))
+            write_text_atomic(self.run / "summary.json", json.dumps(summary, indent=2))
         if dinfo.enabled:
             dist.barrier()
             dist.destroy_process_group()
@@ -474,6 +475,10 @@ def train(
         on_step: called after every optimiser step with ``(step, losses)`` (rank-averaged losses).
 
     Raises:
-        ValueError: bad options, a checkpoint of another variant/preset, or an empty selection.
+        ValueError: bad options, a checkpoint of another variant/preset, or an empty selection;
+            :class:`abm.files.FolderBusyError` when another process writes ``cfg.out``.
     """
-    return Trainer(cfg, episodes).build().fit(on_step)
+    if int(os.environ.get("RANK", "0")) != 0:  # rank 0 holds the run folder's lock for every rank
+        return Trainer(cfg, episodes).build().fit(on_step)
+    with FolderLock(cfg.out, "abm train"):
+        return Trainer(cfg, episodes).build().fit(on_step)
