@@ -38,14 +38,14 @@ import io
 import json
 import os
 import zlib
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from abm.files import write_error
+from abm.files import WriteError, write_error, write_text_atomic
 from abm.types import CameraFrame, Episode, KeyframeAction, Observation
 
 FORMAT_VERSION: int = 2
@@ -201,6 +201,47 @@ def verify_episode(path: str | os.PathLike) -> bool:
         except Exception as err:  # noqa: BLE001 - h5py/zlib raise many types for damaged data
             raise EpisodeFormatError(f"{path}: dataset {name} cannot be read ({err}); the file is corrupt") from None
     return missing == 0
+
+
+VERIFIED_RECORD = ".abm_verified.json"
+
+
+def check_episodes(paths: Sequence[str | os.PathLike], root: str | os.PathLike | None = None
+                   ) -> list[tuple[Path, str]]:
+    """Verify the checksums of episode files (:func:`verify_episode`); ``(path, reason)`` of each bad one.
+
+    A file that passed keeps its name, size and modification time in ``ROOT/.abm_verified.json``, so it
+    is read again only once it changes: the first check of a store reads every byte once, later ones
+    only look at the files' sizes and times.
+    """
+    record_path = Path(root) / VERIFIED_RECORD if root is not None else None
+    try:
+        record = json.loads(record_path.read_text()) if record_path is not None and record_path.is_file() else {}
+        record = record if isinstance(record, dict) else {}
+    except (OSError, ValueError):
+        record = {}
+    bad: list[tuple[Path, str]] = []
+    passed = 0
+    for p in map(Path, paths):
+        key = str(p.relative_to(root)) if root is not None and p.is_relative_to(root) else str(p)
+        try:
+            stat = p.stat()
+            stamp = [stat.st_size, stat.st_mtime_ns]
+            if record.get(key) == stamp:
+                continue
+            verify_episode(p)
+        except (OSError, EpisodeFormatError) as err:
+            record.pop(key, None)
+            bad.append((p, str(err)))
+            continue
+        record[key] = stamp
+        passed += 1
+    if record_path is not None and passed:
+        try:
+            write_text_atomic(record_path, json.dumps(record, indent=0, sort_keys=True))
+        except WriteError:
+            pass  # a read-only store is checked again next time
+    return bad
 
 
 def _open(path: Path):

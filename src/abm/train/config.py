@@ -43,6 +43,9 @@ class TrainConfig:
         language: language encoder (``hash`` or ``clip``; default: ``clip`` with the clip grounder, else ``hash``).
         seed: seed of model init and the data stream.
         resume: continue from the latest checkpoint in ``out`` (from scratch if it has none).
+        accept_changed_config: with ``resume``, continue even though options that shape the optimisation
+            (learning rate, batch, seed, ...) differ from the checkpoint's; the new values are used and
+            ``config.json`` lists what changed (without it such a resume is refused).
         overwrite: replace a run already in ``out`` (without it, and without ``resume``, a folder that
             holds a run is refused, so no run is lost).
         augment: SE(3) augmentation of the scene and the action (``--no-augment`` turns it off).
@@ -50,6 +53,8 @@ class TrainConfig:
         cache_dir: grounding / CLIP feature cache (default ``out/cache``).
         camera_names: cameras to fuse (default all).
         progress: show a progress bar (``--no-progress`` hides it).
+        verify: check the checksums of every episode before training (each file is read in full once, then
+            only when it changes; ``--no-verify`` trains on the files as they are).
     """
 
     method: str = field(default="abm", metadata={"choices": sorted(VARIANTS), "required": True})
@@ -76,12 +81,14 @@ class TrainConfig:
     language: str | None = field(default=None, metadata={"choices": ["hash", "clip"]})
     seed: int = 0
     resume: bool = False
+    accept_changed_config: bool = False
     overwrite: bool = False
     augment: bool = True
     policy_overrides: dict[str, Any] = field(default_factory=dict, metadata={"cli": False})
     cache_dir: Path | None = None
     camera_names: list[str] | None = field(default=None, metadata={"flag": "--cameras"})
     progress: bool = True
+    verify: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=str))

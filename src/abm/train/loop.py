@@ -169,13 +169,20 @@ def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None) -> Epi
         return EpisodeSource(list(episodes))
     if cfg.data is None:
         raise ValueError("no training data: give --data DIR (an episode store) or --synthetic N")
-    from abm.data.episode_store import EpisodeStore  # owned by the data package
+    from abm.data.episode_store import EpisodeStore, check_episodes  # owned by the data package
 
     store = EpisodeStore(cfg.data)
     indices = store.select(tasks=cfg.tasks, splits=cfg.splits)
     if not indices:
         raise ValueError(f"no episodes in {cfg.data} for tasks {cfg.tasks} and splits {cfg.splits}")
     store.check_consistent(indices)
+    if cfg.verify:
+        bad = check_episodes([store.episodes[i].path for i in indices], cfg.data)
+        if bad:
+            shown = "; ".join(reason for _, reason in bad[:3]) + (f"; and {len(bad) - 3} more" if len(bad) > 3 else "")
+            raise ValueError(f"{len(bad)} episode file(s) in {cfg.data} fail verification: {shown}. Run abm data "
+                             "generate again with the same arguments (it re-creates them), or pass --no-verify "
+                             "to train on them anyway")
     return EpisodeSource(store, indices)
 
 
@@ -222,6 +229,17 @@ class _Logger:
 
 _RUN_FILES = ("config.json", "log.csv", "summary.json")
 
+# Options that shape the optimisation: ``--resume`` keeps them unless told otherwise (``--steps`` may grow; the
+# model's own options are checked by ``check_compatible``; the rest - paths, devices, logging - may change).
+RESUME_FIXED = ("tasks", "splits", "batch", "lr", "optimizer", "warmup", "min_lr_ratio", "weight_decay", "grad_clip",
+                "grounder", "grounder_options", "language", "seed", "augment", "camera_names")
+
+
+def changed_settings(saved: dict[str, Any], cfg: TrainConfig) -> dict[str, tuple[Any, Any]]:
+    """``{option: (value in the checkpoint, value now)}`` of the :data:`RESUME_FIXED` options that differ."""
+    now = cfg.to_dict()
+    return {k: (saved[k], now[k]) for k in RESUME_FIXED if k in saved and saved[k] != now[k]}
+
 
 def _claim_run_folder(run: Path, cfg: TrainConfig, dinfo: DistInfo) -> None:
     """Refuse to train into a folder that holds another run, unless resuming or told to overwrite."""
@@ -259,6 +277,7 @@ class Trainer:
         self.run = Path(cfg.out)
         self.start = 0
         self.prior_s = 0.0  # training seconds of earlier sessions of this run (resumes)
+        self.changed: dict[str, tuple[Any, Any]] = {}  # settings changed on resume (--accept-changed-config)
         self._t0 = time.perf_counter()
 
     # ------------------------------------------------------------------ build
@@ -308,6 +327,11 @@ class Trainer:
             self.optimizer, _lr_lambda(self.warmup, cfg.steps, cfg.min_lr_ratio))
         if ckpt is not None:
             self.restore(ckpt)
+            if self.changed:  # the restored optimiser holds the old rate and decay: run what config.json says
+                self.scheduler.base_lrs = [self.lr for _ in self.scheduler.base_lrs]
+                for group in self.optimizer.param_groups:
+                    group.update(initial_lr=self.lr, weight_decay=cfg.weight_decay,
+                                 lr=self.lr * self.scheduler.lr_lambdas[0](self.scheduler.last_epoch))
         self.train_policy: torch.nn.Module = self.policy
         if dinfo.enabled:
             from torch.nn.parallel import DistributedDataParallel
@@ -317,7 +341,8 @@ class Trainer:
         if dinfo.main:
             write_text_atomic(self.run / "config.json", json.dumps(
                 {"train": cfg.to_dict(), "policy": self.policy_config.to_dict(), "language": self.language_spec,
-                 "grounder": gspec, "world_size": world, "lr": self.lr, "warmup": self.warmup}, indent=2))
+                 "grounder": gspec, "world_size": world, "lr": self.lr, "warmup": self.warmup,
+                 **({"changed_on_resume": self.changed} if self.changed else {})}, indent=2))
         sampler = StepSampler(len(self.dataset), cfg.batch, cfg.steps, self.start, world, dinfo.rank, cfg.seed)
         self.loader = torch.utils.data.DataLoader(
             self.dataset, batch_size=cfg.batch, sampler=sampler, num_workers=cfg.workers, collate_fn=collate,
@@ -336,6 +361,16 @@ class Trainer:
         if int(ckpt["step"]) > self.cfg.steps:
             raise ValueError(f"{self.run} is already at step {ckpt['step']}, past --steps {self.cfg.steps}: resume "
                              f"with --steps {ckpt['step']} or more")
+        self.changed = changed_settings(ckpt.get("train_config") or {}, self.cfg)
+        if self.changed:
+            listed = ", ".join(f"--{k.replace('_', '-')} {old!r} -> {new!r}" for k, (old, new) in self.changed.items())
+            if "optimizer" in self.changed:
+                raise ValueError(f"{self.run} was trained with --optimizer {self.changed['optimizer'][0]}; its "
+                                 "optimiser state cannot continue under another optimizer: resume with the same one")
+            if not self.cfg.accept_changed_config:
+                raise ValueError(f"{self.run} was trained with other settings ({listed}); resume with the same "
+                                 "values, or pass --accept-changed-config to continue with the new ones")
+            log.warning("abm train: continuing %s with changed settings: %s", self.run, listed)
         return ckpt
 
     def _dataset(self, source: EpisodeSource) -> KeyframeDataset:
