@@ -1,5 +1,5 @@
 """Fuzzing the parsers and readers: random text and random bytes give the project's own errors, never
-a traceback from somewhere else."""
+a traceback from somewhere else; and a walk over every command with bad values of each option."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from abm.cli import build_parser
+from abm.cli import main as cli_main
 from abm.data.episode_store import EpisodeFormatError, load_episode, read_info
 from abm.grounding.instruction import InstructionError, decompose_instruction
 from abm.policy.checkpoint import load_checkpoint
@@ -65,3 +67,85 @@ def test_checkpoint_reader_refuses_random_bytes(tmp_path_factory, data: bytes) -
     path.write_bytes(data)
     with pytest.raises(ValueError):
         load_checkpoint(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# The command line: every numeric option of every command is range-checked when parsed, and every
+# expected failure is one `abm: error:` line with exit code 2 (never a traceback)
+# --------------------------------------------------------------------------------------------------
+def _numeric_options(parser, words=()):
+    """``(command words, option, action)`` of every option that takes a number, in every sub-command."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _numeric_options(sub, (*words, name))
+        elif action.option_strings and getattr(action.type, "__name__", "") in ("int", "float"):
+            yield words, action.option_strings[0], action
+
+
+PARSER = build_parser()
+NUMERIC = list(_numeric_options(PARSER))
+
+
+def _one_error_line(rc, err: str, *needles: str) -> str:
+    assert rc == 2, (rc, err)
+    assert "Traceback" not in err, err
+    lines = [line for line in err.splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith("abm: error: ")]
+    assert len(errors) == 1 and lines[-1] == errors[0], err  # progress lines may come before it
+    for needle in needles:
+        assert needle in errors[0], (needle, errors[0])
+    return errors[0]
+
+
+def test_every_numeric_option_has_a_checked_range() -> None:
+    commands = {words[0] for words, _, _ in NUMERIC}
+    assert {"train", "eval", "run", "view", "data", "clip", "ground", "render", "quickstart"} <= commands
+    unchecked = [(w, o) for w, o, a in NUMERIC if a.type in (int, float)]
+    assert unchecked == [], "numeric options without a range (use abm.configuration.int_range / float_range)"
+
+
+@pytest.mark.parametrize("words, option, action", NUMERIC, ids=[" ".join((*w, o)) for w, o, _ in NUMERIC])
+def test_numeric_options_refuse_bad_values_at_parse_time(words, option, action, capsys) -> None:
+    bad = ["abc", "1.5", "-5", "1" + "0" * 25] if action.type.__name__ == "int" else ["abc", "nan", "inf", "1e999"]
+    for value in bad:
+        with pytest.raises(SystemExit) as exit_info:
+            PARSER.parse_args([*words, option, *[value] * (action.nargs if isinstance(action.nargs, int) else 1)])
+        _one_error_line(exit_info.value.code, capsys.readouterr().err, f"argument {option}", repr(value),
+                        f"see abm {' '.join(words)} --help")
+
+
+@FUZZ
+@given(st.sampled_from(NUMERIC), st.one_of(st.text(max_size=12), st.integers(-10**30, 10**30).map(str),
+                                           st.floats().map(repr)))
+def test_numeric_option_types_give_a_number_or_their_own_error(option, text: str) -> None:
+    import argparse
+    import math
+
+    _, _, action = option
+    try:
+        value = action.type(text)
+    except argparse.ArgumentTypeError as err:
+        assert "expected " in str(err)
+        return
+    assert isinstance(value, int | float) and math.isfinite(value)
+    assert action.type(str(value)) == value  # what parses, parses again to itself
+
+
+def test_viewer_exits_with_one_line_on_a_busy_port_or_without_chromium(tmp_path, capsys, monkeypatch) -> None:
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        rc = cli_main(["view", "--episode", str(tmp_path / "ep.h5"), "--port", str(port)])
+        _one_error_line(rc, capsys.readouterr().err, f"cannot serve on 127.0.0.1:{port}", "choose another --port")
+    rc = cli_main(["view", "--episode", str(tmp_path / "ep.h5"), "--host", "no.such.host.invalid"])
+    _one_error_line(rc, capsys.readouterr().err, "cannot serve on no.such.host.invalid")
+    monkeypatch.setenv("PATH", str(tmp_path))  # no Chromium on it
+    rc = cli_main(["view", "--episode", str(tmp_path / "ep.h5"), "--port", str(port), "--screenshot",
+                   str(tmp_path / "s.png")])
+    _one_error_line(rc, capsys.readouterr().err, "--screenshot needs Chromium")

@@ -11,6 +11,7 @@ import argparse
 import importlib
 import logging
 import sys
+import typing
 from collections.abc import Sequence
 
 import abm
@@ -33,8 +34,15 @@ class CommandError(Exception):
     """A user-facing error: printed as ``abm: error: ...`` without a traceback."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """Bad options are one ``abm: error:`` line (exit code 2) naming the option, what it expects, and the help."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"abm: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="abm",
         description="Attention before Manipulation: ground the target object, mark it in virtual views, "
         "and predict the next gripper keyframe.",

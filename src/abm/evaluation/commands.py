@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from abm.configuration import count, int_range
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from abm.configuration import add_config_arguments
@@ -21,11 +23,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--tasks", nargs="+", default=None,
                    help="tasks to evaluate (default: every task the split defines objects for)")
     p.add_argument("--split", default="unseen", choices=("seen", "unseen", "compositional"))
-    p.add_argument("--episodes", type=int, default=25, help="episodes per task and repeat (paper: 25)")
-    p.add_argument("--repeats", type=int, default=5, help="repeats with different scenes (paper: 5)")
-    p.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
+    p.add_argument("--episodes", type=int_range(1, 10**6), default=25, help="episodes per task and repeat (paper: 25)")
+    p.add_argument("--repeats", type=int_range(1, 1000), default=5, help="repeats with different scenes (paper: 5)")
+    p.add_argument("--workers", type=int_range(1, 256), default=1, help="parallel rollout processes")
     add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
-    p.add_argument("--gifs", type=int, default=0, help="save front-camera GIFs of this many episodes per task")
+    p.add_argument("--gifs", type=count, default=0, help="save front-camera GIFs of this many episodes per task")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: FIRST_RUN/eval_SPLIT)")
     p.set_defaults(func=run)
 

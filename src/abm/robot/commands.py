@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from abm.configuration import int_range
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -20,7 +22,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--allow-no-target", action="store_true",
                    help="move even when grounding finds no point of the instruction's object (by default such a "
                    "step is refused before anything moves, exit code 2)")
-    p.add_argument("--steps", type=int, default=10, help="keyframes to run (default: 10)")
+    p.add_argument("--steps", type=int_range(1, 10_000), default=10, help="keyframes to run (default: 10)")
     p.add_argument("--grounder", choices=["oracle", "clip", "tracking"], help="override the checkpoint's grounder")
     p.add_argument("--clip-model", help="CLIP weights (hub name or folder) of --grounder clip or tracking")
     p.add_argument("--device", default="cpu", help="torch device of the policy")

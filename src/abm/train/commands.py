@@ -17,7 +17,14 @@ import os
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import add_config_arguments, config_from_args, overrides_from_args
+from abm.configuration import (
+    add_config_arguments,
+    check_overrides,
+    config_from_args,
+    count,
+    int_range,
+    overrides_from_args,
+)
 from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
 
@@ -45,14 +52,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_config_arguments(p, TrainConfig)  # one flag per TrainConfig field, help from its docstring
     add_config_arguments(p, PolicyConfig, overrides_only=True, exclude=("variant", "preset", "extra"),
                          dest_prefix=POLICY_DEST, title="policy (overrides of the --preset; saved with the run)")
-    p.add_argument("--synthetic", type=int, default=0, metavar="N",
+    p.add_argument("--synthetic", type=count, default=0, metavar="N",
                    help="train on N built-in synthetic block episodes instead of --data (smoke tests)")
     p.add_argument("--clip-model", help="CLIP weights for --grounder/--language clip: hub name, local folder, "
                    "or 'tiny' (random tiny CLIP, tests only); default: the grounding package's default")
     p.add_argument("--clip-device", help="device of the CLIP model (default: CUDA when available)")
     p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
                    help="override a policy config field, e.g. --set resolution=64 (repeatable)")
-    p.add_argument("--camera-resolution", type=int, default=64, help="camera side for --synthetic episodes")
+    p.add_argument("--camera-resolution", type=int_range(16, 1024), default=64,
+                   help="camera side for --synthetic episodes")
     p.set_defaults(func=run)
 
     e = subparsers.add_parser(
@@ -103,8 +111,12 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("give --data DIR (an episode store) or --synthetic N")
     if args.data is not None and not Path(args.data).is_dir():
         raise CommandError(f"--data {args.data} is not a folder")
+    try:
+        overrides = check_overrides(PolicyConfig, dict(args.overrides))
+    except ValueError as err:
+        raise CommandError(str(err)) from None
     cfg = config_from_args(
-        TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **dict(args.overrides)},
+        TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
         grounder_options={k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v})
     if cfg.grounder == "oracle" and cfg.grounder_options:
         if cfg.language != "clip":
