@@ -3,6 +3,8 @@ a traceback from somewhere else; and a walk over every command with bad values o
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -132,6 +134,46 @@ def test_numeric_option_types_give_a_number_or_their_own_error(option, text: str
         return
     assert isinstance(value, int | float) and math.isfinite(value)
     assert action.type(str(value)) == value  # what parses, parses again to itself
+
+
+def _bad_inputs(tmp: Path) -> list[tuple[list[str], str]]:
+    """``(argv, part of the expected error)`` of failures after parsing, one per kind of bad input."""
+    afile = tmp / "a_file"
+    afile.write_text("x")
+    (tmp / "empty.yaml").write_text("")
+    (tmp / "list.yaml").write_text("- arm\n")
+    (tmp / "nan.yaml").write_text("limits: {max_step_m: .nan}\n")
+    train = ["train", "--method", "abm", "--steps", "1", "--synthetic", "1", "--no-progress"]
+    return [
+        ([*train, "--out", str(tmp / "r1"), "--set", "unknown=1"], "has no settable field 'unknown'"),
+        ([*train, "--out", str(tmp / "r2"), "--set", "resolution=abc"], "--set resolution='abc': expected a whole"),
+        ([*train, "--out", str(tmp / "r3"), "--set", "noequals"], "--set expects KEY=VALUE"),
+        ([*train, "--out", str(afile / "run")], "a_file"),
+        (["train", "--method", "abm", "--steps", "1", "--out", str(tmp / "r4"), "--data", str(tmp / "none")],
+         "is not a folder"),
+        (["eval", "--run", str(tmp / "none"), "--tasks", "pick_block"], "does not exist"),
+        (["export", "--run", str(tmp / "none"), "--out", str(tmp / "x.pt")], "no checkpoint or run folder"),
+        (["data", "generate", "--task", "nothing", "--split", "seen", "--episodes", "1", "--out", str(tmp / "d")],
+         "unknown task"),
+        (["data", "generate", "--task", "pick_block", "--split", "seen", "--episodes", "1", "--out", str(afile)],
+         "is a file; give a folder"),
+        (["data", "info", str(tmp / "none")], "not a directory"),
+        (["run", "--robot", str(tmp / "empty.yaml"), "--run", str(tmp)], "empty.yaml: the robot file is empty"),
+        (["run", "--robot", str(tmp / "list.yaml"), "--run", str(tmp)], "list.yaml: expected a mapping"),
+        (["run", "--robot", str(tmp / "nan.yaml"), "--run", str(tmp)], "limits.max_step_m: expected a finite"),
+        (["run", "--robot", str(tmp / "none.yaml"), "--run", str(tmp)], "is not a file"),
+        (["view", "--episode", str(tmp / "none.h5")], "is not a file"),
+        (["clip", "train", "--out", str(afile), "--shards", "1"], "a_file"),
+    ]
+
+
+def test_every_command_gives_one_error_line_for_bad_input(tmp_path, capsys) -> None:
+    for argv, needle in _bad_inputs(tmp_path):
+        try:
+            rc = cli_main(argv)
+        except SystemExit as exit_info:
+            rc = exit_info.code
+        _one_error_line(rc, capsys.readouterr().err, needle)
 
 
 def test_viewer_exits_with_one_line_on_a_busy_port_or_without_chromium(tmp_path, capsys, monkeypatch) -> None:

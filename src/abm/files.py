@@ -71,7 +71,13 @@ class WriteError(ValueError):
     """A file could not be written (full disk, a parent that is a file, no permission); nothing was left."""
 
 
-def write_error(path: Path, err: OSError) -> WriteError:
+# errno values that are the user's to fix (a path, the disk), reported as one line by the command line
+USER_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM, errno.EROFS,
+                         errno.ENOTDIR, errno.EISDIR, errno.EEXIST, errno.ENAMETOOLONG})
+
+
+def write_error(path: Path | str, err: OSError, verb: str = "write") -> WriteError:
+    """One line naming ``path``, the reason and the fix, for an ``OSError`` writing (or using) it."""
     code = err.errno
     if code is None:  # h5py and others put the errno in the text only
         found = re.search(r"errno = (\d+)", str(err))
@@ -83,8 +89,9 @@ def write_error(path: Path, err: OSError) -> WriteError:
             errno.EACCES: "choose a folder you may write to",
             errno.EROFS: "choose a folder on a writable disk",
             errno.ENOTDIR: "a parent of it is a file, not a folder: choose another path",
-            errno.EEXIST: "a parent of it is a file, not a folder: choose another path"}.get(err.errno, "")
-    return WriteError(f"cannot write {path}: {reason}" + (f"; {hint}" if hint else ""))
+            errno.EEXIST: "a parent of it is a file, not a folder: choose another path",
+            errno.EISDIR: "it is a folder: give a file path"}.get(code, "")
+    return WriteError(f"cannot {verb} {path}: {reason}" + (f"; {hint}" if hint else ""))
 
 
 @contextmanager
