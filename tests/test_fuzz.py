@@ -191,3 +191,18 @@ def test_viewer_exits_with_one_line_on_a_busy_port_or_without_chromium(tmp_path,
     rc = cli_main(["view", "--episode", str(tmp_path / "ep.h5"), "--port", str(port), "--screenshot",
                    str(tmp_path / "s.png")])
     _one_error_line(rc, capsys.readouterr().err, "--screenshot needs Chromium")
+
+
+def test_python_dash_m_gives_the_same_one_line(tmp_path) -> None:
+    """`python -m abm.cli` (as torchrun runs it) reports command errors like the `abm` script."""
+    import os
+    import subprocess
+    import sys
+
+    import abm
+
+    src = str(Path(abm.__file__).parents[1])
+    done = subprocess.run([sys.executable, "-m", "abm.cli", "train", "--method", "abm", "--steps", "1", "--synthetic",
+                           "1", "--out", str(tmp_path / "r"), "--set", "unknown=1"], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": src}, timeout=120)
+    _one_error_line(done.returncode, done.stderr, "has no settable field 'unknown'")
