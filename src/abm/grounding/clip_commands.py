@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from abm.configuration import count, float_range, int_range, positive_int, seed_int
+from abm.files import write_text_atomic
 
 log = logging.getLogger("abm")
 
@@ -100,7 +101,7 @@ def run_train(args: argparse.Namespace) -> int:
         backbone = load_clip(str(args.out), device="cpu")
         summary["zero_shot"] = zero_shot_accuracy(backbone, load_dataset(heldout, args.heldout_shards))
         summary["zero_shot"]["data"] = str(heldout)
-        (args.out / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        write_text_atomic(args.out / SUMMARY, json.dumps(summary, indent=2) + "\n")
     final = summary.get("final") or {}
     print(f"trained {summary['steps']} steps in {summary['train_seconds'] / 60:.1f} min on {summary['samples']} "
           f"samples; final loss {final.get('loss')} (contrastive {final.get('contrastive')}, dense "

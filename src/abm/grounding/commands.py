@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from abm.configuration import count, float_range, int_range, seed_int
+from abm.files import write_text_atomic
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -180,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
     if args.grounder == "clip":
         summary.update(model=grounder.model_name, normalization=grounder.config.normalization,
                        threshold=grounder.config.threshold)
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(f"{where}: {instruction!r} -> target {target!r}, skill {skill!r}")
     print(f"{args.grounder} grounder: {summary['mask_points']} of {len(cloud)} points masked, found={field.found}")
     print(f"wrote camera_*.png, topdown.png, views.png, view_*.png and summary.json to {args.out}/")
