@@ -206,3 +206,43 @@ def test_python_dash_m_gives_the_same_one_line(tmp_path) -> None:
                            "1", "--out", str(tmp_path / "r"), "--set", "unknown=1"], capture_output=True, text=True,
                           env={**os.environ, "PYTHONPATH": src}, timeout=120)
     _one_error_line(done.returncode, done.stderr, "has no settable field 'unknown'")
+
+
+_LIMIT_VALUES = st.one_of(st.floats(), st.integers(-10, 10), st.text(max_size=4), st.none(), st.booleans(),
+                          st.lists(st.one_of(st.floats(), st.integers(-2, 2), st.text(max_size=2)), max_size=4))
+
+
+@FUZZ
+@given(st.dictionaries(st.sampled_from(["workspace_lower", "workspace_upper", "max_step_m", "max_tilt_deg", "x"]),
+                       _LIMIT_VALUES, max_size=5))
+def test_robot_limits_either_load_as_real_limits_or_are_refused(tmp_path_factory, limits: dict) -> None:
+    import math
+
+    import yaml
+
+    from abm.robot.run import RobotConfig
+
+    path = tmp_path_factory.mktemp("robot") / "robot.yaml"
+    path.write_text(yaml.safe_dump({"limits": limits}))
+    try:
+        loaded = RobotConfig.load(path).limits
+    except ValueError as err:
+        assert str(err).startswith(f"{path}: ")
+        return
+    lower, upper = loaded.workspace_lower, loaded.workspace_upper
+    assert all(math.isfinite(v) for v in (*lower, *upper, loaded.max_step_m, loaded.max_tilt_deg))
+    assert all(lo < hi for lo, hi in zip(lower, upper, strict=True))
+    assert loaded.max_step_m > 0 and 0 < loaded.max_tilt_deg <= 180
+
+
+@FUZZ
+@given(st.text(max_size=300))
+def test_robot_file_reader_refuses_random_text(tmp_path_factory, text: str) -> None:
+    from abm.robot.run import RobotConfig
+
+    path = tmp_path_factory.mktemp("robot") / "robot.yaml"
+    path.write_bytes(text.encode("utf-8", errors="replace"))
+    try:
+        RobotConfig.load(path)
+    except ValueError:
+        pass
