@@ -26,7 +26,7 @@ import random
 import shutil
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -363,7 +363,8 @@ class Trainer:
                              f"with --steps {ckpt['step']} or more")
         self.changed = changed_settings(ckpt.get("train_config") or {}, self.cfg)
         if self.changed:
-            listed = ", ".join(f"--{k.replace('_', '-')} {old!r} -> {new!r}" for k, (old, new) in self.changed.items())
+            flags = {f.name: f.metadata.get("flag", "--" + f.name.replace("_", "-")) for f in fields(TrainConfig)}
+            listed = ", ".join(f"{flags[k]} {old!r} -> {new!r}" for k, (old, new) in self.changed.items())
             if "optimizer" in self.changed:
                 raise ValueError(f"{self.run} was trained with --optimizer {self.changed['optimizer'][0]}; its "
                                  "optimiser state cannot continue under another optimizer: resume with the same one")
