@@ -1,12 +1,16 @@
 """Fuzzing the parsers and readers: random text and random bytes give the project's own errors, never
-a traceback from somewhere else."""
+a traceback from somewhere else; and a walk over every command with bad values of each option."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from abm.cli import build_parser
+from abm.cli import main as cli_main
 from abm.data.episode_store import EpisodeFormatError, load_episode, read_info
 from abm.grounding.instruction import InstructionError, decompose_instruction
 from abm.policy.checkpoint import load_checkpoint
@@ -65,3 +69,180 @@ def test_checkpoint_reader_refuses_random_bytes(tmp_path_factory, data: bytes) -
     path.write_bytes(data)
     with pytest.raises(ValueError):
         load_checkpoint(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# The command line: every numeric option of every command is range-checked when parsed, and every
+# expected failure is one `abm: error:` line with exit code 2 (never a traceback)
+# --------------------------------------------------------------------------------------------------
+def _numeric_options(parser, words=()):
+    """``(command words, option, action)`` of every option that takes a number, in every sub-command."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _numeric_options(sub, (*words, name))
+        elif action.option_strings and getattr(action.type, "__name__", "") in ("int", "float"):
+            yield words, action.option_strings[0], action
+
+
+PARSER = build_parser()
+NUMERIC = list(_numeric_options(PARSER))
+
+
+def _one_error_line(rc, err: str, *needles: str) -> str:
+    assert rc == 2, (rc, err)
+    assert "Traceback" not in err, err
+    lines = [line for line in err.splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith("abm: error: ")]
+    assert len(errors) == 1 and lines[-1] == errors[0], err  # progress lines may come before it
+    for needle in needles:
+        assert needle in errors[0], (needle, errors[0])
+    return errors[0]
+
+
+def test_every_numeric_option_has_a_checked_range() -> None:
+    commands = {words[0] for words, _, _ in NUMERIC}
+    assert {"train", "eval", "run", "view", "data", "clip", "ground", "render", "quickstart"} <= commands
+    unchecked = [(w, o) for w, o, a in NUMERIC if a.type in (int, float)]
+    assert unchecked == [], "numeric options without a range (use abm.configuration.int_range / float_range)"
+
+
+@pytest.mark.parametrize("words, option, action", NUMERIC, ids=[" ".join((*w, o)) for w, o, _ in NUMERIC])
+def test_numeric_options_refuse_bad_values_at_parse_time(words, option, action, capsys) -> None:
+    bad = ["abc", "1.5", "-5", "1" + "0" * 25] if action.type.__name__ == "int" else ["abc", "nan", "inf", "1e999"]
+    for value in bad:
+        with pytest.raises(SystemExit) as exit_info:
+            PARSER.parse_args([*words, option, *[value] * (action.nargs if isinstance(action.nargs, int) else 1)])
+        _one_error_line(exit_info.value.code, capsys.readouterr().err, f"argument {option}", repr(value),
+                        f"see abm {' '.join(words)} --help")
+
+
+@FUZZ
+@given(st.sampled_from(NUMERIC), st.one_of(st.text(max_size=12), st.integers(-10**30, 10**30).map(str),
+                                           st.floats().map(repr)))
+def test_numeric_option_types_give_a_number_or_their_own_error(option, text: str) -> None:
+    import argparse
+    import math
+
+    _, _, action = option
+    try:
+        value = action.type(text)
+    except argparse.ArgumentTypeError as err:
+        assert "expected " in str(err)
+        return
+    assert isinstance(value, int | float) and math.isfinite(value)
+    assert action.type(str(value)) == value  # what parses, parses again to itself
+
+
+def _bad_inputs(tmp: Path) -> list[tuple[list[str], str]]:
+    """``(argv, part of the expected error)`` of failures after parsing, one per kind of bad input."""
+    afile = tmp / "a_file"
+    afile.write_text("x")
+    (tmp / "empty.yaml").write_text("")
+    (tmp / "list.yaml").write_text("- arm\n")
+    (tmp / "nan.yaml").write_text("limits: {max_step_m: .nan}\n")
+    train = ["train", "--method", "abm", "--steps", "1", "--synthetic", "1", "--no-progress"]
+    return [
+        ([*train, "--out", str(tmp / "r1"), "--set", "unknown=1"], "has no settable field 'unknown'"),
+        ([*train, "--out", str(tmp / "r2"), "--set", "resolution=abc"], "--set resolution='abc': expected a whole"),
+        ([*train, "--out", str(tmp / "r3"), "--set", "noequals"], "--set expects KEY=VALUE"),
+        ([*train, "--out", str(afile / "run")], "a_file"),
+        (["train", "--method", "abm", "--steps", "1", "--out", str(tmp / "r4"), "--data", str(tmp / "none")],
+         "is not a folder"),
+        (["eval", "--run", str(tmp / "none"), "--tasks", "pick_block"], "does not exist"),
+        (["export", "--run", str(tmp / "none"), "--out", str(tmp / "x.pt")], "no checkpoint or run folder"),
+        (["data", "generate", "--task", "nothing", "--split", "seen", "--episodes", "1", "--out", str(tmp / "d")],
+         "unknown task"),
+        (["data", "generate", "--task", "pick_block", "--split", "seen", "--episodes", "1", "--out", str(afile)],
+         "is a file; give a folder"),
+        (["data", "info", str(tmp / "none")], "not a directory"),
+        (["run", "--robot", str(tmp / "empty.yaml"), "--run", str(tmp)], "empty.yaml: the robot file is empty"),
+        (["run", "--robot", str(tmp / "list.yaml"), "--run", str(tmp)], "list.yaml: expected a mapping"),
+        (["run", "--robot", str(tmp / "nan.yaml"), "--run", str(tmp)], "limits.max_step_m: expected a finite"),
+        (["run", "--robot", str(tmp / "none.yaml"), "--run", str(tmp)], "is not a file"),
+        (["view", "--episode", str(tmp / "none.h5")], "is not a file"),
+        (["clip", "train", "--out", str(afile), "--shards", "1"], "a_file"),
+    ]
+
+
+def test_every_command_gives_one_error_line_for_bad_input(tmp_path, capsys) -> None:
+    for argv, needle in _bad_inputs(tmp_path):
+        try:
+            rc = cli_main(argv)
+        except SystemExit as exit_info:
+            rc = exit_info.code
+        _one_error_line(rc, capsys.readouterr().err, needle)
+
+
+def test_viewer_exits_with_one_line_on_a_busy_port_or_without_chromium(tmp_path, capsys, monkeypatch) -> None:
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        rc = cli_main(["view", "--episode", str(tmp_path / "ep.h5"), "--port", str(port)])
+        _one_error_line(rc, capsys.readouterr().err, f"cannot serve on 127.0.0.1:{port}", "choose another --port")
+    rc = cli_main(["view", "--episode", str(tmp_path / "ep.h5"), "--host", "no.such.host.invalid"])
+    _one_error_line(rc, capsys.readouterr().err, "cannot serve on no.such.host.invalid")
+    monkeypatch.setenv("PATH", str(tmp_path))  # no Chromium on it
+    rc = cli_main(["view", "--episode", str(tmp_path / "ep.h5"), "--port", str(port), "--screenshot",
+                   str(tmp_path / "s.png")])
+    _one_error_line(rc, capsys.readouterr().err, "--screenshot needs Chromium")
+
+
+def test_python_dash_m_gives_the_same_one_line(tmp_path) -> None:
+    """`python -m abm.cli` (as torchrun runs it) reports command errors like the `abm` script."""
+    import os
+    import subprocess
+    import sys
+
+    import abm
+
+    src = str(Path(abm.__file__).parents[1])
+    done = subprocess.run([sys.executable, "-m", "abm.cli", "train", "--method", "abm", "--steps", "1", "--synthetic",
+                           "1", "--out", str(tmp_path / "r"), "--set", "unknown=1"], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": src}, timeout=120)
+    _one_error_line(done.returncode, done.stderr, "has no settable field 'unknown'")
+
+
+_LIMIT_VALUES = st.one_of(st.floats(), st.integers(-10, 10), st.text(max_size=4), st.none(), st.booleans(),
+                          st.lists(st.one_of(st.floats(), st.integers(-2, 2), st.text(max_size=2)), max_size=4))
+
+
+@FUZZ
+@given(st.dictionaries(st.sampled_from(["workspace_lower", "workspace_upper", "max_step_m", "max_tilt_deg", "x"]),
+                       _LIMIT_VALUES, max_size=5))
+def test_robot_limits_either_load_as_real_limits_or_are_refused(tmp_path_factory, limits: dict) -> None:
+    import math
+
+    import yaml
+
+    from abm.robot.run import RobotConfig
+
+    path = tmp_path_factory.mktemp("robot") / "robot.yaml"
+    path.write_text(yaml.safe_dump({"limits": limits}))
+    try:
+        loaded = RobotConfig.load(path).limits
+    except ValueError as err:
+        assert str(err).startswith(f"{path}: ")
+        return
+    lower, upper = loaded.workspace_lower, loaded.workspace_upper
+    assert all(math.isfinite(v) for v in (*lower, *upper, loaded.max_step_m, loaded.max_tilt_deg))
+    assert all(lo < hi for lo, hi in zip(lower, upper, strict=True))
+    assert loaded.max_step_m > 0 and 0 < loaded.max_tilt_deg <= 180
+
+
+@FUZZ
+@given(st.text(max_size=300))
+def test_robot_file_reader_refuses_random_text(tmp_path_factory, text: str) -> None:
+    from abm.robot.run import RobotConfig
+
+    path = tmp_path_factory.mktemp("robot") / "robot.yaml"
+    path.write_bytes(text.encode("utf-8", errors="replace"))
+    try:
+        RobotConfig.load(path)
+    except ValueError:
+        pass

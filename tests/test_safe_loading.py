@@ -165,3 +165,17 @@ def test_no_unsafe_loader_in_the_package() -> None:
         text = path.read_text()
         for needle in ("weights_only=False", "allow_pickle=True", "yaml.load(", "unsafe_load", "pickle.load"):
             assert needle not in text, f"{path.relative_to(root)} uses {needle}"
+
+
+def test_training_grounding_cache_entry(tmp_path, marker) -> None:
+    from abm.data.keyframes import KeyframeDataset
+    from abm.geometry import Workspace
+    from abm.train.synthetic import synthetic_episodes
+
+    ds = KeyframeDataset(synthetic_episodes(1, 32), Workspace(), {"kind": "clip", "model": "tiny"}, mask=True,
+                         augment=False, cache_dir=tmp_path / "cache", require_cache=False)
+    path = ds._cache_file(0, 0)
+    path.parent.mkdir(parents=True)
+    np.savez(path, mask=np.array([_Payload(marker)], dtype=object), heatmap=np.zeros(1))
+    with pytest.raises(ValueError, match="allow_pickle"):
+        ds[0]

@@ -11,6 +11,7 @@ import argparse
 import importlib
 import logging
 import sys
+import typing
 from collections.abc import Sequence
 
 import abm
@@ -51,11 +52,15 @@ class HelpFormatter(argparse.HelpFormatter):
 
 
 class Parser(argparse.ArgumentParser):
-    """``abm``'s parsers (and their sub-commands'): help with defaults (:class:`HelpFormatter`)."""
+    """``abm``'s parsers (and their sub-commands'): help with defaults (:class:`HelpFormatter`); a bad option is
+    one ``abm: error:`` line (exit code 2) naming the option, what it expects, and the help."""
 
     def __init__(self, *args, **kwargs) -> None:
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"abm: error: {message} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -91,6 +96,9 @@ def configure_logging(level: int = logging.INFO) -> None:
         handler.setFormatter(logging.Formatter("%(message)s"))
         logger.addHandler(handler)
         logger.propagate = False
+    for handler in logger.handlers:  # the current stderr, also when main() runs again with stderr redirected
+        if type(handler) is logging.StreamHandler and handler.stream is not sys.stderr:
+            handler.stream = sys.stderr  # not setStream: it flushes the old stream, which may be closed
     logger.setLevel(level)
 
 
@@ -111,10 +119,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         message = err.args[0] if isinstance(err, KeyError) and err.args else err
         print(f"abm: error: {message}", file=sys.stderr)
         return 2
+    except OSError as err:  # a path or the disk: the user's to fix (other OS errors are bugs: traceback)
+        from abm.files import USER_ERRNOS, write_error
+
+        if err.errno not in USER_ERRNOS:
+            raise
+        print(f"abm: error: {write_error(err.filename or '?', err, verb='use')}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("abm: interrupted", file=sys.stderr)
         return 130
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # `python -m abm.cli` (and torchrun): run the imported module's main, so the command modules' CommandError
+    # (from abm.cli) is the class main catches, not a second copy defined in __main__
+    from abm.cli import main as _main
+
+    sys.exit(_main())

@@ -10,6 +10,11 @@ builds the dataclass back from the parsed arguments. Field ``metadata`` adjusts 
 * ``off_help``: the help of the ``--no-name`` switch of a ``True`` field (default ``turn off: <field text>``);
 * ``cli=False``: no flag (the command fills the field itself, e.g. from several flags).
 
+Numbers are range-checked when the command line is parsed (:func:`int_range`, :func:`float_range`): a
+field's ``range`` metadata ``(low, high)`` sets it, else :data:`RANGES` by field name, else whole numbers
+are 1 .. 10**9 and reals finite and >= 0. Command modules use the same helpers for their own flags
+(:data:`positive_int`, :data:`count`, :data:`seed_int`, :data:`port_number`).
+
 Booleans become switches: ``--name`` for a ``False`` default, ``--no-name`` for a ``True`` default.
 ``list[...]`` and ``tuple[X, ...]`` fields take one or more values, ``tuple[X, X, X]`` exactly three;
 ``X | None`` fields default to ``None``. With ``overrides_only`` a flag that is not given leaves no value,
@@ -20,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import re
 import types
 import typing
@@ -43,6 +49,105 @@ def clip_model_help(use: str, default: str | None = GPU_CLIP_MODEL) -> str:
             f"'random:ARCH' are {TEST_ONLY_CLIP}{shown}")
 
 _ENTRY = re.compile(r"^(\s+)([A-Za-z_][\w ,/]*?):\s+(.*)$")
+
+INT_MAX = 10**9  # no count abm takes (steps, episodes, pixels, ...) is anywhere near this
+SEED_MAX = 2**32 - 1  # numpy's legacy seeding, which training uses, takes 32 bits
+
+
+def int_range(low: int | None = 1, high: int | None = INT_MAX) -> Any:
+    """An argparse ``type``: a whole number in ``[low, high]``, else a one-line error saying what is expected."""
+    expected = (f"a whole number from {low} to {high}" if low is not None and high is not None else
+                "a whole number" + (f" >= {low}" if low is not None else "") + (f" <= {high}" if high else ""))
+
+    def parse(text: str) -> int:
+        try:
+            value = int(str(text).strip().replace("_", ""), 10)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if (low is not None and value < low) or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return value
+
+    parse.__name__ = "int"
+    return parse
+
+
+def float_range(low: float | None = 0.0, high: float | None = None, low_open: bool = False) -> Any:
+    """An argparse ``type``: a finite real number in ``[low, high]`` (``low_open``: above ``low``)."""
+    bounds = ([f"{'>' if low_open else '>='} {low:g}"] if low is not None else []) + \
+        ([f"<= {high:g}"] if high is not None else [])
+    expected = "a finite number" + (" " + " and ".join(bounds) if bounds else "")
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not math.isfinite(value) or (low is not None and (value <= low if low_open else value < low)) or \
+                (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return value
+
+    parse.__name__ = "float"
+    return parse
+
+
+positive_int = int_range(1)
+count = int_range(0)
+seed_int = int_range(0, SEED_MAX)
+port_number = int_range(1, 65535)
+
+# Ranges of config fields by name, where the default (whole numbers >= 1, reals >= 0) does not fit.
+RANGES: dict[str, tuple[float | None, float | None]] = {
+    "seed": (0, SEED_MAX), "warmup": (0, INT_MAX), "keep_checkpoints": (0, INT_MAX), "workers": (0, 256),
+    "gifs": (0, INT_MAX), "dropout": (0.0, 1.0), "min_lr_ratio": (0.0, 1.0), "workspace_center": (None, None),
+}
+_POSITIVE_REALS = {"lr", "workspace_size", "mlp_ratio"}
+
+
+def field_type(f: dataclasses.Field, kind: Any) -> Any:
+    """The range-checked argparse ``type`` of a numeric field (``kind`` int or float), see the module docstring."""
+    default = (1, INT_MAX) if kind is int else (0.0, None)
+    low, high = f.metadata.get("range", RANGES.get(f.name, default))  # None: unbounded on that side
+    if kind is int:
+        return int_range(low, high)
+    if f.name in _POSITIVE_REALS:
+        return float_range(0.0, high, low_open=True)
+    return float_range(low, high)
+
+
+def check_overrides(cls: type, overrides: dict[str, Any], option: str = "--set") -> dict[str, Any]:
+    """``KEY=VALUE`` overrides of the config dataclass ``cls``, checked like its flags.
+
+    Raises:
+        ValueError: an unknown key (the message lists the known ones) or a value of the wrong type or range.
+    """
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.metadata.get("cli", True)}
+    out = {}
+    for key, value in overrides.items():
+        if key not in fields:
+            raise ValueError(f"{option} {key}=...: {cls.__name__} has no settable field {key!r}; known: "
+                             f"{', '.join(sorted(fields))}")
+        kind, nargs, optional = _base_type(hints[key])
+        if value is None and optional:
+            out[key] = value
+            continue
+        try:
+            if kind is bool:
+                if not isinstance(value, bool):
+                    raise argparse.ArgumentTypeError("expected true or false")
+                out[key] = value
+            elif kind in (int, float) and nargs is None:
+                if isinstance(value, bool) or not isinstance(value, int | float) or (kind is int and
+                                                                                     not isinstance(value, int)):
+                    raise argparse.ArgumentTypeError(f"expected {'a whole number' if kind is int else 'a number'}")
+                out[key] = field_type(fields[key], kind)(str(value))
+            else:
+                out[key] = value
+        except argparse.ArgumentTypeError as err:
+            raise ValueError(f"{option} {key}={value!r}: {err}") from None
+    return out
 
 
 def attribute_docs(cls: type) -> dict[str, str]:
@@ -140,7 +245,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: type, defaults: A
                 kwargs["help"] = f.metadata.get("off_help") or f"turn off: {text}"
             target.add_argument(flag, action="store_false" if default else "store_true", default=default, **kwargs)
             continue
-        kwargs["type"] = kind if kind in (int, float, Path) else str
+        kwargs["type"] = field_type(f, kind) if kind in (int, float) else kind if kind is Path else str
         kwargs["metavar"] = _flag(f).lstrip("-").replace("-", "_").upper()
         if nargs is not None:
             kwargs["nargs"] = nargs

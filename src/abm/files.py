@@ -1,14 +1,23 @@
-"""Reading and writing files safely: loaders that never run code from a file.
+"""Reading and writing files safely: loaders that never run code, atomic writes, one writer per folder.
 
 Every file abm reads is data: checkpoints go through :func:`load_torch_data` (``torch.load`` with
-``weights_only=True``), YAML through ``yaml.safe_load``, ``.npz`` through ``np.load(allow_pickle=False)``
-and HDF5 through h5py (which never unpickles).
+``weights_only=True``), YAML through :func:`load_yaml` (``yaml.safe_load``), ``.npz`` through
+``np.load(allow_pickle=False)`` and HDF5 through h5py (which never unpickles).
+
+Writes go through :func:`atomic_path` (a temporary file renamed into place, removed on any failure, a
+full disk included) and commands that write a run folder hold its :class:`FolderLock`.
 """
 
 from __future__ import annotations
 
+import errno
+import logging
+import os
 import pickle
-from collections.abc import Sequence
+import re
+import socket
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -56,3 +65,158 @@ def load_yaml(path: str | Path, what: str) -> Any:
     except yaml.YAMLError as err:
         detail = " ".join(str(err).split())
         raise ValueError(f"{path}: not a valid {what} (YAML error: {detail})") from None
+
+
+class WriteError(ValueError):
+    """A file could not be written (full disk, a parent that is a file, no permission); nothing was left."""
+
+
+# errno values that are the user's to fix (a path, the disk), reported as one line by the command line
+USER_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM, errno.EROFS,
+                         errno.ENOTDIR, errno.EISDIR, errno.EEXIST, errno.ENAMETOOLONG})
+
+
+def write_error(path: Path | str, err: OSError, verb: str = "write") -> WriteError:
+    """One line naming ``path``, the reason and the fix, for an ``OSError`` writing (or using) it."""
+    code = err.errno
+    if code is None:  # h5py and others put the errno in the text only
+        found = re.search(r"errno = (\d+)", str(err))
+        code = int(found.group(1)) if found else None
+    reason = os.strerror(code) if code else (str(err).strip().splitlines() or ["write failed"])[0]
+    hint = {errno.ENOSPC: "free some disk space and run the command again",
+            errno.EDQUOT: "free some disk space and run the command again",
+            errno.EFBIG: "the file size limit of this process was reached (ulimit -f)",
+            errno.EACCES: "choose a folder you may write to",
+            errno.EROFS: "choose a folder on a writable disk",
+            errno.ENOTDIR: "a parent of it is a file, not a folder: choose another path",
+            errno.EEXIST: "a parent of it is a file, not a folder: choose another path",
+            errno.EISDIR: "it is a folder: give a file path"}.get(code, "")
+    return WriteError(f"cannot {verb} {path}: {reason}" + (f"; {hint}" if hint else ""))
+
+
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary path next to ``path`` to write, renamed over ``path`` when the block succeeds.
+
+    A failure (a full disk, an interruption) leaves ``path`` as it was and removes the temporary file;
+    an ``OSError`` becomes a one-line :class:`WriteError` naming ``path`` and the fix.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        if path.is_dir():
+            raise IsADirectoryError(errno.EISDIR, "it is a folder; give a file path", str(path))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException as err:
+        _remove_quietly(tmp)
+        cause = _os_error_in(err)
+        if cause is not None:
+            raise write_error(path, cause) from None
+        raise
+
+
+def _os_error_in(err: BaseException | None) -> OSError | None:
+    """The ``OSError`` behind ``err`` (libraries such as torch re-raise a failed write as another error)."""
+    for _ in range(8):
+        if err is None or isinstance(err, OSError):
+            return err
+        err = err.__cause__ or err.__context__
+    return None
+
+
+def _remove_quietly(path: Path) -> None:
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+def write_text_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`atomic_path`)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+LOCK_NAME = ".abm.lock"
+
+
+class FolderBusyError(ValueError):
+    """Another live process writes into the folder."""
+
+
+class FolderLock:
+    """One writer per folder: an exclusive ``flock`` on ``FOLDER/.abm.lock``, which holds the owner's pid.
+
+    The kernel releases the lock when its owner dies, so a lock file left by a killed process is stale:
+    the next command takes it over (and says so). Use as a context manager::
+
+        with FolderLock(run, "abm train"):
+            ...
+
+    Raises:
+        FolderBusyError: a live process holds the lock (the message names its pid and command).
+    """
+
+    def __init__(self, folder: str | Path, command: str) -> None:
+        self.folder = Path(folder)
+        self.command = command
+        self.path = self.folder / LOCK_NAME
+        self._fd: int | None = None
+        self._created_folder = False
+
+    def __enter__(self) -> FolderLock:
+        import fcntl
+
+        if self.folder.exists() and not self.folder.is_dir():
+            raise WriteError(f"{self.folder} is a file; give a folder")
+        self._created_folder = not self.folder.exists()
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise write_error(self.folder, err) from None
+        while True:
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as err:
+                self._remove_created_folder()
+                raise write_error(self.path, err) from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                owner = os.read(fd, 200).decode("utf-8", "replace").strip() or "another process"
+                os.close(fd)
+                self._remove_created_folder()
+                raise FolderBusyError(f"{self.folder} is in use by {owner}: one command at a time writes a run "
+                                      f"folder; wait for it to finish (or stop it), or use another folder") from None
+            try:  # the file may have been removed by its last owner between our open and flock: retry
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        previous = os.read(fd, 200).decode("utf-8", "replace").strip()
+        if previous:
+            logging.getLogger("abm").info("%s: taking over the stale lock of %s (no longer running)", self.folder,
+                                          previous)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{self.command} (pid {os.getpid()} on {socket.gethostname()})\n".encode(), 0)
+        self._fd = fd
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._fd is not None:
+            _remove_quietly(self.path)  # while still holding it, so nobody locks a file being removed
+            os.close(self._fd)
+            self._fd = None
+            self._remove_created_folder()
+
+    def _remove_created_folder(self) -> None:
+        if self._created_folder:
+            try:
+                self.folder.rmdir()  # only when still empty: the command wrote nothing
+            except OSError:
+                pass

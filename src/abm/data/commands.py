@@ -6,6 +6,8 @@ import argparse
 from collections import defaultdict
 from pathlib import Path
 
+from abm.configuration import float_range, int_range, seed_int
+
 
 def register(subparsers) -> None:
     from abm.configuration import CAMERA_RESOLUTION, WORKERS, clip_model_help
@@ -19,11 +21,12 @@ def register(subparsers) -> None:
                      help="task name (e.g. place_food), a comma-separated list, or 'all' (every trainable "
                           "task; the evaluation-only compositional tasks are never generated)")
     gen.add_argument("--split", required=True, help="object split: seen or unseen")
-    gen.add_argument("--episodes", type=int, required=True, help="number of successful demonstrations")
+    gen.add_argument("--episodes", type=int_range(1, 10**6), required=True, help="number of successful demonstrations")
     gen.add_argument("--out", required=True, type=Path, help="output directory")
-    gen.add_argument("--workers", type=int, default=WORKERS, help="parallel worker processes")
-    gen.add_argument("--seed", type=int, default=0, help="first scene seed")
-    gen.add_argument("--resolution", type=int, default=CAMERA_RESOLUTION, help="camera resolution (pixels, square)")
+    gen.add_argument("--workers", type=int_range(1, 256), default=WORKERS, help="parallel worker processes")
+    gen.add_argument("--seed", type=seed_int, default=0, help="first scene seed")
+    gen.add_argument("--resolution", type=int_range(16, 1024), default=CAMERA_RESOLUTION,
+                     help="camera resolution (pixels, square)")
     gen.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
     gen.add_argument("--dense", action="store_true",
                      help="also record the full trajectory at a fixed control rate (camera frames, joint state, "
@@ -75,9 +78,10 @@ def register(subparsers) -> None:
     ground.add_argument("--tasks", nargs="+", help="tasks (default: all in the store)")
     ground.add_argument("--splits", nargs="+", default=["seen"], help="splits (default: seen)")
     ground.add_argument("--cameras", nargs="+", help="cameras to fuse (default: all)")
-    ground.add_argument("--workspace-center", nargs=3, type=float, metavar=("X", "Y", "Z"),
+    ground.add_argument("--workspace-center", nargs=3, type=float_range(None), metavar=("X", "Y", "Z"),
                         help="the policy's workspace cube centre in m (default: the policy default)")
-    ground.add_argument("--workspace-size", type=float, help="the cube's edge in m (default: the policy default)")
+    ground.add_argument("--workspace-size", type=float_range(0.0, low_open=True),
+                        help="the cube's edge in m (default: the policy default)")
     ground.add_argument("--no-augment", action="store_true", help="for training with --no-augment (smaller crop)")
     ground.set_defaults(func=_ground)
 

@@ -42,16 +42,18 @@ never leaves a complete-looking partial file. Any unreadable, incomplete or wron
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import zlib
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from abm.files import WriteError, write_error, write_text_atomic
 from abm.types import CameraFrame, Episode, KeyframeAction, Observation, Trajectory
 
 FORMAT_VERSION: int = 2
@@ -95,15 +97,19 @@ def save_episode(episode: Episode, path: str | os.PathLike) -> None:
     import h5py
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise write_error(path, err) from None
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     steps = episode.steps
     camera_names = list(steps[0][0].cameras) if steps else []
     for k, (obs, _) in enumerate(steps):
         if list(obs.cameras) != camera_names:
             raise ValueError(f"keyframe {k} has cameras {list(obs.cameras)}, expected {camera_names}")
+    buffer = io.BytesIO()  # built in memory, then written in one go: a full disk fails in Python, cleanly
     try:
-        with h5py.File(tmp, "w") as f:
+        with h5py.File(buffer, "w") as f:
             attrs = f.attrs
             attrs["format_version"] = FORMAT_VERSION
             attrs["task"] = episode.task
@@ -132,7 +138,10 @@ def save_episode(episode: Episode, path: str | os.PathLike) -> None:
             if episode.trajectory is not None:
                 _write_trajectory(f.create_group("trajectory"), episode.trajectory, camera_names)
             f.visititems(_store_checksum)
+        tmp.write_bytes(buffer.getbuffer())
         os.replace(tmp, path)
+    except OSError as err:  # a full disk: one clear error, and the temporary file goes (finally)
+        raise write_error(path, err) from None
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -246,6 +255,47 @@ def verify_episode(path: str | os.PathLike) -> bool:
         except Exception as err:  # noqa: BLE001 - h5py/zlib raise many types for damaged data
             raise EpisodeFormatError(f"{path}: dataset {name} cannot be read ({err}); the file is corrupt") from None
     return missing == 0
+
+
+VERIFIED_RECORD = ".abm_verified.json"
+
+
+def check_episodes(paths: Sequence[str | os.PathLike], root: str | os.PathLike | None = None
+                   ) -> list[tuple[Path, str]]:
+    """Verify the checksums of episode files (:func:`verify_episode`); ``(path, reason)`` of each bad one.
+
+    A file that passed keeps its name, size and modification time in ``ROOT/.abm_verified.json``, so it
+    is read again only once it changes: the first check of a store reads every byte once, later ones
+    only look at the files' sizes and times.
+    """
+    record_path = Path(root) / VERIFIED_RECORD if root is not None else None
+    try:
+        record = json.loads(record_path.read_text()) if record_path is not None and record_path.is_file() else {}
+        record = record if isinstance(record, dict) else {}
+    except (OSError, ValueError):
+        record = {}
+    bad: list[tuple[Path, str]] = []
+    passed = 0
+    for p in map(Path, paths):
+        key = str(p.relative_to(root)) if root is not None and p.is_relative_to(root) else str(p)
+        try:
+            stat = p.stat()
+            stamp = [stat.st_size, stat.st_mtime_ns]
+            if record.get(key) == stamp:
+                continue
+            verify_episode(p)
+        except (OSError, EpisodeFormatError) as err:
+            record.pop(key, None)
+            bad.append((p, str(err)))
+            continue
+        record[key] = stamp
+        passed += 1
+    if record_path is not None and passed:
+        try:
+            write_text_atomic(record_path, json.dumps(record, indent=0, sort_keys=True))
+        except WriteError:
+            pass  # a read-only store is checked again next time
+    return bad
 
 
 def _open(path: Path):

@@ -133,6 +133,23 @@ def _store_remote(out: Path, task: str, split: str, result: tuple[int, bool, str
     return sd, ok, note
 
 
+def _remove_corrupt_episodes(out: Path, folder: Path) -> set[int]:
+    """Delete the episodes of ``folder`` that fail verification (so they are generated again, never counted);
+    returns the seeds that have an episode file or a failure marker."""
+    import logging
+    import re
+
+    from abm.data.episode_store import check_episodes, find_episode_files
+
+    if not folder.is_dir():
+        return set()
+    for path, reason in check_episodes(find_episode_files(folder), out):
+        logging.getLogger("abm").warning("%s fails verification (%s); generating it again", path.name, reason)
+        path.unlink(missing_ok=True)
+    found = (re.fullmatch(r"episode_(\d+)\.(h5|failed)", p.name) for p in folder.iterdir())
+    return {int(m.group(1)) for m in found if m}
+
+
 def _check_resume_settings(folder: Path, resolution: int, dense_fps: float | None = None) -> None:
     """Refuse to add episodes of another camera resolution (or dense rate) to a folder (they could not be
     trained or exported together)."""
@@ -175,9 +192,12 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     pending_seeds: list[int] = []
     s = seed
     limit = seed + MAX_SEED_FACTOR * max(episodes, 1) + 10
+    on_disk = _remove_corrupt_episodes(out, out / task / split)
     _check_resume_settings(out / task / split, resolution, dense_fps)
-    # Resume: count what exists, queue the rest.
-    while done + len(pending_seeds) < episodes and s < limit:
+    # Resume: count what exists, queue the gaps. Past the last seed on disk nothing exists, so the scan stops
+    # there and the pool draws the following seeds one by one (any --episodes count costs no memory up front).
+    scan_end = min(limit, max(on_disk, default=seed - 1) + 1)
+    while done + len(pending_seeds) < episodes and s < scan_end:
         path = episode_path(out, task, split, s)
         if path.is_file():
             done += 1

@@ -28,7 +28,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 import random
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -40,6 +39,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, Sampler
 
+from abm.files import atomic_path
 from abm.geometry import Workspace, augment_scene, transform_points
 from abm.grounding.conditioning import (
     ConditionedScene,
@@ -328,9 +328,8 @@ class KeyframeDataset(Dataset):
             if scene.features is not None:
                 arrays["features"] = scene.features.astype(np.float16)
             path = self._cache_file(j, k)
-            tmp = path.with_name(path.name + f".tmp{os.getpid()}.npz")
-            np.savez(tmp, **arrays)
-            os.replace(tmp, path)
+            with atomic_path(path) as tmp, tmp.open("wb") as fh:
+                np.savez(fh, **arrays)
             bar.update(1)
         bar.close()
         return len(todo)

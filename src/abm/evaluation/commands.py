@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from abm.configuration import count, int_range
+
 SPLITS = ("seen", "unseen", "compositional")
 
 
@@ -27,12 +29,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--split", nargs="+", default=["seen", "unseen"], choices=SPLITS, metavar="SPLIT",
                    help=f"object splits to evaluate ({', '.join(SPLITS)}), one outcome folder each and one "
                    "combined table (default: seen unseen)")
-    p.add_argument("--episodes", type=int, default=25, help="episodes per task and repeat (paper: 25)")
-    p.add_argument("--repeats", type=int, default=5, help="repeats with different scenes (paper: 5)")
-    p.add_argument("--workers", type=int, default=WORKERS, help="parallel rollout processes")
+    p.add_argument("--episodes", type=int_range(1, 10**6), default=25, help="episodes per task and repeat (paper: 25)")
+    p.add_argument("--repeats", type=int_range(1, 1000), default=5, help="repeats with different scenes (paper: 5)")
+    p.add_argument("--workers", type=int_range(1, 256), default=WORKERS, help="parallel rollout processes")
     add_backend_arguments(p)  # --backend local|ray, --ray-address
     add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
-    p.add_argument("--gifs", type=int, default=0, help="save front-camera GIFs of this many episodes per task")
+    p.add_argument("--gifs", type=count, default=0, help="save front-camera GIFs of this many episodes per task")
     p.add_argument("--out", type=Path, default=None,
                    help="with one --split: the folder of its outcomes and tables (default: FIRST_RUN/eval_SPLIT); "
                    "with several: the parent of one eval_SPLIT folder per split and of the combined table "
@@ -110,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     from abm.configuration import config_from_args
     from abm.evaluation.results import OutcomeLog, combined_table, markdown_table, write_json
     from abm.evaluation.runner import EvalJob, EvalSettings, check_same_evaluation, evaluate
+    from abm.files import FolderLock
     from abm.ray_pool import RayBackendError
 
     for r in args.run:
@@ -138,8 +141,9 @@ def run(args: argparse.Namespace) -> int:
     rates = []
     for split, tasks in plan.items():
         try:
-            found = evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers, settings,
-                             gifs=args.gifs, backend=args.backend, ray_address=args.ray_address)
+            with FolderLock(outs[split], "abm eval"):  # one writer per results folder
+                found = evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers,
+                                 settings, gifs=args.gifs, backend=args.backend, ray_address=args.ray_address)
         except RayBackendError as err:
             raise CommandError(str(err)) from None
         rates += [r for r in found if r.split == split and r.task in tasks]

@@ -16,6 +16,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+from abm.files import atomic_path, write_text_atomic
+
 # Evaluation seeds live far from the data-generation seeds (which start at 0), so evaluation scenes
 # are never training scenes. Episode e of repeat r uses EVAL_SEED_BASE + r * SEEDS_PER_REPEAT + e.
 EVAL_SEED_BASE = 1_000_000
@@ -190,7 +192,7 @@ def aggregate(outcomes: Iterable[EpisodeOutcome]) -> list[SuccessRate]:
 
 def write_csv(rates: Sequence[SuccessRate], path: str | Path) -> None:
     """One row per (method, task, split) with mean, std, repeats, episodes and crashed episodes."""
-    with Path(path).open("w", newline="") as f:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["method", "task", "split", "mean", "std", "repeats", "episodes", "errors"])
         for r in rates:
@@ -200,7 +202,7 @@ def write_csv(rates: Sequence[SuccessRate], path: str | Path) -> None:
 
 def write_json(rates: Sequence[SuccessRate], path: str | Path) -> None:
     payload = [dict(asdict(r), mean=r.mean, std=r.std) for r in rates]
-    Path(path).write_text(json.dumps(payload, indent=2) + "\n")
+    write_text_atomic(path, json.dumps(payload, indent=2) + "\n")
 
 
 def rate_cell(rate: SuccessRate | None, digits: int = 1) -> str:

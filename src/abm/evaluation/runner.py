@@ -34,6 +34,7 @@ from abm.evaluation.results import (
     write_csv,
     write_json,
 )
+from abm.files import write_text_atomic
 
 
 @dataclass(frozen=True)
@@ -352,7 +353,7 @@ def write_tables(rates: Sequence[SuccessRate], out_dir: Path) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(rates, out_dir / "results.json")
     write_csv(rates, out_dir / "results.csv")
-    (out_dir / "results.md").write_text(markdown_table(rates, splits=["seen", "unseen", "compositional"]) + "\n")
+    write_text_atomic(out_dir / "results.md", markdown_table(rates, splits=["seen", "unseen", "compositional"]) + "\n")
 
 
 def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seconds_per_frame: float = 0.6,

@@ -13,7 +13,8 @@ import os
 import time
 from pathlib import Path
 
-from abm.configuration import WORKERS
+from abm.configuration import WORKERS, count, float_range, int_range, positive_int, seed_int
+from abm.files import write_text_atomic
 
 log = logging.getLogger("abm")
 
@@ -36,20 +37,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     t.add_argument("--out", type=Path, required=True, help="model folder to write")
     t.add_argument("--data", type=Path, default=None, help="dataset cache folder (default OUT/data)")
-    t.add_argument("--shards", type=int, default=DEFAULT_SHARDS,
+    t.add_argument("--shards", type=positive_int, default=DEFAULT_SHARDS,
                    help=f"training shards to render, ~290 samples each (default {DEFAULT_SHARDS})")
-    t.add_argument("--heldout-shards", type=int, default=DEFAULT_HELDOUT_SHARDS,
+    t.add_argument("--heldout-shards", type=count, default=DEFAULT_HELDOUT_SHARDS,
                    help=f"held-out shards (other seeds) for the zero-shot accuracy (default {DEFAULT_HELDOUT_SHARDS}; "
                    "0 skips it)")
-    t.add_argument("--steps", type=int, default=DEFAULT_STEPS, help=f"optimiser steps (default {DEFAULT_STEPS})")
-    t.add_argument("--minutes", type=float, default=DEFAULT_MINUTES,
+    t.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
+                   help=f"optimiser steps (default {DEFAULT_STEPS})")
+    t.add_argument("--minutes", type=float_range(0.0), default=DEFAULT_MINUTES,
                    help="training time budget; the learning-rate schedule follows whichever of steps and time "
                    f"runs out first (default {DEFAULT_MINUTES:g}; 0 = steps only)")
-    t.add_argument("--batch", type=int, default=DEFAULT_BATCH, help=f"batch size (default {DEFAULT_BATCH})")
-    t.add_argument("--lr", type=float, default=DEFAULT_LR, help=f"peak learning rate (default {DEFAULT_LR:g})")
-    t.add_argument("--workers", type=int, default=WORKERS, help="rendering processes")
-    t.add_argument("--threads", type=int, default=2, help="torch threads for training (default 2)")
-    t.add_argument("--seed", type=int, default=0, help="data and initialisation seed (default 0)")
+    t.add_argument("--batch", type=int_range(2), default=DEFAULT_BATCH, help=f"batch size (default {DEFAULT_BATCH})")
+    t.add_argument("--lr", type=float_range(0.0, low_open=True), default=DEFAULT_LR,
+                   help=f"peak learning rate (default {DEFAULT_LR:g})")
+    t.add_argument("--workers", type=int_range(1, 256), default=WORKERS, help="rendering processes")
+    t.add_argument("--threads", type=int_range(1, 256), default=2, help="torch threads for training (default 2)")
+    t.add_argument("--seed", type=seed_int, default=0, help="data and initialisation seed (default 0)")
     t.add_argument("--resume", action="store_true", help="continue the run in --out (rendering always resumes)")
     t.add_argument("--no-progress", action="store_true", help="no progress bars")
     t.set_defaults(func=run_train)
@@ -98,7 +101,7 @@ def run_train(args: argparse.Namespace) -> int:
         backbone = load_clip(str(args.out), device="cpu")
         summary["zero_shot"] = zero_shot_accuracy(backbone, load_dataset(heldout, args.heldout_shards))
         summary["zero_shot"]["data"] = str(heldout)
-        (args.out / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        write_text_atomic(args.out / SUMMARY, json.dumps(summary, indent=2) + "\n")
     final = summary.get("final") or {}
     print(f"trained {summary['steps']} steps in {summary['train_seconds'] / 60:.1f} min on {summary['samples']} "
           f"samples; final loss {final.get('loss')} (contrastive {final.get('contrastive')}, dense "

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from abm.files import atomic_path, write_text_atomic
 from abm.grounding.clip_captions import BACKGROUND_CLASSES, FLOOR, ROBOT, TABLE, caption, class_names
 
 log = logging.getLogger("abm")
@@ -473,9 +474,8 @@ def _write_shard(folder: Path, shard: int, base_seed: int, config: RenderConfig,
     ensure_headless_gl()
     arrays = render_shard(shard, base_seed, config, classes)
     path = shard_path(folder, shard)
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez_compressed(tmp, **arrays)
-    tmp.replace(path)
+    with atomic_path(path) as tmp, tmp.open("wb") as fh:
+        np.savez_compressed(fh, **arrays)
     return int(arrays["kind"].shape[0])
 
 
@@ -509,7 +509,7 @@ def build_dataset(folder: str | Path, shards: int, config: RenderConfig | None =
             raise ValueError(f"{folder} holds a dataset rendered with other settings ({meta_path}); "
                              "use another folder or delete it")
     else:
-        meta_path.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+        write_text_atomic(meta_path, json.dumps(meta, indent=2) + "\n")
     todo = [s for s in range(shards) if not shard_path(folder, s).is_file()]
     if not todo:
         return folder

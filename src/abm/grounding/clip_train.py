@@ -40,7 +40,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from abm.files import load_torch_data
+from abm.files import atomic_path, load_torch_data, write_text_atomic
 from abm.grounding.clip import maskclip_head, run_encoder_layer
 from abm.grounding.clip_captions import GENERIC_PARENT, OBJECT_PARENT, class_prompts
 from abm.grounding.clip_data import SCENE, ClipDataset
@@ -399,11 +399,11 @@ def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None,
         writer.writerow(["step", "loss", "contrastive", "dense", "lr", "logit_scale", "elapsed_s", "images_per_s"])
 
     def checkpoint() -> None:
-        tmp = ckpt_path.with_suffix(".tmp")
-        torch.save({"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
-                    "elapsed": elapsed, "history": history, "order": order.state(), "rng": rng.bit_generator.state,
-                    "torch_rng": torch.get_rng_state(), "mean": mean, "std": std, "config": asdict(config)}, tmp)
-        tmp.replace(ckpt_path)
+        with atomic_path(ckpt_path) as tmp, tmp.open("wb") as fh:
+            torch.save({"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
+                        "elapsed": elapsed, "history": history, "order": order.state(),
+                        "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "mean": mean, "std": std,
+                        "config": asdict(config)}, fh)
 
     bar = Progress(config.steps, "clip train", "steps", initial=step, bar=progress)
     running: dict[str, float] = {}
@@ -460,7 +460,7 @@ def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None,
         "image_mean": mean, "image_std": std,
         **(extra_summary or {}),
     }
-    (out / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_text_atomic(out / SUMMARY, json.dumps(summary, indent=2) + "\n")
     return summary
 
 

@@ -24,6 +24,9 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # numpy is imported by the command itself, so `abm --help` stays fast
     import numpy as np
 
+from abm.configuration import count, float_range, int_range, seed_int
+from abm.files import write_text_atomic
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from abm.configuration import clip_model_help
@@ -36,8 +39,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "and write PNGs. Without --episode the built-in synthetic scene is used.",
     )
     p.add_argument("--episode", type=Path, help="episode file (abm.data.episode_store format)")
-    p.add_argument("--step", type=int, default=0, help="keyframe index within the episode (default 0)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the synthetic scene (without --episode)")
+    p.add_argument("--step", type=count, default=0, help="keyframe index within the episode (default 0)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the synthetic scene (without --episode)")
     p.add_argument("--instruction", help="instruction (default: the episode's, or one naming a scene object)")
     p.add_argument("--grounder", choices=("oracle", "clip"), default="oracle", help="grounder (default oracle)")
     p.add_argument("--clip-model", default=None,
@@ -45,9 +48,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--allow-download", action="store_true", help="let transformers download CLIP weights")
     p.add_argument("--normalization", choices=("raw", "minmax", "softmax"), default=None,
                    help="heatmap normalisation (default softmax)")
-    p.add_argument("--threshold", type=float, default=None, help="mask threshold on the heatmap (default 0.7)")
+    p.add_argument("--threshold", type=float_range(0.0, 1.0), default=None,
+                   help="mask threshold on the heatmap (default 0.7)")
     p.add_argument("--cache", type=Path, default=None, help="grounding cache folder (default: none)")
-    p.add_argument("--resolution", type=int, default=220, help="virtual view side in pixels")
+    p.add_argument("--resolution", type=int_range(16, 2048), default=220, help="virtual view side in pixels")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     p.add_argument("--out", type=Path, default=Path("out/ground"), help="output folder (default out/ground)")
     p.add_argument("--strict", action="store_true",
@@ -193,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
     if args.grounder == "clip":
         summary.update(model=grounder.model_name, normalization=grounder.config.normalization,
                        threshold=grounder.config.threshold)
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(f"{where}: {instruction!r} -> target {target!r}, skill {skill!r}")
     print(f"{args.grounder} grounder: {summary['mask_points']} of {len(cloud)} points masked, found={field.found}")
     print(f"wrote camera_*.png, topdown.png, views.png, view_*.png and summary.json to {args.out}/")

@@ -15,7 +15,6 @@ tensors and plain data only, so a crafted file is refused instead of running its
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from abm.files import load_torch_data
+from abm.files import atomic_path, load_torch_data
 
 try:
     from numpy._core.multiarray import _reconstruct
@@ -48,10 +47,8 @@ def checkpoint_path(run_dir: str | Path, step: int) -> Path:
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     """Write atomically (temporary file + rename), so an interruption never leaves a broken checkpoint."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    torch.save({"format": FORMAT, "version": VERSION, **payload}, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp, tmp.open("wb") as fh:  # Python file: a full disk raises OSError
+        torch.save({"format": FORMAT, "version": VERSION, **payload}, fh)
     return path
 
 
@@ -112,6 +109,25 @@ def export_checkpoint(run_or_ckpt: str | Path, out: str | Path, dtype: torch.dty
         payload["model"] = {k: v.to(dtype) if v.is_floating_point() else v for k, v in data["model"].items()}
         payload["exported_dtype"] = str(dtype).removeprefix("torch.")
     return save_checkpoint(out, payload)
+
+
+def check_export_target(source: str | Path, out: str | Path, overwrite: bool = False) -> None:
+    """Refuse an export path that would lose data: the exported checkpoint itself, a file inside a run's
+    ``checkpoints`` folder (where resuming looks), an existing folder, or an existing file (unless
+    ``overwrite``)."""
+    out = Path(out)
+    parent = next((p for p in out.parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise ValueError(f"--out {out}: {parent} is a file, not a folder; choose another path")
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a folder; give a file path such as {out / 'policy.pt'}")
+    if out.exists() and out.resolve() == Path(source).resolve():
+        raise ValueError(f"--out {out} is the checkpoint being exported; write the export to another file")
+    if out.resolve().parent.name == checkpoint_dir("").name:
+        raise ValueError(f"--out {out} is inside a run's checkpoints folder, where abm train and --resume look "
+                         "for the newest checkpoint; write the export outside it (e.g. next to the run)")
+    if out.exists() and not overwrite:
+        raise ValueError(f"--out {out} already exists; pass --overwrite to replace it, or choose another path")
 
 
 def prune_checkpoints(run_dir: str | Path, keep: int) -> None:

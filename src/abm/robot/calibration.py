@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from abm.files import write_text_atomic
+
 
 @dataclass(frozen=True)
 class BoardSpec:
@@ -126,7 +128,7 @@ def save_calibration(path: str | Path, cameras: Mapping[str, Mapping[str, np.nda
     data = {"cameras": {str(n): {k: np.asarray(v, float).round(9).tolist() for k, v in c.items()}
                         for n, c in cameras.items()}}
     path = Path(path)
-    path.write_text(yaml.safe_dump(data, sort_keys=True))
+    write_text_atomic(path, yaml.safe_dump(data, sort_keys=True))
     return path
 
 

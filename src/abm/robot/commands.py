@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from abm.configuration import int_range
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from abm.configuration import MAX_KEYFRAMES, clip_model_help
@@ -22,7 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--allow-no-target", action="store_true",
                    help="move even when grounding finds no point of the instruction's object (by default such a "
                    "step is refused before anything moves, exit code 2)")
-    p.add_argument("--steps", type=int, default=MAX_KEYFRAMES, help="keyframes to run")
+    p.add_argument("--steps", type=int_range(1, 10_000), default=MAX_KEYFRAMES, help="keyframes to run")
     p.add_argument("--grounder", choices=["oracle", "clip", "tracking"], help="override the checkpoint's grounder")
     p.add_argument("--clip-model", help=clip_model_help("of --grounder clip or tracking (default: the "
                                                         "checkpoint's)", default=None))

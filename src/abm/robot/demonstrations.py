@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from abm.configuration import count
 from abm.geometry.rotations import canonical_gripper_quat, matrix_to_quat
 from abm.types import Episode, KeyframeAction, Observation
 
@@ -170,7 +171,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True, help="episode folder (OUT/<task>/<split>/episode_N.h5)")
     p.add_argument("--task", default="real", help="task name stored with the episode (default: real)")
     p.add_argument("--split", default="seen", choices=["seen", "unseen", "compositional"])
-    p.add_argument("--symmetry", type=int, default=2, help="gripper symmetry of the keyframes (default: 2)")
+    p.add_argument("--symmetry", type=count, default=2, help="gripper symmetry of the keyframes (default: 2)")
     args = p.parse_args(argv)
     camera, arm = recording_devices(args.robot)
     try:

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from abm.files import atomic_path, write_text_atomic
 from abm.types import CameraFrame, KeyframeAction, Observation
 
 log = logging.getLogger(__name__)
@@ -36,12 +36,11 @@ def record_observations(observations: Sequence[Observation], folder: str | Path,
                            f"{name}/intrinsics": frame.intrinsics, f"{name}/extrinsics": frame.extrinsics})
             if frame.segmentation is not None:
                 arrays[f"{name}/segmentation"] = frame.segmentation
-        tmp = folder / f".step_{k:03d}.tmp{os.getpid()}.npz"
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, folder / f"step_{k:03d}.npz")
+        with atomic_path(folder / f"step_{k:03d}.npz") as tmp, tmp.open("wb") as fh:
+            np.savez_compressed(fh, **arrays)
     meta = {"steps": len(observations), "cameras": sorted(observations[0].cameras) if observations else [],
             "object_names": {str(k): v for k, v in (object_names or {}).items()}, "instruction": instruction}
-    (folder / "meta.json").write_text(json.dumps(meta, indent=1))
+    write_text_atomic(folder / "meta.json", json.dumps(meta, indent=1))
     return folder
 
 

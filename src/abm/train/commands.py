@@ -17,7 +17,15 @@ import os
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import add_config_arguments, clip_model_help, config_from_args, overrides_from_args
+from abm.configuration import (
+    add_config_arguments,
+    check_overrides,
+    clip_model_help,
+    config_from_args,
+    count,
+    int_range,
+    overrides_from_args,
+)
 from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
 
@@ -49,13 +57,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_config_arguments(p, TrainConfig)  # one flag per TrainConfig field, help from its docstring
     add_config_arguments(p, PolicyConfig, overrides_only=True, exclude=("variant", "preset", "extra"),
                          dest_prefix=POLICY_DEST, title="policy (overrides of the --preset; saved with the run)")
-    p.add_argument("--synthetic", type=int, default=0, metavar="N",
+    p.add_argument("--synthetic", type=count, default=0, metavar="N",
                    help="train on N built-in synthetic block episodes instead of --data (smoke tests)")
     p.add_argument("--clip-model", help=clip_model_help("for --grounder clip / --language clip"))
     p.add_argument("--clip-device", help="device of the CLIP model (default: CUDA when available)")
     p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
                    help="override a policy config field, e.g. --set resolution=64 (repeatable)")
-    p.add_argument("--camera-resolution", type=int, default=64, help="camera side for --synthetic episodes")
+    p.add_argument("--camera-resolution", type=int_range(16, 1024), default=64,
+                   help="camera side for --synthetic episodes")
     p.set_defaults(func=run, config_sections={"policy": POLICY_DEST})
 
     e = subparsers.add_parser(
@@ -69,6 +78,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--out", required=True, help="the exported .pt file")
     e.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), default="float32",
                    help="storage dtype of the floating-point weights (default: float32, unchanged)")
+    e.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     e.set_defaults(func=run_export)
 
 
@@ -77,11 +87,14 @@ def run_export(args: argparse.Namespace) -> int:
 
     import torch
 
-    from abm.policy.checkpoint import export_checkpoint, resolve_checkpoint
+    from abm.files import FolderLock
+    from abm.policy.checkpoint import check_export_target, export_checkpoint, resolve_checkpoint
 
     src = resolve_checkpoint(args.run)
     dtype = None if args.dtype == "float32" else getattr(torch, args.dtype)
-    out = export_checkpoint(src, args.out, dtype)
+    check_export_target(src, args.out, args.overwrite)
+    with FolderLock(Path(args.out).parent, "abm export"):  # not while another command writes that folder
+        out = export_checkpoint(src, args.out, dtype)
     logging.getLogger("abm").info("exported %s (%.1f MiB) -> %s (%.1f MiB)", src, src.stat().st_size / 2**20,
                                   out, out.stat().st_size / 2**20)
     return 0
@@ -103,8 +116,12 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("give --data DIR (an episode store) or --synthetic N")
     if args.data is not None and not Path(args.data).is_dir():
         raise CommandError(f"--data {args.data} is not a folder")
+    try:
+        overrides = check_overrides(PolicyConfig, dict(args.overrides))
+    except ValueError as err:
+        raise CommandError(str(err)) from None
     cfg = config_from_args(
-        TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **dict(args.overrides)},
+        TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
         grounder_options={k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v})
     if cfg.grounder == "oracle" and cfg.grounder_options:
         if cfg.language != "clip":

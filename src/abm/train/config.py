@@ -46,6 +46,9 @@ class TrainConfig:
         language: language encoder (``hash`` or ``clip``; default: ``clip`` with the clip grounder, else ``hash``).
         seed: seed of model init and the data stream.
         resume: continue from the latest checkpoint in ``out`` (from scratch if it has none).
+        accept_changed_config: with ``resume``, continue even though options that shape the optimisation
+            (learning rate, batch, seed, ...) differ from the checkpoint's; the new values are used and
+            ``config.json`` lists what changed (without it such a resume is refused).
         overwrite: replace a run already in ``out`` (without it, and without ``resume``, a folder that
             holds a run is refused, so no run is lost).
         augment: SE(3) augmentation of the scene and the action.
@@ -57,6 +60,8 @@ class TrainConfig:
             2 CPU threads after a ~50 s compile: worth it for runs of more than a few hundred steps).
         bf16: bf16 autocast on CPU: ``auto`` (only where oneDNN reports native bf16; emulated bf16 is 5-10x
             slower), ``on`` or ``off``. CUDA always trains under bf16 autocast.
+        verify: check the checksums of every episode before training (each file is read in full once, then
+            only when it changes; ``--no-verify`` trains on the files as they are).
     """
 
     method: str = field(default="abm", metadata={"choices": sorted(VARIANTS), "required": True})
@@ -84,6 +89,7 @@ class TrainConfig:
     language: str | None = field(default=None, metadata={"choices": ["hash", "clip"]})
     seed: int = 0
     resume: bool = False
+    accept_changed_config: bool = False
     overwrite: bool = False
     augment: bool = field(default=True, metadata={"off_help": "no SE(3) augmentation of the scene and the action"})
     policy_overrides: dict[str, Any] = field(default_factory=dict, metadata={"cli": False})
@@ -93,6 +99,7 @@ class TrainConfig:
         "off_help": "no progress bar, even on a terminal: plain periodic lines only"})
     compile: bool = False
     bf16: str = field(default="auto", metadata={"choices": ["auto", "on", "off"]})
+    verify: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=str))

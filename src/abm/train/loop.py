@@ -26,7 +26,7 @@ import random
 import shutil
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +43,7 @@ from abm.data.keyframes import (
     ground_keyframes,
     worker_init,
 )
+from abm.files import FolderLock, write_text_atomic
 from abm.grounding.conditioning import make_grounder_from_spec
 from abm.policy.checkpoint import (
     checkpoint_path,
@@ -171,13 +172,20 @@ def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None, data: 
     data, splits = (data, splits) if data is not None else (cfg.data, cfg.splits)
     if data is None:
         raise ValueError("no training data: give --data DIR (an episode store) or --synthetic N")
-    from abm.data.episode_store import EpisodeStore  # owned by the data package
+    from abm.data.episode_store import EpisodeStore, check_episodes  # owned by the data package
 
     store = EpisodeStore(data)
     indices = store.select(tasks=cfg.tasks, splits=splits)
     if not indices:
         raise ValueError(f"no episodes in {data} for tasks {cfg.tasks} and splits {splits}")
     store.check_consistent(indices)
+    if cfg.verify:
+        bad = check_episodes([store.episodes[i].path for i in indices], cfg.data)
+        if bad:
+            shown = "; ".join(reason for _, reason in bad[:3]) + (f"; and {len(bad) - 3} more" if len(bad) > 3 else "")
+            raise ValueError(f"{len(bad)} episode file(s) in {cfg.data} fail verification: {shown}. Run abm data "
+                             "generate again with the same arguments (it re-creates them), or pass --no-verify "
+                             "to train on them anyway")
     return EpisodeSource(store, indices)
 
 
@@ -226,6 +234,17 @@ class _Logger:
 
 _RUN_FILES = ("config.json", "log.csv", "summary.json")
 
+# Options that shape the optimisation: ``--resume`` keeps them unless told otherwise (``--steps`` may grow; the
+# model's own options are checked by ``check_compatible``; the rest - paths, devices, logging - may change).
+RESUME_FIXED = ("tasks", "splits", "batch", "lr", "optimizer", "warmup", "min_lr_ratio", "weight_decay", "grad_clip",
+                "grounder", "grounder_options", "language", "seed", "augment", "camera_names")
+
+
+def changed_settings(saved: dict[str, Any], cfg: TrainConfig) -> dict[str, tuple[Any, Any]]:
+    """``{option: (value in the checkpoint, value now)}`` of the :data:`RESUME_FIXED` options that differ."""
+    now = cfg.to_dict()
+    return {k: (saved[k], now[k]) for k in RESUME_FIXED if k in saved and saved[k] != now[k]}
+
 
 def _claim_run_folder(run: Path, cfg: TrainConfig, dinfo: DistInfo) -> None:
     """Refuse to train into a folder that holds another run, unless resuming or told to overwrite."""
@@ -263,6 +282,7 @@ class Trainer:
         self.run = Path(cfg.out)
         self.start = 0
         self.prior_s = 0.0  # training seconds of earlier sessions of this run (resumes)
+        self.changed: dict[str, tuple[Any, Any]] = {}  # settings changed on resume (--accept-changed-config)
         self._t0 = time.perf_counter()
 
     # ------------------------------------------------------------------ build
@@ -321,6 +341,11 @@ class Trainer:
             self.optimizer, _lr_lambda(self.warmup, cfg.steps, cfg.min_lr_ratio))
         if ckpt is not None:
             self.restore(ckpt)
+            if self.changed:  # the restored optimiser holds the old rate and decay: run what config.json says
+                self.scheduler.base_lrs = [self.lr for _ in self.scheduler.base_lrs]
+                for group in self.optimizer.param_groups:
+                    group.update(initial_lr=self.lr, weight_decay=cfg.weight_decay,
+                                 lr=self.lr * self.scheduler.lr_lambdas[0](self.scheduler.last_epoch))
         self.train_policy: torch.nn.Module = self.policy
         if dinfo.enabled:
             from torch.nn.parallel import DistributedDataParallel
@@ -328,9 +353,10 @@ class Trainer:
             self.train_policy = DistributedDataParallel(
                 self.policy, device_ids=[device.index] if device.type == "cuda" else None)
         if dinfo.main:
-            (self.run / "config.json").write_text(json.dumps(
+            write_text_atomic(self.run / "config.json", json.dumps(
                 {"train": cfg.to_dict(), "policy": self.policy_config.to_dict(), "language": self.language_spec,
-                 "grounder": gspec, "world_size": world, "lr": self.lr, "warmup": self.warmup}, indent=2))
+                 "grounder": gspec, "world_size": world, "lr": self.lr, "warmup": self.warmup,
+                 **({"changed_on_resume": self.changed} if self.changed else {})}, indent=2))
             import yaml
 
             (self.run / "recipe.yaml").write_text(  # the run's options as a file: abm train --config RUN/recipe.yaml
@@ -354,6 +380,17 @@ class Trainer:
         if int(ckpt["step"]) > self.cfg.steps:
             raise ValueError(f"{self.run} is already at step {ckpt['step']}, past --steps {self.cfg.steps}: resume "
                              f"with --steps {ckpt['step']} or more")
+        self.changed = changed_settings(ckpt.get("train_config") or {}, self.cfg)
+        if self.changed:
+            flags = {f.name: f.metadata.get("flag", "--" + f.name.replace("_", "-")) for f in fields(TrainConfig)}
+            listed = ", ".join(f"{flags[k]} {old!r} -> {new!r}" for k, (old, new) in self.changed.items())
+            if "optimizer" in self.changed:
+                raise ValueError(f"{self.run} was trained with --optimizer {self.changed['optimizer'][0]}; its "
+                                 "optimiser state cannot continue under another optimizer: resume with the same one")
+            if not self.cfg.accept_changed_config:
+                raise ValueError(f"{self.run} was trained with other settings ({listed}); resume with the same "
+                                 "values, or pass --accept-changed-config to continue with the new ones")
+            log.warning("abm train: continuing %s with changed settings: %s", self.run, listed)
         return ckpt
 
     def _dataset(self, source: EpisodeSource, augment: bool | None = None) -> KeyframeDataset:
@@ -514,7 +551,7 @@ class Trainer:
             "seconds": time.perf_counter() - self._t0, "checkpoint": str(checkpoint_path(self.run, step)),
         }
         if dinfo.main:
-            (self.run / "summary.json").write_text(json.dumps(summary, indent=2))
+            write_text_atomic(self.run / "summary.json", json.dumps(summary, indent=2))
         if dinfo.enabled:
             dist.barrier()
             dist.destroy_process_group()
@@ -534,6 +571,10 @@ def train(
         on_step: called after every optimiser step with ``(step, losses)`` (rank-averaged losses).
 
     Raises:
-        ValueError: bad options, a checkpoint of another variant/preset, or an empty selection.
+        ValueError: bad options, a checkpoint of another variant/preset, or an empty selection;
+            :class:`abm.files.FolderBusyError` when another process writes ``cfg.out``.
     """
-    return Trainer(cfg, episodes).build().fit(on_step)
+    if int(os.environ.get("RANK", "0")) != 0:  # rank 0 holds the run folder's lock for every rank
+        return Trainer(cfg, episodes).build().fit(on_step)
+    with FolderLock(cfg.out, "abm train"):
+        return Trainer(cfg, episodes).build().fit(on_step)

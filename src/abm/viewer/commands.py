@@ -7,6 +7,8 @@ import logging
 import time
 from pathlib import Path
 
+from abm.configuration import count, port_number, seed_int
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from abm.configuration import clip_model_help
@@ -23,14 +25,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--run", type=Path, help="training run folder or checkpoint: show its views and predictions")
     p.add_argument("--task", help="roll --run out on this ABM-Bench task instead of showing --episode")
     p.add_argument("--split", default="seen", choices=["seen", "unseen", "compositional"], help="rollout split")
-    p.add_argument("--seed", type=int, default=1_000_000,
+    p.add_argument("--seed", type=seed_int, default=1_000_000,
                    help="rollout scene seed (abm eval's outcome log lists the seed of each episode)")
-    p.add_argument("--steps", type=int, nargs="+", metavar="K", help="only these steps of --episode")
+    p.add_argument("--steps", type=count, nargs="+", metavar="K", help="only these steps of --episode")
     p.add_argument("--grounder", choices=["oracle", "clip"], help="grounder (default: the checkpoint's, or oracle)")
     p.add_argument("--clip-model", help=clip_model_help("for --grounder clip", default=None))
     p.add_argument("--device", default="cpu", help="torch device of the policy")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: localhost only)")
-    p.add_argument("--port", type=int, default=8080, help="port (default: 8080)")
+    p.add_argument("--port", type=port_number, default=8080, help="port (default: 8080)")
     p.add_argument("--screenshot", type=Path, metavar="PNG",
                    help="save a headless-Chromium screenshot of the page and exit instead of serving")
     p.set_defaults(func=run)
@@ -44,6 +46,15 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("give --episode FILE (optionally with --run) or --run RUN --task TASK")
     if args.task is not None and args.run is None:
         raise CommandError("--task rolls a policy out: give its --run too")
+    from abm.viewer.server import check_port
+
+    check_port(args.host, args.port)  # a busy or bad address fails now, not after preparing the scene
+    if args.screenshot is not None:
+        from abm.viewer.browser import find_chromium
+
+        if find_chromium() is None:
+            raise CommandError("--screenshot needs Chromium, and none is on PATH: install it (Debian: apt-get "
+                               "install chromium) or leave --screenshot out to serve the page")
     grounder = None
     if args.grounder:
         grounder = {"kind": args.grounder}

@@ -127,6 +127,25 @@ class SceneViewer:
         self.server.stop()
 
 
+def check_port(host: str, port: int) -> None:
+    """Raise ``ValueError`` (one line, with the fix) unless the server can listen on ``host:port``."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind((host, port))
+    except (OSError, OverflowError) as err:
+        reason = getattr(err, "strerror", None) or str(err)
+        raise ValueError(f"cannot serve on {host}:{port} ({reason}); choose another --port (e.g. {port % 65535 + 1}) "
+                         "or --host, or stop the program that uses it") from None
+
+
 def serve(scene: ViewerScene, host: str = "127.0.0.1", port: int = 8080) -> SceneViewer:
-    """Start serving ``scene`` (returns at once; the server runs in background threads)."""
+    """Start serving ``scene`` (returns at once; the server runs in background threads).
+
+    Raises:
+        ValueError: the address is busy or invalid (checked before any thread starts).
+    """
+    check_port(host, port)
     return SceneViewer(scene, host, port)
