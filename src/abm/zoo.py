@@ -129,6 +129,8 @@ def _eval(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from abm.configuration import int_range
+
     p = subparsers.add_parser("zoo", help="the committed model zoo: list and verify it, or evaluate its models",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="zoo_command", metavar="ZOO_COMMAND", required=True)
@@ -139,8 +141,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument("--zoo", type=Path, default=DEFAULT_ZOO, help=f"zoo folder (default {DEFAULT_ZOO})")
     ev.add_argument("--tasks", nargs="+", default=["pick_block", "close_jar"],
                     help="tasks to evaluate (default: pick_block close_jar)")
-    ev.add_argument("--episodes", type=int, default=5, help="seeded episodes per task and split (default 5)")
-    ev.add_argument("--workers", type=int, default=2, help="parallel rollout processes (default 2)")
-    ev.add_argument("--max-steps", type=int, default=8, help="keyframes per episode (default 8)")
+    ev.add_argument("--episodes", type=int_range(1, 10_000), default=5,
+                    help="seeded episodes per task and split (default 5)")
+    ev.add_argument("--workers", type=int_range(1, 256), default=2, help="parallel rollout processes (default 2)")
+    ev.add_argument("--max-steps", type=int_range(1, 100), default=8, help="keyframes per episode (default 8)")
     ev.add_argument("--out", type=Path, default=Path("out/zoo"), help="output folder (default out/zoo)")
     ev.set_defaults(func=_eval)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from abm.configuration import int_range
+from abm.configuration import int_range, seed_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,8 +39,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "robot YAML plays it back (examples/robot_replay.yaml).")
     r.add_argument("--task", default="pick_block", help="ABM-Bench task (abm tasks lists them)")
     r.add_argument("--split", default="seen", choices=["seen", "unseen"], help="object split of the scene")
-    r.add_argument("--seed", type=int, default=0, help="scene seed")
-    r.add_argument("--resolution", type=int, default=64, help="camera image side in pixels")
+    r.add_argument("--seed", type=seed_int, default=0, help="scene seed")
+    r.add_argument("--resolution", type=int_range(16, 1024), default=64, help="camera image side in pixels")
     r.add_argument("--out", type=Path, required=True, help="recording folder to write")
     r.set_defaults(func=run_record)
 

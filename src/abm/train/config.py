@@ -99,7 +99,8 @@ class TrainConfig:
         "off_help": "no progress bar, even on a terminal: plain periodic lines only"})
     compile: bool = False
     bf16: str = field(default="auto", metadata={"choices": ["auto", "on", "off"]})
-    verify: bool = True
+    verify: bool = field(default=True, metadata={
+        "off_help": "skip the episode checksum check: train on the files as they are"})
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=str))
