@@ -206,7 +206,10 @@ def zoo_index(out: Path, zoo: Path, clip: Path | None) -> list[dict[str, Any]]:
         entries.append({"name": "benchmark-clip", "file": clip.name + "/", "method": "clip",
                         "size_bytes": (clip / "model.safetensors").stat().st_size,
                         "sha256": _sha256(clip / "model.safetensors"),
-                        "recipe": meta.get("recipe") or meta.get("config"), "train_minutes": meta.get("minutes")})
+                        "recipe": meta.get("recipe"), "steps": meta.get("steps"),
+                        "train_minutes": round(meta["train_seconds"] / 60, 1) if "train_seconds" in meta else None,
+                        "zero_shot_top1": (meta.get("zero_shot") or {}).get("accuracy"),
+                        "command": "abm clip train --out models/benchmark-clip --steps 1500 --minutes 50 --threads 1"})
     zoo.mkdir(parents=True, exist_ok=True)
     index_path.write_text(json.dumps(entries, indent=2) + "\n")
     lines = ["# Model zoo", "", "Written by `benchmarks/paper_tables_report.py` (`scripts/paper_tables.sh`). Every "
