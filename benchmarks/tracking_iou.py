@@ -65,9 +65,14 @@ def main() -> None:
     p.add_argument("--drop", type=float, default=0.2, help="share of target points the noisy oracle drops")
     p.add_argument("--jump", type=float, default=0.25, help="probability that it answers another object")
     p.add_argument("--clip-model", default=None, help="measure the CLIP grounder with these weights instead")
+    p.add_argument("--clip-options", default="{}",
+                   help='JSON options of the CLIP grounder, e.g. \'{"mode": "proposals"}\' (default: package default)')
+    p.add_argument("--reacquire", choices=("auto", "on", "off"), default="auto",
+                   help="tracking re-acquires when the tracked target's score falls (auto: on for CLIP)")
     p.add_argument("--out", default=None, help="write the per-task summary as JSON")
     args = p.parse_args()
 
+    clip_options = json.loads(args.clip_options)
     ws = Workspace()
     truth = OracleGrounder()
     stats: dict[tuple[str, str], list] = defaultdict(list)
@@ -81,10 +86,11 @@ def main() -> None:
 
             def make(seed=seed):
                 if args.clip_model:
-                    return make_grounder("clip", model=args.clip_model)
+                    return make_grounder("clip", model=args.clip_model, **clip_options)
                 return NoisyOracle(args.drop, args.jump, seed)
 
-            per_step, tracked = make(), TrackingGrounder(make())
+            reacquire = None if args.reacquire == "auto" else args.reacquire == "on"
+            per_step, tracked = make(), TrackingGrounder(make(), reacquire=reacquire)
             for obs, _ in episode.steps:
                 cloud = fuse_cameras(obs, ws)
                 want = truth.ground(obs, cloud, target, names).mask
@@ -104,7 +110,8 @@ def main() -> None:
             row[mode] = {"mean_iou": float(v.mean()), "wrong_steps": float((v < 0.5).mean()), "steps": len(v)}
         rows.append(row)
     allv = {m: np.array([x for (t, mm), v in stats.items() if mm == m for x in v]) for m in ("per-step", "tracked")}
-    grounder = f"CLIP {args.clip_model}" if args.clip_model else f"oracle + noise (drop {args.drop}, jump {args.jump})"
+    clip_label = f"CLIP {args.clip_model} {clip_options}, reacquire {args.reacquire}"
+    grounder = clip_label if args.clip_model else f"oracle + noise (drop {args.drop}, jump {args.jump})"
     print(f"machine: {describe_machine()}; grounder: {grounder}; {args.seeds} expert episodes per task ({args.split})")
     print("| task | per-step IoU | tracked IoU | per-step steps with IoU < 0.5 | tracked steps with IoU < 0.5 |")
     print("|---|---|---|---|---|")
