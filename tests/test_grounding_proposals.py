@@ -167,3 +167,38 @@ def test_unknown_modes_are_refused(setup):
         ClipGrounder(backbone=backbone, mode="sam")
     with pytest.raises(ValueError, match="dense_mode"):
         ClipGrounder(backbone=backbone, dense_mode="clearclip2")
+
+
+def test_ground_command_takes_the_new_options(tmp_path):
+    import json
+
+    from abm.cli import main
+
+    out = tmp_path / "g"
+    assert main(["ground", "--out", str(out), "--grounder", "clip", "--clip-model", "tiny", "--resolution", "48",
+                 "--mode", "proposals", "--scoring", "dense", "--dense-mode", "naclip", "--input-size", "96"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["mode"], summary["scoring"], summary["dense_mode"], summary["input_size"]) == \
+        ("proposals", "dense", "naclip", [96, 96])
+    assert summary["mask_points"] > 0
+
+
+def test_resolved_spec_names_the_defaults_a_spec_relies_on(monkeypatch):
+    from abm.grounding import grounders
+
+    for name, value in (("DEFAULT_CLIP_MODE", "field"), ("DEFAULT_DENSE_MODE", "maskclip"),
+                        ("DEFAULT_INPUT_SIZE", None)):
+        monkeypatch.setattr(grounders, name, value)
+    old = {"kind": "clip", "model": "m"}
+    assert grounders.resolved_spec(old) == old  # the legacy defaults: cache keys of older specs stay valid
+    assert grounders.resolved_spec({"kind": "oracle"}) == {"kind": "oracle"}
+    monkeypatch.setattr(grounders, "DEFAULT_CLIP_MODE", "proposals")
+    monkeypatch.setattr(grounders, "DEFAULT_INPUT_SIZE", 256)
+    got = grounders.resolved_spec(old)
+    assert got["mode"] == "proposals" and got["input_size"] == 256 and "dense_mode" not in got
+    assert got["proposals"] == ProposalConfig().__dict__
+    explicit = grounders.resolved_spec({"kind": "clip", "mode": "field", "input_size": None})
+    assert explicit == {"kind": "clip", "mode": "field", "input_size": None}
+    tracked = grounders.resolved_spec({"kind": "tracking", "inner": {"kind": "clip", "scoring": "crop",
+                                                                     "mode": "proposals"}})
+    assert tracked["inner"]["proposals"]["scoring"] == "crop" and "scoring" not in tracked["inner"]

@@ -40,6 +40,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--normalization", choices=("raw", "minmax", "softmax"), default=None,
                    help="heatmap normalisation (default softmax)")
     p.add_argument("--threshold", type=float, default=None, help="mask threshold on the heatmap (default 0.7)")
+    p.add_argument("--mode", choices=("field", "proposals"), default=None,
+                   help="clip: threshold the per-point field, or score 3-D object proposals and mark the best one")
+    p.add_argument("--dense-mode", choices=("maskclip", "clearclip", "sclip", "naclip"), default=None,
+                   help="clip: last block of the dense CLIP features")
+    p.add_argument("--input-size", type=int, default=None, help="clip: side the camera images are resized to")
+    p.add_argument("--scoring", choices=("dense", "crop", "combined"), default=None,
+                   help="clip --mode proposals: score candidates by dense features, image crops or both")
     p.add_argument("--cache", type=Path, default=None, help="grounding cache folder (default: none)")
     p.add_argument("--resolution", type=int, default=220, help="virtual view side in pixels")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
@@ -141,6 +148,10 @@ def run(args: argparse.Namespace) -> int:
             options["normalization"] = args.normalization
         if args.threshold is not None:
             options["threshold"] = args.threshold
+        options.update({k: v for k in ("mode", "dense_mode", "input_size", "scoring")
+                        if (v := getattr(args, k)) is not None})
+    elif any(getattr(args, k) is not None for k in ("mode", "dense_mode", "input_size", "scoring")):
+        raise ValueError("--mode, --dense-mode, --input-size and --scoring apply to --grounder clip only")
     elif args.normalization or args.threshold is not None or args.clip_model:
         raise ValueError("--clip-model, --normalization and --threshold apply to --grounder clip only")
     grounder = make_grounder(args.grounder, **options)
@@ -177,6 +188,9 @@ def run(args: argparse.Namespace) -> int:
     if args.grounder == "clip":
         summary.update(model=grounder.model_name, normalization=grounder.config.normalization,
                        threshold=grounder.config.threshold)
+        summary.update(mode=grounder.mode, dense_mode=grounder.dense_mode, input_size=grounder.input_size)
+        if grounder.mode == "proposals":
+            summary["scoring"] = grounder.proposal_config.scoring
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     print(f"{where}: {instruction!r} -> target {target!r}, skill {skill!r}")
     print(f"{args.grounder} grounder: {summary['mask_points']} of {len(cloud)} points masked, found={field.found}")

@@ -383,6 +383,31 @@ def candidate_crops(observation: Observation, cloud: PointCloud, candidates: Seq
     return crops, np.asarray(owner, np.int64), np.asarray(weight, np.float64)
 
 
+LEGACY_CLIP_OPTIONS: dict[str, Any] = {"mode": "field", "dense_mode": "maskclip", "input_size": None}
+"""What the CLIP grounder did before these options existed (specs written then do not name them)."""
+
+
+def resolved_spec(spec: Mapping[str, Any]) -> dict[str, Any]:
+    """A grounder spec with the current defaults of the CLIP options it leaves out, for cache keys.
+
+    Only defaults that differ from :data:`LEGACY_CLIP_OPTIONS` are added (and the full proposal settings
+    in ``proposals`` mode), so a spec's key stays the same while the defaults do, and changes when they change.
+    """
+    out = dict(spec)
+    if out.get("kind") == "clip":
+        current = {"mode": DEFAULT_CLIP_MODE, "dense_mode": DEFAULT_DENSE_MODE, "input_size": DEFAULT_INPUT_SIZE}
+        out.update({k: v for k, v in current.items() if k not in out and v != LEGACY_CLIP_OPTIONS[k]})
+        if out.get("mode") == "proposals":
+            given = out.get("proposals") or {}
+            given = given.__dict__ if isinstance(given, ProposalConfig) else dict(given)
+            if "scoring" in out:
+                given["scoring"] = out.pop("scoring")
+            out["proposals"] = {**ProposalConfig().__dict__, **given}
+    elif out.get("kind") == "tracking" and isinstance(out.get("inner"), Mapping):
+        out["inner"] = resolved_spec(out["inner"])
+    return out
+
+
 def override_spec(kind: str | None, clip_model: str | None = None) -> dict[str, Any] | None:
     """The grounder spec of the ``--grounder KIND [--clip-model M]`` flags of ``abm eval`` and ``abm run``.
 
