@@ -128,6 +128,7 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "field (sclip)": {**FIELD, "dense_mode": "sclip"},
     "field (naclip)": {**FIELD, "dense_mode": "naclip"},
     "field (maskclip, 256 input)": {**FIELD, "dense_mode": "maskclip", "input_size": 256},
+    "field (maskclip, 128+256)": {**FIELD, "dense_mode": "maskclip", "scales": [256]},
     "proposals (dense)": {"mode": "proposals", "proposals": {"scoring": "dense"}},
     "proposals (crop)": {"mode": "proposals", "proposals": {"scoring": "crop"}},
     "proposals (combined)": {"mode": "proposals", "proposals": {"scoring": "combined"}},

@@ -176,18 +176,19 @@ def test_ground_command_takes_the_new_options(tmp_path):
 
     out = tmp_path / "g"
     assert main(["ground", "--out", str(out), "--grounder", "clip", "--clip-model", "tiny", "--resolution", "48",
-                 "--mode", "proposals", "--scoring", "dense", "--dense-mode", "naclip", "--input-size", "96"]) == 0
+                 "--mode", "proposals", "--scoring", "dense", "--dense-mode", "naclip", "--input-size", "96",
+                 "--scales", "64"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert (summary["mode"], summary["scoring"], summary["dense_mode"], summary["input_size"]) == \
         ("proposals", "dense", "naclip", [96, 96])
-    assert summary["mask_points"] > 0
+    assert summary["mask_points"] > 0 and summary["scales"] == [64]
 
 
 def test_resolved_spec_names_the_defaults_a_spec_relies_on(monkeypatch):
     from abm.grounding import grounders
 
     for name, value in (("DEFAULT_CLIP_MODE", "field"), ("DEFAULT_DENSE_MODE", "maskclip"),
-                        ("DEFAULT_INPUT_SIZE", None)):
+                        ("DEFAULT_INPUT_SIZE", None), ("DEFAULT_SCALES", ())):
         monkeypatch.setattr(grounders, name, value)
     old = {"kind": "clip", "model": "m"}
     assert grounders.resolved_spec(old) == old  # the legacy defaults: cache keys of older specs stay valid
@@ -202,3 +203,14 @@ def test_resolved_spec_names_the_defaults_a_spec_relies_on(monkeypatch):
     tracked = grounders.resolved_spec({"kind": "tracking", "inner": {"kind": "clip", "scoring": "crop",
                                                                      "mode": "proposals"}})
     assert tracked["inner"]["proposals"]["scoring"] == "crop" and "scoring" not in tracked["inner"]
+
+
+def test_multiscale_features_are_the_normalised_mean_of_each_scale(setup):
+    obs, _names, cloud, backbone = setup
+    single = ClipGrounder(backbone=backbone).point_features(obs, cloud)
+    large = ClipGrounder(backbone=backbone, input_size=128).point_features(obs, cloud)
+    multi = ClipGrounder(backbone=backbone, scales=[128])
+    both = single + large
+    np.testing.assert_allclose(multi.point_features(obs, cloud), both / np.linalg.norm(both, axis=1, keepdims=True),
+                               atol=1e-5)
+    assert multi.backbone_calls == 2 * len(cloud.camera_names)

@@ -45,6 +45,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--dense-mode", choices=("maskclip", "clearclip", "sclip", "naclip"), default=None,
                    help="clip: last block of the dense CLIP features")
     p.add_argument("--input-size", type=int, default=None, help="clip: side the camera images are resized to")
+    p.add_argument("--scales", type=int, nargs="+", default=None,
+                   help="clip: extra input sides whose features are averaged in (multi-scale), e.g. --scales 256")
     p.add_argument("--scoring", choices=("dense", "crop", "combined"), default=None,
                    help="clip --mode proposals: score candidates by dense features, image crops or both")
     p.add_argument("--cache", type=Path, default=None, help="grounding cache folder (default: none)")
@@ -148,10 +150,10 @@ def run(args: argparse.Namespace) -> int:
             options["normalization"] = args.normalization
         if args.threshold is not None:
             options["threshold"] = args.threshold
-        options.update({k: v for k in ("mode", "dense_mode", "input_size", "scoring")
+        options.update({k: v for k in ("mode", "dense_mode", "input_size", "scoring", "scales")
                         if (v := getattr(args, k)) is not None})
-    elif any(getattr(args, k) is not None for k in ("mode", "dense_mode", "input_size", "scoring")):
-        raise ValueError("--mode, --dense-mode, --input-size and --scoring apply to --grounder clip only")
+    elif any(getattr(args, k) is not None for k in ("mode", "dense_mode", "input_size", "scoring", "scales")):
+        raise ValueError("--mode, --dense-mode, --input-size, --scales and --scoring apply to --grounder clip only")
     elif args.normalization or args.threshold is not None or args.clip_model:
         raise ValueError("--clip-model, --normalization and --threshold apply to --grounder clip only")
     grounder = make_grounder(args.grounder, **options)
@@ -188,7 +190,8 @@ def run(args: argparse.Namespace) -> int:
     if args.grounder == "clip":
         summary.update(model=grounder.model_name, normalization=grounder.config.normalization,
                        threshold=grounder.config.threshold)
-        summary.update(mode=grounder.mode, dense_mode=grounder.dense_mode, input_size=grounder.input_size)
+        summary.update(mode=grounder.mode, dense_mode=grounder.dense_mode, input_size=grounder.input_size,
+                       scales=list(grounder.scales))
         if grounder.mode == "proposals":
             summary["scoring"] = grounder.proposal_config.scoring
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")

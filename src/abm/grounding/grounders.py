@@ -37,6 +37,7 @@ CLIP_MODES: tuple[str, ...] = ("field", "proposals")
 DEFAULT_CLIP_MODE = "field"
 DEFAULT_DENSE_MODE = "maskclip"
 DEFAULT_INPUT_SIZE: int | None = None  # None: the model's native input size
+DEFAULT_SCALES: tuple[int, ...] = ()
 
 
 @runtime_checkable
@@ -148,6 +149,8 @@ class ClipGrounder:
             mask the best one; ``config.negatives`` still decide ``found``).
         proposals: :class:`~abm.grounding.proposals.ProposalConfig` (or its fields as a mapping) for
             ``mode="proposals"``.
+        scales: extra input sides (e.g. ``(256,)``): the point features are the normalised mean of the
+            features lifted from ``input_size`` and from each of these sizes (multi-scale).
     """
 
     name = "clip"
@@ -165,6 +168,7 @@ class ClipGrounder:
         dense_mode: str = DEFAULT_DENSE_MODE,
         mode: str = DEFAULT_CLIP_MODE,
         proposals: ProposalConfig | Mapping[str, Any] | None = None,
+        scales: Sequence[int] | None = None,
     ) -> None:
         from abm.grounding.clip import DENSE_MODES
 
@@ -186,6 +190,7 @@ class ClipGrounder:
         self.input_size = tuple(input_size) if input_size is not None else None
         self.dense_mode = dense_mode
         self.mode = mode
+        self.scales = tuple(int(v) for v in (DEFAULT_SCALES if scales is None else scales))
         if not isinstance(proposals, ProposalConfig):
             proposals = ProposalConfig(**(proposals or {}))
         self.proposal_config = proposals
@@ -201,17 +206,23 @@ class ClipGrounder:
         """Cache-key parts of the dense-feature option (none for MaskCLIP, so older caches stay valid)."""
         return () if self.dense_mode == "maskclip" else (f"dense={self.dense_mode}",)
 
+    def _scales_key(self) -> tuple[str, ...]:
+        return (f"scales={self.scales}",) if self.scales else ()
+
     def _mode_key(self) -> tuple[str, ...]:
         """Cache-key parts of the grounding mode (none for the per-point field)."""
         return () if self.mode == "field" else (f"mode={self.mode}", self.proposal_config.key())
 
     # ---- features ---------------------------------------------------------------------------------
-    def camera_patch_features(self, observation: Observation, camera_names: Sequence[str]) -> dict[str, np.ndarray]:
-        """camera name -> ``(h, w, D)`` float32 MaskCLIP patch features; uncached images run in one batch."""
+    def camera_patch_features(self, observation: Observation, camera_names: Sequence[str],
+                              input_size: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
+        """camera name -> ``(h, w, D)`` float32 MaskCLIP patch features; uncached images run in one batch.
+        ``input_size`` overrides the grounder's own (for the extra ``scales``)."""
+        input_size = input_size or self.input_size
         out: dict[str, np.ndarray] = {}
         todo: list[tuple[str, str]] = []
         for name in camera_names:
-            key = content_key("patch", image_key(observation.camera(name).rgb), self.model_name, self.input_size,
+            key = content_key("patch", image_key(observation.camera(name).rgb), self.model_name, input_size,
                               *self._dense_key())
             hit = self.cache.get(key) if self.cache_features else None
             if hit is not None:
@@ -219,7 +230,7 @@ class ClipGrounder:
             else:
                 todo.append((name, key))
         if todo:
-            grids = self.backbone.dense_features([observation.camera(n).rgb for n, _ in todo], self.input_size,
+            grids = self.backbone.dense_features([observation.camera(n).rgb for n, _ in todo], input_size,
                                                  **({} if self.dense_mode == "maskclip" else {"mode": self.dense_mode}))
             self.backbone_calls += len(todo)
             for i, (name, key) in enumerate(todo):
@@ -235,7 +246,13 @@ class ClipGrounder:
         _check_cloud(observation, cloud)
         patch = self.camera_patch_features(observation, cloud.camera_names)
         sizes = {n: (observation.camera(n).height, observation.camera(n).width) for n in cloud.camera_names}
-        return lift_patch_features(cloud, patch, sizes)
+        feats = lift_patch_features(cloud, patch, sizes)
+        if not self.scales:
+            return feats
+        for side in self.scales:
+            patch = self.camera_patch_features(observation, cloud.camera_names, (side, side))
+            feats = feats + lift_patch_features(cloud, patch, sizes)
+        return feats / np.maximum(np.linalg.norm(feats, axis=1, keepdims=True), 1e-8)
 
     def text_features(self, prompts: Sequence[str]) -> np.ndarray:
         """``(K, D)`` float32 unit-length text features (memoised per prompt)."""
@@ -278,6 +295,7 @@ class ClipGrounder:
         key = content_key(
             "mask", cloud_key(cloud), *(image_key(observation.camera(n).rgb) for n in cloud.camera_names),
             self.model_name, self.input_size, prompt, self.config.key(), *self._dense_key(), *self._mode_key(),
+            *self._scales_key(),
         )
         hit = self.cache.get(key)
         if hit is not None:
@@ -383,7 +401,7 @@ def candidate_crops(observation: Observation, cloud: PointCloud, candidates: Seq
     return crops, np.asarray(owner, np.int64), np.asarray(weight, np.float64)
 
 
-LEGACY_CLIP_OPTIONS: dict[str, Any] = {"mode": "field", "dense_mode": "maskclip", "input_size": None}
+LEGACY_CLIP_OPTIONS: dict[str, Any] = {"mode": "field", "dense_mode": "maskclip", "input_size": None, "scales": ()}
 """What the CLIP grounder did before these options existed (specs written then do not name them)."""
 
 
@@ -395,7 +413,8 @@ def resolved_spec(spec: Mapping[str, Any]) -> dict[str, Any]:
     """
     out = dict(spec)
     if out.get("kind") == "clip":
-        current = {"mode": DEFAULT_CLIP_MODE, "dense_mode": DEFAULT_DENSE_MODE, "input_size": DEFAULT_INPUT_SIZE}
+        current = {"mode": DEFAULT_CLIP_MODE, "dense_mode": DEFAULT_DENSE_MODE, "input_size": DEFAULT_INPUT_SIZE,
+                   "scales": DEFAULT_SCALES}
         out.update({k: v for k, v in current.items() if k not in out and v != LEGACY_CLIP_OPTIONS[k]})
         if out.get("mode") == "proposals":
             given = out.get("proposals") or {}
