@@ -155,7 +155,9 @@ def sweep(cases: list[tuple[Any, dict[str, Any]]], grounders: dict[str, Any]) ->
 
     workspace = Workspace()
     rows = []
-    for obs, meta in cases:
+    for i, (obs, meta) in enumerate(cases):
+        if i % 20 == 0:
+            print(f"case {i}/{len(cases)}", flush=True)
         target, _skill = decompose_instruction(meta["instruction"])
         cloud = fuse_cameras(obs, workspace)
         truth = target_point_mask(obs, cloud, meta["target_name"], meta["object_names"])

@@ -214,3 +214,15 @@ def test_multiscale_features_are_the_normalised_mean_of_each_scale(setup):
     np.testing.assert_allclose(multi.point_features(obs, cloud), both / np.linalg.norm(both, axis=1, keepdims=True),
                                atol=1e-5)
     assert multi.backbone_calls == 2 * len(cloud.camera_names)
+
+
+def test_combined_scoring_crops_only_the_best_dense_candidates(setup):
+    obs, names, cloud, backbone = setup
+    target = next(iter(names.values()))
+    cameras = len(cloud.camera_names)
+    few = ClipGrounder(backbone=backbone, mode="proposals", proposals={"crop_top_k": 2, "crop_cameras": 2})
+    few.ground(obs, cloud, target, names)
+    assert cameras < few.backbone_calls <= cameras + 2 * 2
+    every = ClipGrounder(backbone=backbone, mode="proposals", proposals={"crop_top_k": 0, "crop_cameras": 2})
+    every.ground(obs, cloud, target, names)
+    assert every.backbone_calls > few.backbone_calls

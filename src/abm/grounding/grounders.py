@@ -327,7 +327,11 @@ class ClipGrounder:
             dense = mean @ texts.T
             out += dense if cfg.scoring == "dense" else (1.0 - cfg.crop_weight) * dense
         if cfg.scoring != "dense":
-            crops, owner, weight = candidate_crops(observation, cloud, candidates, cfg)
+            chosen = np.arange(len(candidates))
+            if cfg.scoring == "combined" and 0 < cfg.crop_top_k < len(candidates):
+                chosen = np.sort(np.argsort(-dense[:, 0], kind="stable")[:cfg.crop_top_k])
+            crops, owner, weight = candidate_crops(observation, cloud, [candidates[i] for i in chosen], cfg)
+            owner = chosen[owner]
             crop = np.zeros_like(out)
             if crops:
                 side = (self.backbone.image_size, self.backbone.image_size)

@@ -54,6 +54,8 @@ class ProposalConfig:
         crop_margin: crop side = this times the larger side of the candidate's pixel box.
         crop_cameras: crops per candidate (the cameras that see most of its points).
         min_crop_pixels: a camera must see at least this many of the candidate's points to be cropped.
+        crop_top_k: ``combined`` crops only the candidates with the ``crop_top_k`` best dense scores (the crops'
+            CLIP forwards are most of the cost); 0 crops every candidate.
     """
 
     voxel: float = 0.01
@@ -69,6 +71,7 @@ class ProposalConfig:
     crop_margin: float = 1.6
     crop_cameras: int = 2
     min_crop_pixels: int = 12
+    crop_top_k: int = 8
 
     def __post_init__(self) -> None:
         if self.scoring not in SCORINGS:
