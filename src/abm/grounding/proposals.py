@@ -11,8 +11,9 @@ passed a threshold (:mod:`abm.grounding.grounders`).
    cluster (``scipy.ndimage.label``). Clusters with fewer than ``min_points`` points are dropped.
 3. **Splits** (``split=True``). An object standing in or on another one (food on a plate, the steak in the
    pan, a bottle in the rack, items on the shelf, a peg on its base) touches it and joins its cluster.
-   Inside a cluster, neighbouring cells whose mean colours differ by at most ``color_tol`` (every channel,
-   colours in ``[0, 1]``) are joined again: each such colour part is a candidate, and so is the cluster
+   Inside a cluster, neighbouring cells of one surface colour (:func:`same_colour`: the same chromaticity
+   within ``color_tol``, so shading does not split an object) are joined again: each such colour part is a
+   candidate, and so is the cluster
    *without* each large colour part (the support removed: plate + cookies - plate = cookies, even when the
    cookies' print splits them into several colours). The whole cluster stays a candidate too, so a
    multi-coloured object that stands alone is not lost. Candidates may overlap; scoring picks one.
@@ -45,7 +46,8 @@ class ProposalConfig:
         table_margin: points up to this height above the table top are table (m).
         min_points: smallest candidate, in points.
         split: also propose colour parts of a cluster and the cluster minus each large colour part.
-        color_tol: largest per-channel mean-colour difference of joined cells (colours in ``[0, 1]``).
+        color_tol: largest per-channel chromaticity (``rgb / sum``) difference of joined cells
+            (:func:`same_colour`).
         support_share: a colour part this large (share of its cluster) counts as a possible support.
         max_candidates: at most this many candidates (the largest clusters' candidates first).
         scoring: ``"dense"`` (mean MaskCLIP feature of the candidate's points against the text),
@@ -63,7 +65,7 @@ class ProposalConfig:
     table_margin: float = 0.006
     min_points: int = 15
     split: bool = True
-    color_tol: float = 0.12
+    color_tol: float = 0.05
     support_share: float = 0.3
     max_candidates: int = 40
     scoring: str = "combined"
@@ -136,9 +138,20 @@ def voxel_clusters(xyz: np.ndarray, voxel: float) -> np.ndarray:
     return labels[tuple(cells.T)].astype(np.int64) - 1
 
 
+def same_colour(a: np.ndarray, b: np.ndarray, tol: float, shade: float = 2.0) -> np.ndarray:
+    """``(K,)`` bool: colours ``a`` and ``b`` ``(K, 3)`` in ``[0, 1]`` are one surface's. Shading changes the
+    brightness, not the hue: the chromaticities (``rgb / sum``) must agree within ``tol`` per channel and the
+    brightnesses within a factor ``shade``; two dark colours (mean below 0.1) agree."""
+    sa, sb = a.sum(1) + 1e-6, b.sum(1) + 1e-6
+    chroma = np.abs(a / sa[:, None] - b / sb[:, None]).max(1) <= tol
+    bright = np.abs(np.log(sa / sb)) <= np.log(shade)
+    dark = (sa < 0.3) & (sb < 0.3)
+    return (chroma & bright) | dark
+
+
 def color_parts(xyz: np.ndarray, rgb: np.ndarray, voxel: float, tol: float) -> np.ndarray:
     """``(M,)`` part id of the points of one cluster: neighbouring cells (26-connectivity) are joined when
-    their mean colours differ by at most ``tol`` in every channel."""
+    their mean colours are one surface's (:func:`same_colour` with chromaticity tolerance ``tol``)."""
     cells = _cells(xyz, voxel)
     cells -= cells.min(0) - 1
     dims = cells.max(0) + 2
@@ -154,7 +167,7 @@ def color_parts(xyz: np.ndarray, rgb: np.ndarray, voxel: float, tol: float) -> n
         pos = np.clip(np.searchsorted(uniq, shifted), 0, n - 1)
         hit = uniq[pos] == shifted
         src, dst = np.nonzero(hit)[0], pos[hit]
-        close = np.abs(colour[src] - colour[dst]).max(1) <= tol
+        close = same_colour(colour[src], colour[dst], tol)
         rows.append(src[close])
         cols.append(dst[close])
     r, c = np.concatenate(rows), np.concatenate(cols)
@@ -215,5 +228,5 @@ def with_base_points(xyz: np.ndarray, rgb: np.ndarray, members: np.ndarray, tabl
     dist, index = cKDTree(xyz[members]).query(xyz[low], distance_upper_bound=voxel)
     near = np.isfinite(dist)
     same = np.zeros_like(near)
-    same[near] = np.abs(rgb[low[near]] - rgb[members[index[near]]]).max(1) <= color_tol
+    same[near] = same_colour(rgb[low[near]], rgb[members[index[near]]], color_tol)
     return np.union1d(members, low[same])
