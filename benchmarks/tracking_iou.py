@@ -50,6 +50,22 @@ class NoisyOracle:
         return MaskField(mask, mask.copy(), bool(mask.any()), target, "")
 
 
+def expert_episode(task: str, split: str, seed: int, resolution: int, folder: str | None):
+    """The expert rollout of one scene, read from / written to ``folder`` when given."""
+    from pathlib import Path
+
+    from abm.data.episode_store import load_episode, save_episode
+
+    path = Path(folder) / f"{task}_{split}_{seed}_{resolution}.h5" if folder else None
+    if path is not None and path.is_file():
+        return load_episode(path)
+    with TaskEnv(task, split, seed, resolution=resolution) as env:
+        episode = run_expert(env)
+    if path is not None:
+        save_episode(episode, path)
+    return episode
+
+
 def iou(a: np.ndarray, b: np.ndarray) -> float:
     a, b = a > 0.5, b > 0.5
     union = (a | b).sum()
@@ -70,6 +86,8 @@ def main() -> None:
     p.add_argument("--reacquire", choices=("auto", "on", "off"), default="auto",
                    help="tracking re-acquires when the tracked target's score falls (auto: on for CLIP)")
     p.add_argument("--out", default=None, help="write the per-task summary as JSON")
+    p.add_argument("--episodes", default=None,
+                   help="folder keeping the expert episodes (task_split_seed.h5): reused by later runs")
     args = p.parse_args()
 
     clip_options = json.loads(args.clip_options)
@@ -80,8 +98,7 @@ def main() -> None:
     inner_calls: dict[str, list[int]] = defaultdict(list)
     for task in args.tasks:
         for seed in range(args.seeds):
-            with TaskEnv(task, args.split, seed, resolution=args.resolution) as env:
-                episode = run_expert(env)
+            episode = expert_episode(task, args.split, seed, args.resolution, args.episodes)
             target, names = episode.target_names[0], episode.object_names
 
             def make(seed=seed):
