@@ -133,6 +133,7 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "proposals (crop)": {"mode": "proposals", "proposals": {"scoring": "crop"}},
     "proposals (combined)": {"mode": "proposals", "proposals": {"scoring": "combined"}},
     "proposals (combined, no split)": {"mode": "proposals", "proposals": {"scoring": "combined", "split": False}},
+    "proposals (crop, no split)": {"mode": "proposals", "proposals": {"scoring": "crop", "split": False}},
     "proposals (combined, 256 input)": {"mode": "proposals", "input_size": 256, "proposals": {"scoring": "combined"}},
 }
 """Named grounding configurations: ``make_grounder("clip", **options)`` (or the oracle)."""
@@ -252,6 +253,7 @@ def write_doc(path: Any, table: str) -> bool:
 
 def run_sweep(args: argparse.Namespace) -> None:
     import platform
+    import shlex
     import sys
     import time
     from pathlib import Path
@@ -277,7 +279,7 @@ def run_sweep(args: argparse.Namespace) -> None:
         raise SystemExit(f"no cached cases in {args.cases}; run benchmarks/grounding_cases.py --out {args.cases}")
     start = time.perf_counter()
     rows = sweep(cases, grounders)
-    meta = {"command": "python " + " ".join(sys.argv), "model": args.clip_model, "cases": len(cases),
+    meta = {"command": "python " + shlex.join(sys.argv), "model": args.clip_model, "cases": len(cases),
             "seeds": args.seeds, "threads": args.threads, "machine": f"{platform.processor() or platform.machine()}, "
             f"{torch.get_num_threads()} torch thread(s), torch {torch.__version__}",
             "configs": {n: CONFIGS[n.removeprefix("random weights: ")] for n in grounders},

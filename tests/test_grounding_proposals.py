@@ -74,7 +74,7 @@ def test_a_multicoloured_object_on_a_plate_is_found_as_the_plate_removed():
     bottom = _box((0.47, -0.02, 0.02), (0.52, 0.03, 0.04), (0.8, 0.2, 0.1))
     xyz, rgb = _scene(TABLE, plate, bottom, top)
     n0 = len(TABLE[0]) + len(plate[0])
-    props = object_proposals(xyz, rgb)
+    props = object_proposals(xyz, rgb, ProposalConfig(split=True))
     sets = {_as_set(c): k for c, k in zip(props.candidates, props.kinds, strict=True)}
     assert sets.get(_as_set(range(n0, len(xyz)))) == "without"
 
@@ -142,14 +142,14 @@ def test_proposal_options_enter_the_cache_key(setup):
     shared = ClipGrounder(backbone=backbone)
     cache = shared.cache
     fields = {}
-    for opts in ({}, {"mode": "proposals"}, {"mode": "proposals", "proposals": {"scoring": "dense"}},
-                 {"dense_mode": "naclip"}):
+    for opts in ({"mode": "field"}, {"mode": "proposals"}, {"mode": "proposals", "proposals": {"scoring": "dense"}},
+                 {"mode": "field", "dense_mode": "naclip"}):
         g = ClipGrounder(backbone=backbone, cache=cache, **opts)
         before = len(cache._memory) if hasattr(cache, "_memory") else None
         fields[str(opts)] = g.ground(obs, cloud, target, names)
         if before is not None:
             assert len(cache._memory) > before, f"{opts} reused another configuration's cache entry"
-    assert not np.array_equal(fields["{}"].heatmap, fields["{'mode': 'proposals'}"].heatmap)
+    assert not np.array_equal(fields["{'mode': 'field'}"].heatmap, fields["{'mode': 'proposals'}"].heatmap)
 
 
 def test_candidate_crops_lie_inside_the_image(setup):

@@ -34,7 +34,7 @@ from abm.types import Observation
 
 GROUNDERS: tuple[str, ...] = ("oracle", "clip", "tracking")
 CLIP_MODES: tuple[str, ...] = ("field", "proposals")
-DEFAULT_CLIP_MODE = "field"
+DEFAULT_CLIP_MODE = "proposals"  # measured best (docs/grounding.md section 9); "field" is the paper's
 DEFAULT_DENSE_MODE = "maskclip"
 DEFAULT_INPUT_SIZE: int | None = None  # None: the model's native input size
 DEFAULT_SCALES: tuple[int, ...] = ()

@@ -9,8 +9,9 @@ passed a threshold (:mod:`abm.grounding.grounders`).
    :attr:`ProposalConfig.table_height`). Points up to ``table_margin`` above it are table.
 2. **Clusters.** The other points are put in ``voxel``-sized cells; 26-connected occupied cells form a
    cluster (``scipy.ndimage.label``). Clusters with fewer than ``min_points`` points are dropped.
-3. **Splits** (``split=True``). An object standing in or on another one (food on a plate, the steak in the
-   pan, a bottle in the rack, items on the shelf, a peg on its base) touches it and joins its cluster.
+3. **Splits** (``split=True``; off by default). An object standing in or on another one (food on a plate,
+   the steak in the pan, a bottle in the rack, items on the shelf, a peg on its base) touches it and joins
+   its cluster.
    Inside a cluster, neighbouring cells of one surface colour (:func:`same_colour`: the same chromaticity
    within ``color_tol``, so shading does not split an object) are joined again: each such colour part is a
    candidate, and so is the cluster
@@ -45,7 +46,8 @@ class ProposalConfig:
         table_height: table top height (m); None estimates it as the most common point height.
         table_margin: points up to this height above the table top are table (m).
         min_points: smallest candidate, in points.
-        split: also propose colour parts of a cluster and the cluster minus each large colour part.
+        split: also propose colour parts of a cluster and the cluster minus each large colour part (off by
+            default: at the first observations of ABM-Bench it lowered IoU, docs/grounding.md section 9).
         color_tol: largest per-channel chromaticity (``rgb / sum``) difference of joined cells
             (:func:`same_colour`).
         support_share: a colour part this large (share of its cluster) counts as a possible support.
@@ -64,7 +66,7 @@ class ProposalConfig:
     table_height: float | None = None
     table_margin: float = 0.006
     min_points: int = 15
-    split: bool = True
+    split: bool = False
     color_tol: float = 0.05
     support_share: float = 0.3
     max_candidates: int = 40
