@@ -83,8 +83,8 @@ def main() -> None:
     p.add_argument("--clip-model", default=None, help="measure the CLIP grounder with these weights instead")
     p.add_argument("--clip-options", default="{}",
                    help='JSON options of the CLIP grounder, e.g. \'{"mode": "proposals"}\' (default: package default)')
-    p.add_argument("--reacquire", choices=("auto", "on", "off"), default="auto",
-                   help="tracking re-acquires when the tracked target's score falls (auto: on for CLIP)")
+    p.add_argument("--reacquire", choices=("on", "off"), default="off",
+                   help="tracking re-acquires when the tracked target's score falls (default off)")
     p.add_argument("--out", default=None, help="write the per-task summary as JSON")
     p.add_argument("--episodes", default=None,
                    help="folder keeping the expert episodes (task_split_seed.h5): reused by later runs")
@@ -106,7 +106,7 @@ def main() -> None:
                     return make_grounder("clip", model=args.clip_model, **clip_options)
                 return NoisyOracle(args.drop, args.jump, seed)
 
-            reacquire = None if args.reacquire == "auto" else args.reacquire == "on"
+            reacquire = args.reacquire == "on"
             per_step, tracked = make(), TrackingGrounder(make(), reacquire=reacquire)
             for obs, _ in episode.steps:
                 cloud = fuse_cameras(obs, ws)

@@ -122,23 +122,21 @@ def test_tracking_reacquires_when_the_tracked_score_falls(rollout) -> None:
     truth = oracle.ground(obs, cloud, target, names).mask
     wrong = oracle.ground(obs, cloud, distractor, names).mask
 
-    tracker = TrackingGrounder(_Scored(distractor, first=(0.4, 0.5), later=(0.9, 0.2)))
-    assert tracker.reacquire  # on by default for a CLIP-like (graded) grounder
+    tracker = TrackingGrounder(_Scored(distractor, first=(0.4, 0.5), later=(0.9, 0.2)), reacquire=True)
     assert _iou(tracker.ground(obs, cloud, target, names).mask, wrong) == 1.0  # the wrong first answer
     assert _iou(tracker.ground(obs, cloud, target, names).mask, truth) == 1.0  # its score fell: re-acquired
     assert tracker.reacquired == 1 and tracker.inner_calls == 2
     assert _iou(tracker.ground(obs, cloud, target, names).mask, truth) > 0.6  # and tracked from then on
     assert tracker.reacquired == 1
 
-    steady = TrackingGrounder(_Scored(distractor, first=(0.4, 0.5), later=(0.5, 0.45)))
+    steady = TrackingGrounder(_Scored(distractor, first=(0.4, 0.5), later=(0.5, 0.45)), reacquire=True)
     steady.ground(obs, cloud, target, names)
     assert _iou(steady.ground(obs, cloud, target, names).mask, wrong) > 0.6  # 0.45 >= 0.5 * 0.5: kept
     assert steady.reacquired == 0
 
-    off = TrackingGrounder(_Scored(distractor, first=(0.4, 0.5), later=(0.9, 0.2)), reacquire=False)
+    off = TrackingGrounder(_Scored(distractor, first=(0.4, 0.5), later=(0.9, 0.2)))  # off by default
     off.ground(obs, cloud, target, names)
     assert _iou(off.ground(obs, cloud, target, names).mask, wrong) > 0.6 and off.inner_calls == 1
-    assert not TrackingGrounder(OracleGrounder()).reacquire  # the oracle's binary heatmap is not a score
     with pytest.raises(ValueError, match="reacquire_ratio"):
         TrackingGrounder(OracleGrounder(), reacquire_ratio=0.0)
 
