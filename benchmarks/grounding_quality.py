@@ -3,6 +3,15 @@
 Usage: python benchmarks/grounding_quality.py [--source synthetic|sim|both] [--seeds 5]
                                               [--clip-model tiny] [--normalizations raw minmax softmax]
                                               [--tasks place_food pick_block ...] [--json OUT.json]
+       python benchmarks/grounding_quality.py --cases runs/grounding_cases --clip-model DIR
+                                              [--configs NAME ...] [--random-configs NAME ...] [--seeds 10]
+                                              [--out docs/results/grounding_quality.json] [--doc docs/grounding.md]
+
+With ``--cases`` (observations cached by ``benchmarks/grounding_cases.py``: the first observation of every
+task, split and seed of ABM-Bench) it compares grounding *configurations* (:data:`CONFIGS`: per-point field
+with each dense-feature option and input size, 3-D proposals with each scoring), per task and split:
+point IoU, precision, recall, hit rate, top-1 point and seconds per observation. It writes every record
+to ``--out`` and the generated tables between the ``grounding_quality`` markers of ``--doc``.
 
 Scenes: the built-in synthetic scene (every block in turn is the target; split "synthetic") and, when
 ``abm.sim`` provides ``make_env``, the first observation of each simulated task and split (the target is
@@ -103,11 +112,228 @@ def fmt(value: float, digits: int = 3) -> str:
     return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
+# --------------------------------------------------------------------------------------------------
+# Configuration sweep on cached ABM-Bench observations (issue 26)
+# --------------------------------------------------------------------------------------------------
+PAPER_TASKS = ("close_jar", "insert_peg", "pick_block", "place_food", "place_wine", "put_in_shelf", "take_off_pan",
+               "water_plants")
+CONTAINED_TASKS = ("take_off_pan",)  # the target lies in another object (the frypan) in the first observation
+SUPPORT_TASKS = ("place_food", "place_wine", "put_in_shelf")  # a plate / rack / shelf stands in the scene
+
+FIELD = {"mode": "field", "normalization": "softmax", "threshold": 0.7}
+CONFIGS: dict[str, dict[str, Any]] = {
+    "oracle": {"kind": "oracle"},
+    "field (maskclip)": {**FIELD, "dense_mode": "maskclip"},
+    "field (clearclip)": {**FIELD, "dense_mode": "clearclip"},
+    "field (sclip)": {**FIELD, "dense_mode": "sclip"},
+    "field (naclip)": {**FIELD, "dense_mode": "naclip"},
+    "field (maskclip, 256 input)": {**FIELD, "dense_mode": "maskclip", "input_size": 256},
+    "field (maskclip, 128+256)": {**FIELD, "dense_mode": "maskclip", "scales": [256]},
+    "proposals (dense)": {"mode": "proposals", "proposals": {"scoring": "dense"}},
+    "proposals (crop)": {"mode": "proposals", "proposals": {"scoring": "crop"}},
+    "proposals (combined)": {"mode": "proposals", "proposals": {"scoring": "combined"}},
+    "proposals (combined, no split)": {"mode": "proposals", "proposals": {"scoring": "combined", "split": False}},
+    "proposals (crop, no split)": {"mode": "proposals", "proposals": {"scoring": "crop", "split": False}},
+    "proposals (combined, 256 input)": {"mode": "proposals", "input_size": 256, "proposals": {"scoring": "combined"}},
+}
+"""Named grounding configurations: ``make_grounder("clip", **options)`` (or the oracle)."""
+
+
+def build_config_grounder(options: dict[str, Any], backbone: Any) -> Any:
+    """The grounder of one :data:`CONFIGS` entry on ``backbone``, with no feature cache (honest timing)."""
+    options = dict(options)
+    kind = options.pop("kind", "clip")
+    if kind == "oracle":
+        return OracleGrounder()
+    from abm.grounding import make_grounder
+
+    return make_grounder("clip", backbone=backbone, cache_features=False, **options)
+
+
+def sweep(cases: list[tuple[Any, dict[str, Any]]], grounders: dict[str, Any]) -> list[dict[str, Any]]:
+    """Per-case rows: config, task, split, seed, iou, precision, recall, hit, found, top1, seconds."""
+    import time
+
+    import numpy as np
+
+    workspace = Workspace()
+    rows = []
+    for i, (obs, meta) in enumerate(cases):
+        if i % 20 == 0:
+            print(f"case {i}/{len(cases)}", flush=True)
+        target, _skill = decompose_instruction(meta["instruction"])
+        cloud = fuse_cameras(obs, workspace)
+        truth = target_point_mask(obs, cloud, meta["target_name"], meta["object_names"])
+        if not truth.any():
+            continue
+        for name, grounder in grounders.items():
+            start = time.perf_counter()
+            field = grounder.ground(obs, cloud, target, meta["object_names"])
+            seconds = time.perf_counter() - start
+            s = score_mask(cloud.xyz, field.mask, truth, field.found)
+            sel = field.mask > 0.5
+            rows.append({"config": name, "task": meta["task"], "split": meta["split"], "seed": meta["seed"],
+                         "iou": float((sel & truth).sum() / (sel | truth).sum()), "precision": s.precision,
+                         "recall": s.recall, "hit": float(s.hit), "found": float(s.found),
+                         "top1": float(truth[int(np.argmax(field.heatmap))]), "seconds": seconds})
+    return rows
+
+
+def _mean(values: list[float]) -> float:
+    vals = [v for v in values if not math.isnan(v)]
+    return sum(vals) / len(vals) if vals else math.nan
+
+
+METRICS = ("iou", "precision", "recall", "hit", "top1", "seconds")
+
+
+def records(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One record per config, task and split (means over seeds)."""
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        groups[(r["config"], r["task"], r["split"])].append(r)
+    out = []
+    for (config, task, split), items in groups.items():
+        means = {m: _mean([r[m] for r in items]) for m in METRICS}
+        out.append({"config": config, "task": task, "split": split, "iou": means["iou"], "hit_rate": means["hit"],
+                    "top1": means["top1"], "n": len(items), "precision": means["precision"],
+                    "recall": means["recall"], "seconds": means["seconds"]})
+    return out
+
+
+def group_mean(recs: list[dict[str, Any]], config: str, key: str, tasks: tuple[str, ...] | None = None,
+               split: str | None = None) -> float:
+    """Mean over task/split records (each task/split pair weighs the same) of one config."""
+    return _mean([r[key] for r in recs if r["config"] == config and (tasks is None or r["task"] in tasks)
+                  and (split is None or r["split"] == split)])
+
+
+def markdown(recs: list[dict[str, Any]], configs: list[str]) -> str:
+    """The generated tables: summary per config, then unseen per task."""
+    lines = ["| config | unseen, 8 paper tasks: IoU | hit rate | top-1 | precision | recall | all 21 task/splits: "
+             "IoU | hit rate | top-1 | in the frypan (take_off_pan): IoU / hit | beside a plate/rack/shelf: "
+             "IoU / hit | s / obs |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for c in configs:
+        u = {k: group_mean(recs, c, k, PAPER_TASKS, "unseen") for k in ("iou", "hit_rate", "top1", "precision",
+                                                                         "recall")}
+        a = {k: group_mean(recs, c, k) for k in ("iou", "hit_rate", "top1")}
+        pan = [group_mean(recs, c, k, CONTAINED_TASKS) for k in ("iou", "hit_rate")]
+        sup = [group_mean(recs, c, k, SUPPORT_TASKS) for k in ("iou", "hit_rate")]
+        lines.append(f"| {c} | {fmt(u['iou'])} | {fmt(u['hit_rate'], 2)} | {fmt(u['top1'], 2)} | "
+                     f"{fmt(u['precision'])} | {fmt(u['recall'])} | {fmt(a['iou'])} | {fmt(a['hit_rate'], 2)} | "
+                     f"{fmt(a['top1'], 2)} | {fmt(pan[0], 2)} / {fmt(pan[1], 2)} | {fmt(sup[0], 2)} / "
+                     f"{fmt(sup[1], 2)} | {fmt(group_mean(recs, c, 'seconds'), 2)} |")
+    lines += ["", "Unseen split, per task (IoU / hit rate):", "",
+              "| config | " + " | ".join(PAPER_TASKS) + " |", "|---|" + "---|" * len(PAPER_TASKS)]
+    for c in configs:
+        cells = []
+        for t in PAPER_TASKS:
+            iou_, hit = (group_mean(recs, c, k, (t,), "unseen") for k in ("iou", "hit_rate"))
+            cells.append(f"{fmt(iou_, 2)} / {fmt(hit, 2)}")
+        lines.append(f"| {c} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+DOC_BEGIN = "<!-- grounding_quality:begin (generated by benchmarks/grounding_quality.py --cases; do not edit) -->"
+DOC_END = "<!-- grounding_quality:end -->"
+
+
+def write_doc(path: Any, table: str) -> bool:
+    """Replace the text between the markers of ``path``; False when the markers are missing."""
+    from pathlib import Path
+
+    text = Path(path).read_text(encoding="utf-8")
+    if DOC_BEGIN not in text or DOC_END not in text:
+        return False
+    head, rest = text.split(DOC_BEGIN, 1)
+    _old, tail = rest.split(DOC_END, 1)
+    Path(path).write_text(head + DOC_BEGIN + "\n" + table + DOC_END + tail, encoding="utf-8")
+    return True
+
+
+def run_sweep(args: argparse.Namespace) -> None:
+    import platform
+    import shlex
+    import sys
+    import time
+    from pathlib import Path
+
+    import torch
+
+    from clip_quality import random_like
+    from grounding_cases import load_cases
+
+    torch.set_num_threads(args.threads)
+    names = args.configs or list(CONFIGS)
+    unknown = [n for n in names + (args.random_configs or []) if n not in CONFIGS]
+    if unknown:
+        raise SystemExit(f"unknown configs {unknown}; choose from {list(CONFIGS)}")
+    backbone = load_clip(args.clip_model, device=args.device)
+    grounders = {n: build_config_grounder(CONFIGS[n], backbone) for n in names}
+    if args.random_configs:
+        rand = random_like(backbone)
+        grounders.update({f"random weights: {n}": build_config_grounder(CONFIGS[n], rand)
+                          for n in args.random_configs})
+    cases = list(load_cases(Path(args.cases), args.seeds, args.tasks))
+    if not cases:
+        raise SystemExit(f"no cached cases in {args.cases}; run benchmarks/grounding_cases.py --out {args.cases}")
+    start = time.perf_counter()
+    rows = sweep(cases, grounders)
+    meta = {"command": "python " + shlex.join(sys.argv), "model": args.clip_model, "cases": len(cases),
+            "seeds": args.seeds, "threads": args.threads, "machine": f"{platform.processor() or platform.machine()}, "
+            f"{torch.get_num_threads()} torch thread(s), torch {torch.__version__}",
+            "configs": {n: CONFIGS[n.removeprefix("random weights: ")] for n in grounders},
+            "minutes": round((time.perf_counter() - start) / 60, 1)}
+    publish([meta], records(rows), list(grounders), args.out, args.doc)
+
+
+def publish(metas: list[dict[str, Any]], recs: list[dict[str, Any]], order: list[str], out: Any, doc: Any) -> None:
+    """Print the tables; write the records (``out``) and the tables with how they were made (``doc``)."""
+    from pathlib import Path
+
+    table = markdown(recs, order)
+    print(table)
+    if out:
+        path = Path(out)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = metas[0] if len(metas) == 1 else {"parts": metas}
+        path.write_text(json.dumps({"meta": meta, "records": recs}, indent=1) + "\n", encoding="utf-8")
+        print(f"wrote {path}")
+    if doc:
+        note = "".join(f"*Generated by `{m['command']}` ({m['cases']} cached observations, model `{m['model']}`, "
+                       f"{m['machine']}, {m['minutes']} min).*\n" for m in metas) + "\n"
+        print("updated" if write_doc(doc, note + table) else "markers not found in", doc)
+
+
+def merge(paths: list[str], out: Any, doc: Any) -> None:
+    """Join the JSON files of several sweeps (e.g. run in parallel on disjoint configs) into one."""
+    metas, recs, order = [], [], []
+    for path in paths:
+        data = json.loads(open(path, encoding="utf-8").read())
+        parts = data["meta"].get("parts", [data["meta"]])
+        metas += parts
+        recs += data["records"]
+        order += [c for m in parts for c in m["configs"] if c not in order]
+    publish(metas, recs, order, out, doc)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default=None,
+                        help="folder of cached ABM-Bench observations: compare grounding configurations on them")
+    parser.add_argument("--configs", nargs="+", default=None, help=f"with --cases: configs (default all of "
+                        f"{list(CONFIGS)})")
+    parser.add_argument("--random-configs", nargs="+", default=None,
+                        help="with --cases: also run these configs with random weights of the same architecture")
+    parser.add_argument("--threads", type=int, default=1, help="with --cases: torch threads")
+    parser.add_argument("--out", default=None, help="with --cases: write the records as JSON here")
+    parser.add_argument("--doc", default=None, help="with --cases: write the tables into this markdown file")
+    parser.add_argument("--merge", nargs="+", default=None,
+                        help="join the --out JSON files of several --cases runs into --out / --doc (no grounding)")
     parser.add_argument("--source", choices=("synthetic", "sim", "both"), default="both")
     parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--tasks", nargs="+", default=list(SIM_TASKS))
+    parser.add_argument("--tasks", nargs="+", default=None, help=f"tasks (default {list(SIM_TASKS)}; with --cases "
+                        "every cached task)")
     parser.add_argument("--resolution", type=int, default=128)
     parser.add_argument("--clip-model", default="tiny", help="'tiny' (random), a hub name or a local directory")
     parser.add_argument("--normalizations", nargs="+", default=["raw", "minmax", "softmax"])
@@ -115,6 +341,14 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--json", default=None, help="also write the summary table as JSON here")
     args = parser.parse_args()
+    if args.merge:
+        merge(args.merge, args.out, args.doc)
+        return
+    if args.cases:
+        args.seeds = args.seeds if args.seeds != 5 else 10
+        run_sweep(args)
+        return
+    args.tasks = args.tasks or list(SIM_TASKS)
 
     backbone = load_clip(args.clip_model, device=args.device)
     grounders: dict[str, Any] = {"oracle": OracleGrounder()}

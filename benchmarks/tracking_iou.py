@@ -50,6 +50,22 @@ class NoisyOracle:
         return MaskField(mask, mask.copy(), bool(mask.any()), target, "")
 
 
+def expert_episode(task: str, split: str, seed: int, resolution: int, folder: str | None):
+    """The expert rollout of one scene, read from / written to ``folder`` when given."""
+    from pathlib import Path
+
+    from abm.data.episode_store import load_episode, save_episode
+
+    path = Path(folder) / f"{task}_{split}_{seed}_{resolution}.h5" if folder else None
+    if path is not None and path.is_file():
+        return load_episode(path)
+    with TaskEnv(task, split, seed, resolution=resolution) as env:
+        episode = run_expert(env)
+    if path is not None:
+        save_episode(episode, path)
+    return episode
+
+
 def iou(a: np.ndarray, b: np.ndarray) -> float:
     a, b = a > 0.5, b > 0.5
     union = (a | b).sum()
@@ -65,9 +81,16 @@ def main() -> None:
     p.add_argument("--drop", type=float, default=0.2, help="share of target points the noisy oracle drops")
     p.add_argument("--jump", type=float, default=0.25, help="probability that it answers another object")
     p.add_argument("--clip-model", default=None, help="measure the CLIP grounder with these weights instead")
+    p.add_argument("--clip-options", default="{}",
+                   help='JSON options of the CLIP grounder, e.g. \'{"mode": "proposals"}\' (default: package default)')
+    p.add_argument("--reacquire", choices=("on", "off"), default="off",
+                   help="tracking re-acquires when the tracked target's score falls (default off)")
     p.add_argument("--out", default=None, help="write the per-task summary as JSON")
+    p.add_argument("--episodes", default=None,
+                   help="folder keeping the expert episodes (task_split_seed.h5): reused by later runs")
     args = p.parse_args()
 
+    clip_options = json.loads(args.clip_options)
     ws = Workspace()
     truth = OracleGrounder()
     stats: dict[tuple[str, str], list] = defaultdict(list)
@@ -75,16 +98,16 @@ def main() -> None:
     inner_calls: dict[str, list[int]] = defaultdict(list)
     for task in args.tasks:
         for seed in range(args.seeds):
-            with TaskEnv(task, args.split, seed, resolution=args.resolution) as env:
-                episode = run_expert(env)
+            episode = expert_episode(task, args.split, seed, args.resolution, args.episodes)
             target, names = episode.target_names[0], episode.object_names
 
             def make(seed=seed):
                 if args.clip_model:
-                    return make_grounder("clip", model=args.clip_model)
+                    return make_grounder("clip", model=args.clip_model, **clip_options)
                 return NoisyOracle(args.drop, args.jump, seed)
 
-            per_step, tracked = make(), TrackingGrounder(make())
+            reacquire = args.reacquire == "on"
+            per_step, tracked = make(), TrackingGrounder(make(), reacquire=reacquire)
             for obs, _ in episode.steps:
                 cloud = fuse_cameras(obs, ws)
                 want = truth.ground(obs, cloud, target, names).mask
@@ -104,7 +127,8 @@ def main() -> None:
             row[mode] = {"mean_iou": float(v.mean()), "wrong_steps": float((v < 0.5).mean()), "steps": len(v)}
         rows.append(row)
     allv = {m: np.array([x for (t, mm), v in stats.items() if mm == m for x in v]) for m in ("per-step", "tracked")}
-    grounder = f"CLIP {args.clip_model}" if args.clip_model else f"oracle + noise (drop {args.drop}, jump {args.jump})"
+    clip_label = f"CLIP {args.clip_model} {clip_options}, reacquire {args.reacquire}"
+    grounder = clip_label if args.clip_model else f"oracle + noise (drop {args.drop}, jump {args.jump})"
     print(f"machine: {describe_machine()}; grounder: {grounder}; {args.seeds} expert episodes per task ({args.split})")
     print("| task | per-step IoU | tracked IoU | per-step steps with IoU < 0.5 | tracked steps with IoU < 0.5 |")
     print("|---|---|---|---|---|")

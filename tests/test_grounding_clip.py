@@ -178,3 +178,101 @@ def test_fast_encoder_layer_matches_the_library_layer(act):
         ref = ref[0] if isinstance(ref, tuple) else ref
         got = run_encoder_layer(layer, x.clone())
     torch.testing.assert_close(got, ref, atol=1e-5, rtol=1e-5)
+
+
+# ---- dense-feature variants of the last block (issue 26, part 1) ----------------------------------
+def _last_block_input(clip, images):
+    with torch.no_grad():
+        pixels = clip.preprocess(images)
+        vision = clip.model.vision_model
+        x = vision(pixel_values=pixels, output_hidden_states=True).hidden_states[-2]
+    return x, vision.encoder.layers[-1], vision
+
+
+def _project(clip, vision, y):
+    y = _layer_norm(y[:, 1:], vision.post_layernorm) @ clip.model.visual_projection.weight.T
+    return y / y.norm(dim=-1, keepdim=True)
+
+
+def _heads(t, heads):
+    b, n, w = t.shape
+    return t.reshape(b, n, heads, w // heads).transpose(1, 2)
+
+
+def test_maskclip_mode_is_todays_output(clip, images):
+    torch.testing.assert_close(clip.dense_features(images, mode="maskclip"), clip.dense_features(images),
+                               atol=0, rtol=0)
+
+
+@pytest.mark.parametrize("mode", ["clearclip", "sclip"])
+def test_clearclip_and_sclip_match_hand_computation_without_residual(clip, images, mode):
+    """Query-query (ClearCLIP) / query-query + key-key (SCLIP) attention over the values, then out_proj only:
+    no residual and no MLP, so the block's input x enters only through the attention and the values."""
+    x, last, vision = _last_block_input(clip, images)
+    heads = last.self_attn.num_heads
+    with torch.no_grad():
+        h = _layer_norm(x, last.layer_norm1)
+        q = _heads(_linear(h, last.self_attn.q_proj), heads)
+        k = _heads(_linear(h, last.self_attn.k_proj), heads)
+        v = _heads(_linear(h, last.self_attn.v_proj), heads)
+        s = q.shape[-1] ** -0.5
+        att = torch.softmax(q @ q.transpose(-1, -2) * s, -1)
+        if mode == "sclip":
+            att = att + torch.softmax(k @ k.transpose(-1, -2) * s, -1)
+        y = _linear((att @ v).transpose(1, 2).reshape(x.shape), last.self_attn.out_proj)
+        ref = _project(clip, vision, y)
+        with_residual = _project(clip, vision, x + y)
+    g = clip.grid_size
+    got = clip.dense_features(images, mode=mode)
+    torch.testing.assert_close(got, ref.reshape(3, g, g, -1), atol=1e-5, rtol=1e-5)
+    assert not torch.allclose(got, with_residual.reshape(got.shape), atol=1e-3)
+    assert not torch.allclose(got, clip.dense_features(images), atol=1e-3)
+
+
+def test_attention_maps_have_the_token_shape_and_rows_sum_to_one(clip, images):
+    from abm.grounding.clip import last_block_attention
+
+    x, last, _ = _last_block_input(clip, images)
+    g = clip.grid_size
+    with torch.no_grad():
+        h = last.layer_norm1(x)
+        for mode, total in (("clearclip", 1.0), ("sclip", 2.0), ("naclip", 1.0)):
+            att = last_block_attention(last.self_attn, h, mode, (g, g))
+            assert att.shape == (3, last.self_attn.num_heads, 1 + g * g, 1 + g * g)
+            torch.testing.assert_close(att.sum(-1), torch.full(att.shape[:-1], total), atol=1e-5, rtol=1e-5)
+    with pytest.raises(ValueError, match="grid"):
+        last_block_attention(last.self_attn, h, "naclip", (g + 1, g))
+    with pytest.raises(ValueError, match="dense mode"):
+        last_block_attention(last.self_attn, h, "segment-anything", (g, g))
+
+
+def test_naclip_attention_is_local(clip):
+    """With identical tokens only the Gaussian window differs: weights fall with grid distance, patches
+    ignore the CLS token, and a patch's feature does not depend on a far patch much."""
+    from abm.grounding.clip import gaussian_window, last_block_attention
+
+    last = clip.model.vision_model.encoder.layers[-1]
+    g = 12
+    h = torch.randn(1, 1, 32).expand(1, 1 + g * g, 32).contiguous()
+    with torch.no_grad():
+        att = last_block_attention(last.self_attn, h, "naclip", (g, g), sigma=2.0)[0, 0]
+    centre = 1 + 6 * g + 6
+    row = att[centre, 1:].reshape(g, g)
+    assert att[centre, 0] == 0
+    assert row[6, 6] > row[6, 7] > row[6, 9] > row[6, 11]
+    assert row[6, 7] == pytest.approx(row[7, 6].item())
+    win = gaussian_window((g, g), 2.0)
+    assert win.shape == (g * g, g * g) and win[0, 0] == 1 and win[0, g * g - 1] < 1e-10
+
+
+def test_naclip_output_is_local_on_images(clip):
+    """Changing the pixels in one corner changes NACLIP's features in the far corner less than ClearCLIP's
+    (whose attention is global)."""
+    rng = np.random.default_rng(3)
+    a = rng.integers(0, 256, size=(1, 64, 64, 3), dtype=np.uint8)
+    b = a.copy()
+    b[0, :16, :16] = 255 - b[0, :16, :16]
+    far = (slice(None), slice(5, 8), slice(5, 8))
+    change = {m: (clip.dense_features(a, mode=m)[far] - clip.dense_features(b, mode=m)[far]).norm(dim=-1).mean()
+              for m in ("naclip", "clearclip")}
+    assert change["naclip"] < change["clearclip"]

@@ -82,7 +82,7 @@ def test_unknown_grounder_and_options():
 
 def test_clip_grounder_interface(scene, backbone):
     obs, names, cloud = scene
-    grounder = ClipGrounder(backbone=backbone)
+    grounder = ClipGrounder(backbone=backbone, mode="field")  # the per-point field (proposals: their own tests)
     field = grounder.ground(obs, cloud, "red block", names)
     assert field.mask.shape == field.heatmap.shape == (len(cloud),)
     assert field.mask.dtype == np.float32 and set(np.unique(field.mask)) <= {0.0, 1.0}
@@ -95,7 +95,7 @@ def test_clip_grounder_interface(scene, backbone):
     np.testing.assert_allclose(field.similarity, feats @ text, atol=1e-5)
     tokens = grounder.skill_embeddings(["put X in the plate", "close X"])
     assert isinstance(tokens, torch.Tensor) and tokens.shape == (2, 77, backbone.text_width)
-    minmax = make_grounder("clip", backbone=backbone, normalization="minmax", threshold=0.9)
+    minmax = make_grounder("clip", backbone=backbone, normalization="minmax", threshold=0.9, mode="field")
     f2 = minmax.ground(obs, cloud, "red block", names)
     assert f2.found and f2.heatmap.max() == pytest.approx(1.0) and f2.heatmap.min() == pytest.approx(0.0)
     assert np.all(f2.mask == (f2.heatmap >= 0.9))
@@ -103,7 +103,7 @@ def test_clip_grounder_interface(scene, backbone):
 
 def test_cache_hit_avoids_recomputation(scene, backbone, tmp_path):
     obs, names, cloud = scene
-    grounder = ClipGrounder(backbone=backbone, cache=tmp_path)
+    grounder = ClipGrounder(backbone=backbone, cache=tmp_path, mode="field")
     first = grounder.ground(obs, cloud, "green block", names)
     assert grounder.backbone_calls == len(obs.cameras)
     again = grounder.ground(obs, cloud, "green block", names)
@@ -112,7 +112,7 @@ def test_cache_hit_avoids_recomputation(scene, backbone, tmp_path):
     np.testing.assert_array_equal(first.mask, again.mask)
     assert other_prompt.prompt == "a photo of a blue block"
     # a fresh grounder on the same folder reads everything from disk
-    fresh = ClipGrounder(backbone=backbone, cache=GroundingCache(tmp_path))
+    fresh = ClipGrounder(backbone=backbone, cache=GroundingCache(tmp_path), mode="field")
     from_disk = fresh.ground(obs, cloud, "green block", names)
     assert fresh.backbone_calls == 0 and fresh.cache.hits >= 1
     np.testing.assert_array_equal(from_disk.heatmap, first.heatmap)

@@ -92,6 +92,55 @@ def test_reset_target_change_and_loss_of_track_reground(rollout) -> None:
 
 
 
+class _Scored:
+    """A graded grounder (like CLIP): heatmap ``first`` / ``later`` = (target score, distractor score); the
+    mask is whichever scores higher."""
+
+    name = "clip"
+
+    def __init__(self, distractor: str, first: tuple[float, float], later: tuple[float, float]) -> None:
+        self.calls, self.oracle, self.distractor, self.first, self.later = 0, OracleGrounder(), distractor, first, later
+
+    def ground(self, observation, cloud, target, object_names=None) -> MaskField:
+        self.calls += 1
+        t_score, d_score = self.first if self.calls == 1 else self.later
+        t = self.oracle.ground(observation, cloud, target, object_names).mask
+        d = self.oracle.ground(observation, cloud, self.distractor, object_names).mask
+        heat = (t_score * t + d_score * d).astype(np.float32)
+        mask = (t if t_score > d_score else d).astype(np.float32)
+        return MaskField(mask, heat, True, target, "")
+
+
+def test_tracking_reacquires_when_the_tracked_score_falls(rollout) -> None:
+    """A wrong first answer (the distractor scored a little higher) is dropped once the grounder scores the
+    tracked object far below its new answer; a small difference keeps the track (hysteresis)."""
+    episode, clouds = rollout
+    target, names = episode.target_names[0], episode.object_names
+    distractor = next(n for n in names.values() if n not in (target, "target") and "block" in n)
+    oracle = OracleGrounder()
+    obs, cloud = clouds[0]
+    truth = oracle.ground(obs, cloud, target, names).mask
+    wrong = oracle.ground(obs, cloud, distractor, names).mask
+
+    tracker = TrackingGrounder(_Scored(distractor, first=(0.4, 0.5), later=(0.9, 0.2)), reacquire=True)
+    assert _iou(tracker.ground(obs, cloud, target, names).mask, wrong) == 1.0  # the wrong first answer
+    assert _iou(tracker.ground(obs, cloud, target, names).mask, truth) == 1.0  # its score fell: re-acquired
+    assert tracker.reacquired == 1 and tracker.inner_calls == 2
+    assert _iou(tracker.ground(obs, cloud, target, names).mask, truth) > 0.6  # and tracked from then on
+    assert tracker.reacquired == 1
+
+    steady = TrackingGrounder(_Scored(distractor, first=(0.4, 0.5), later=(0.5, 0.45)), reacquire=True)
+    steady.ground(obs, cloud, target, names)
+    assert _iou(steady.ground(obs, cloud, target, names).mask, wrong) > 0.6  # 0.45 >= 0.5 * 0.5: kept
+    assert steady.reacquired == 0
+
+    off = TrackingGrounder(_Scored(distractor, first=(0.4, 0.5), later=(0.9, 0.2)))  # off by default
+    off.ground(obs, cloud, target, names)
+    assert _iou(off.ground(obs, cloud, target, names).mask, wrong) > 0.6 and off.inner_calls == 1
+    with pytest.raises(ValueError, match="reacquire_ratio"):
+        TrackingGrounder(OracleGrounder(), reacquire_ratio=0.0)
+
+
 def test_policy_and_evaluation_select_tracking(tmp_path) -> None:
     from abm.evaluation.runner import EvalSettings, _load_policy
     from abm.policy import KeyframePolicy

@@ -48,6 +48,7 @@ from abm.grounding.conditioning import (
     make_grounder_from_spec,
     split_roles,
 )
+from abm.grounding.grounders import resolved_spec
 from abm.samples import action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
 
@@ -287,7 +288,8 @@ class KeyframeDataset(Dataset):
         meta = self.source.meta[j]
         target = self.targets[j] if self.mask else None  # CLIP point features do not depend on the target
         target = list(target) if isinstance(target, tuple) else target  # sub-goal objects: one entry per step
-        grounder = {k: v for k, v in self.grounder_spec.items() if k not in ("device", "cache")}  # not results
+        spec = resolved_spec(self.grounder_spec)  # the defaults it relies on are part of the key
+        grounder = {k: v for k, v in spec.items() if k not in ("device", "cache")}  # not results
         what = {"grounder": grounder, "target": target, "key": meta.key,
                 "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}
         digest = hashlib.sha1(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]

@@ -171,11 +171,13 @@ class ClipBackbone:
         return ((pixels - mean) / std).to(self.dtype)
 
     @torch.no_grad()
-    def dense_features(self, images: Any, input_size: tuple[int, int] | None = None) -> torch.Tensor:
-        """MaskCLIP patch features ``(B, h, w, D)`` float32, unit length, for a batch of images.
+    def dense_features(self, images: Any, input_size: tuple[int, int] | None = None,
+                       mode: str = "maskclip") -> torch.Tensor:
+        """Dense patch features ``(B, h, w, D)`` float32, unit length, for a batch of images.
 
         ``h = H_in / patch_size`` and ``w = W_in / patch_size`` (see :meth:`preprocess`); patch ``(i, j)``
-        covers input rows ``[i p, (i + 1) p)`` and columns ``[j p, (j + 1) p)``.
+        covers input rows ``[i p, (i + 1) p)`` and columns ``[j p, (j + 1) p)``. ``mode`` picks the last
+        block (:data:`DENSE_MODES`, :func:`maskclip_head`); the default is MaskCLIP's value path.
         """
         pixels = self.preprocess(images, input_size)
         vision = self.model.vision_model
@@ -184,9 +186,21 @@ class ClipBackbone:
         x = vision.pre_layrnorm(x)
         for layer in vision.encoder.layers[:-1]:
             x = run_encoder_layer(layer, x)
-        x = F.normalize(maskclip_head(self.model, x).float(), dim=-1)
         gh, gw = pixels.shape[-2] // self.patch_size, pixels.shape[-1] // self.patch_size
+        x = F.normalize(maskclip_head(self.model, x, mode, (gh, gw)).float(), dim=-1)
         return x.reshape(x.shape[0], gh, gw, x.shape[-1])
+
+    @torch.no_grad()
+    def image_features(self, images: Any, input_size: tuple[int, int] | None = None) -> torch.Tensor:
+        """CLIP's image embedding ``(B, D)`` float32, unit length: the standard forward, CLS token, projection
+        (what the contrastive loss trains; used to score object crops)."""
+        pixels = self.preprocess(images, input_size)
+        vision = self.model.vision_model
+        native = pixels.shape[-2:] == (self.image_size, self.image_size)
+        x = vision.pre_layrnorm(vision.embeddings(pixels, interpolate_pos_encoding=not native))
+        for layer in vision.encoder.layers:
+            x = run_encoder_layer(layer, x)
+        return F.normalize(self.model.visual_projection(vision.post_layernorm(x[:, 0])).float(), dim=-1)
 
     # ---- text -----------------------------------------------------------------------------------
     def tokenize(self, texts: Sequence[str], full_length: bool = True) -> dict[str, torch.Tensor]:
@@ -246,12 +260,75 @@ def run_encoder_layer(layer: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
     return x.add_(out.view_as(x))
 
 
-def maskclip_head(model: Any, x: torch.Tensor) -> torch.Tensor:
+DENSE_MODES: tuple[str, ...] = ("maskclip", "clearclip", "sclip", "naclip")
+"""Last-block variants for dense features (training-free; all drop the residual and the MLP of the last block):
+
+* ``maskclip``: the value path alone, no attention mixing (MaskCLIP);
+* ``clearclip``: attention from query-query similarity, ``softmax(q q^T / sqrt(d)) v`` (ClearCLIP);
+* ``sclip``: correlative self-attention, ``(softmax(q q^T / sqrt(d)) + softmax(k k^T / sqrt(d))) v`` (SCLIP);
+* ``naclip``: key-key similarity plus a Gaussian window over the patch grid, so every patch attends
+  mostly to its neighbours, ``softmax(k k^T / sqrt(d) + exp(-dist^2 / (2 sigma^2))) v`` (NACLIP).
+"""
+NACLIP_SIGMA = 5.0
+"""Standard deviation of NACLIP's Gaussian window, in patches (the paper's value)."""
+
+
+def gaussian_window(grid: tuple[int, int], sigma: float = NACLIP_SIGMA) -> torch.Tensor:
+    """``(h*w, h*w)`` ``exp(-|p_i - p_j|^2 / (2 sigma^2))`` between the patch positions of a ``grid``."""
+    rows, cols = torch.meshgrid(torch.arange(grid[0]), torch.arange(grid[1]), indexing="ij")
+    pos = torch.stack([rows.reshape(-1), cols.reshape(-1)], dim=1).float()
+    return torch.exp(-torch.cdist(pos, pos).pow(2) / (2.0 * sigma * sigma))
+
+
+def last_block_attention(attn: torch.nn.Module, h: torch.Tensor, mode: str, grid: tuple[int, int] | None = None,
+                         sigma: float = NACLIP_SIGMA) -> torch.Tensor:
+    """Attention weights ``(B, heads, N, N)`` of a :data:`DENSE_MODES` variant over the tokens ``h`` ``(B, N, W)``
+    (the last block's layer-normed input, CLS first). ``naclip`` needs the patch ``grid`` (``N = 1 + h*w``);
+    there, patches do not attend to the CLS token."""
+    b, n, width = h.shape
+    heads = attn.num_heads
+    d = width // heads
+
+    def split(t: torch.Tensor) -> torch.Tensor:
+        return t.reshape(b, n, heads, d).transpose(1, 2)
+
+    scale = d ** -0.5
+    if mode == "clearclip":
+        q = split(attn.q_proj(h))
+        return torch.softmax(q @ q.transpose(-1, -2) * scale, dim=-1)
+    if mode == "sclip":
+        q, k = split(attn.q_proj(h)), split(attn.k_proj(h))
+        return torch.softmax(q @ q.transpose(-1, -2) * scale, dim=-1) + \
+            torch.softmax(k @ k.transpose(-1, -2) * scale, dim=-1)
+    if mode == "naclip":
+        if grid is None or grid[0] * grid[1] != n - 1:
+            raise ValueError(f"naclip needs the patch grid of the {n - 1} patch tokens, got {grid}")
+        k = split(attn.k_proj(h))
+        bias = torch.zeros(n, n, dtype=h.dtype, device=h.device)
+        bias[1:, 1:] = gaussian_window(grid, sigma).to(h)
+        bias[1:, 0] = float("-inf")
+        return torch.softmax(k @ k.transpose(-1, -2) * scale + bias, dim=-1)
+    raise ValueError(f"dense mode must be one of {DENSE_MODES}, got {mode!r}")
+
+
+def maskclip_head(model: Any, x: torch.Tensor, mode: str = "maskclip", grid: tuple[int, int] | None = None
+                  ) -> torch.Tensor:
     """MaskCLIP's last block: ``(B, 1 + h*w, W)`` input of the last vision layer -> projected patch features
-    ``(B, h*w, D)`` (not normalised): the value path only, no attention mixing, residual or MLP; CLS dropped."""
+    ``(B, h*w, D)`` (not normalised): the value path only, no attention mixing, residual or MLP; CLS dropped.
+
+    ``mode`` (:data:`DENSE_MODES`) mixes the values with a training-free attention first
+    (:func:`last_block_attention`; ``grid`` = the patch grid, needed by ``naclip``); still no residual, no MLP.
+    """
     vision = model.vision_model
     last = vision.encoder.layers[-1]
-    x = last.self_attn.out_proj(last.self_attn.v_proj(last.layer_norm1(x)))
+    h = last.layer_norm1(x)
+    v = last.self_attn.v_proj(h)
+    if mode != "maskclip":
+        weights = last_block_attention(last.self_attn, h, mode, grid)
+        b, n, width = v.shape
+        heads = weights.shape[1]
+        v = (weights @ v.reshape(b, n, heads, width // heads).transpose(1, 2)).transpose(1, 2).reshape(b, n, width)
+    x = last.self_attn.out_proj(v)
     return model.visual_projection(vision.post_layernorm(x[:, 1:]))
 
 

@@ -50,6 +50,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="heatmap normalisation (default softmax)")
     p.add_argument("--threshold", type=float_range(0.0, 1.0), default=None,
                    help="mask threshold on the heatmap (default 0.7)")
+    p.add_argument("--mode", choices=("field", "proposals"), default=None,
+                   help="clip: threshold the per-point field, or score 3-D object proposals and mark the best one")
+    p.add_argument("--dense-mode", choices=("maskclip", "clearclip", "sclip", "naclip"), default=None,
+                   help="clip: last block of the dense CLIP features")
+    p.add_argument("--input-size", type=int_range(32, 2048), default=None,
+                   help="clip: side the camera images are resized to")
+    p.add_argument("--scales", type=int_range(32, 2048), nargs="+", default=None,
+                   help="clip: extra input sides whose features are averaged in (multi-scale), e.g. --scales 256")
+    p.add_argument("--scoring", choices=("dense", "crop", "combined"), default=None,
+                   help="clip --mode proposals: score candidates by dense features, image crops or both")
     p.add_argument("--cache", type=Path, default=None, help="grounding cache folder (default: none)")
     p.add_argument("--resolution", type=int_range(16, 2048), default=220, help="virtual view side in pixels")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
@@ -157,6 +167,10 @@ def run(args: argparse.Namespace) -> int:
             options["normalization"] = args.normalization
         if args.threshold is not None:
             options["threshold"] = args.threshold
+        options.update({k: v for k in ("mode", "dense_mode", "input_size", "scoring", "scales")
+                        if (v := getattr(args, k)) is not None})
+    elif any(getattr(args, k) is not None for k in ("mode", "dense_mode", "input_size", "scoring", "scales")):
+        raise ValueError("--mode, --dense-mode, --input-size, --scales and --scoring apply to --grounder clip only")
     elif args.normalization or args.threshold is not None or args.clip_model:
         raise ValueError("--clip-model, --normalization and --threshold apply to --grounder clip only")
     grounder = make_grounder(args.grounder, **options)
@@ -197,6 +211,10 @@ def run(args: argparse.Namespace) -> int:
     if args.grounder == "clip":
         summary.update(model=grounder.model_name, normalization=grounder.config.normalization,
                        threshold=grounder.config.threshold)
+        summary.update(mode=grounder.mode, dense_mode=grounder.dense_mode, input_size=grounder.input_size,
+                       scales=list(grounder.scales))
+        if grounder.mode == "proposals":
+            summary["scoring"] = grounder.proposal_config.scoring
     write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(f"{where}: {instruction!r} -> target {target!r}, skill {skill!r}")
     print(f"{args.grounder} grounder: {summary['mask_points']} of {len(cloud)} points masked, found={field.found}")

@@ -4,7 +4,9 @@ All grounders share one call::
 
     field = grounder.ground(observation, cloud, target, object_names)
 
-* :class:`ClipGrounder` — the method: CLIP Feature Cloud + text prompt -> normalised heatmap -> mask.
+* :class:`ClipGrounder` — the method: CLIP Feature Cloud + text prompt -> normalised heatmap -> mask
+  (``mode="field"``, the paper's per-point field), or 3-D object proposals scored by CLIP, the mask being
+  the best candidate's points (``mode="proposals"``, :mod:`abm.grounding.proposals`).
 * :class:`~abm.grounding.tracking.TrackingGrounder` — grounds once with another grounder, then tracks
   the target's 3-D points from step to step.
 * :class:`OracleGrounder` — simulator segmentation + object names: the points whose segmentation id is
@@ -27,9 +29,15 @@ from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
 from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import MaskField, MaskFieldConfig, mask_field_from_features, negative_prompts
+from abm.grounding.proposals import ProposalConfig, object_proposals, with_base_points
 from abm.types import Observation
 
 GROUNDERS: tuple[str, ...] = ("oracle", "clip", "tracking")
+CLIP_MODES: tuple[str, ...] = ("field", "proposals")
+DEFAULT_CLIP_MODE = "proposals"  # measured best (docs/grounding.md section 9); "field" is the paper's
+DEFAULT_DENSE_MODE = "maskclip"
+DEFAULT_INPUT_SIZE: int | None = None  # None: the model's native input size
+DEFAULT_SCALES: tuple[int, ...] = ()
 
 
 @runtime_checkable
@@ -131,9 +139,18 @@ class ClipGrounder:
         device: torch device for the backbone (default CUDA when available).
         config: normalisation / threshold settings (:class:`MaskFieldConfig`).
         cache: a :class:`GroundingCache`, a directory for one, or None for a memory-only cache.
-        input_size: ``(H, W)`` the camera images are resized to (default the model's native size).
+        input_size: ``(H, W)`` (or one side) the camera images are resized to (default the model's native
+            size); a larger input gives a finer patch grid (interpolated position embeddings).
         cache_features: also keep per-image patch features in the cache (memory and disk).
         allow_download: let :func:`load_clip` try the network.
+        dense_mode: last block of the dense features (:data:`abm.grounding.clip.DENSE_MODES`: ``maskclip``,
+            ``clearclip``, ``sclip``, ``naclip``).
+        mode: ``"field"`` (threshold the per-point heatmap) or ``"proposals"`` (score 3-D object candidates,
+            mask the best one; ``config.negatives`` still decide ``found``).
+        proposals: :class:`~abm.grounding.proposals.ProposalConfig` (or its fields as a mapping) for
+            ``mode="proposals"``.
+        scales: extra input sides (e.g. ``(256,)``): the point features are the normalised mean of the
+            features lifted from ``input_size`` and from each of these sizes (multi-scale).
     """
 
     name = "clip"
@@ -148,7 +165,17 @@ class ClipGrounder:
         input_size: tuple[int, int] | None = None,
         cache_features: bool = True,
         allow_download: bool = False,
+        dense_mode: str = DEFAULT_DENSE_MODE,
+        mode: str = DEFAULT_CLIP_MODE,
+        proposals: ProposalConfig | Mapping[str, Any] | None = None,
+        scales: Sequence[int] | None = None,
     ) -> None:
+        from abm.grounding.clip import DENSE_MODES
+
+        if dense_mode not in DENSE_MODES:
+            raise ValueError(f"dense_mode must be one of {DENSE_MODES}, got {dense_mode!r}")
+        if mode not in CLIP_MODES:
+            raise ValueError(f"mode must be one of {CLIP_MODES}, got {mode!r}")
         if backbone is None:
             from abm.grounding.clip import DEFAULT_MODEL, load_clip
 
@@ -156,7 +183,17 @@ class ClipGrounder:
         self.backbone = backbone
         self.config = config or MaskFieldConfig()
         self.cache = cache if isinstance(cache, GroundingCache) else GroundingCache(cache)
+        if input_size is None and DEFAULT_INPUT_SIZE is not None:
+            input_size = DEFAULT_INPUT_SIZE
+        if isinstance(input_size, int):
+            input_size = (input_size, input_size)
         self.input_size = tuple(input_size) if input_size is not None else None
+        self.dense_mode = dense_mode
+        self.mode = mode
+        self.scales = tuple(int(v) for v in (DEFAULT_SCALES if scales is None else scales))
+        if not isinstance(proposals, ProposalConfig):
+            proposals = ProposalConfig(**(proposals or {}))
+        self.proposal_config = proposals
         self.cache_features = cache_features
         self.backbone_calls = 0  # images sent through the vision encoder (for tests and profiling)
         self._text_memory: dict[str, np.ndarray] = {}
@@ -165,20 +202,36 @@ class ClipGrounder:
     def model_name(self) -> str:
         return str(self.backbone.name)
 
+    def _dense_key(self) -> tuple[str, ...]:
+        """Cache-key parts of the dense-feature option (none for MaskCLIP, so older caches stay valid)."""
+        return () if self.dense_mode == "maskclip" else (f"dense={self.dense_mode}",)
+
+    def _scales_key(self) -> tuple[str, ...]:
+        return (f"scales={self.scales}",) if self.scales else ()
+
+    def _mode_key(self) -> tuple[str, ...]:
+        """Cache-key parts of the grounding mode (none for the per-point field)."""
+        return () if self.mode == "field" else (f"mode={self.mode}", self.proposal_config.key())
+
     # ---- features ---------------------------------------------------------------------------------
-    def camera_patch_features(self, observation: Observation, camera_names: Sequence[str]) -> dict[str, np.ndarray]:
-        """camera name -> ``(h, w, D)`` float32 MaskCLIP patch features; uncached images run in one batch."""
+    def camera_patch_features(self, observation: Observation, camera_names: Sequence[str],
+                              input_size: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
+        """camera name -> ``(h, w, D)`` float32 MaskCLIP patch features; uncached images run in one batch.
+        ``input_size`` overrides the grounder's own (for the extra ``scales``)."""
+        input_size = input_size or self.input_size
         out: dict[str, np.ndarray] = {}
         todo: list[tuple[str, str]] = []
         for name in camera_names:
-            key = content_key("patch", image_key(observation.camera(name).rgb), self.model_name, self.input_size)
+            key = content_key("patch", image_key(observation.camera(name).rgb), self.model_name, input_size,
+                              *self._dense_key())
             hit = self.cache.get(key) if self.cache_features else None
             if hit is not None:
                 out[name] = hit["features"].astype(np.float32)
             else:
                 todo.append((name, key))
         if todo:
-            grids = self.backbone.dense_features([observation.camera(n).rgb for n, _ in todo], self.input_size)
+            grids = self.backbone.dense_features([observation.camera(n).rgb for n, _ in todo], input_size,
+                                                 **({} if self.dense_mode == "maskclip" else {"mode": self.dense_mode}))
             self.backbone_calls += len(todo)
             for i, (name, key) in enumerate(todo):
                 out[name] = grids[i].float().cpu().numpy()
@@ -193,7 +246,13 @@ class ClipGrounder:
         _check_cloud(observation, cloud)
         patch = self.camera_patch_features(observation, cloud.camera_names)
         sizes = {n: (observation.camera(n).height, observation.camera(n).width) for n in cloud.camera_names}
-        return lift_patch_features(cloud, patch, sizes)
+        feats = lift_patch_features(cloud, patch, sizes)
+        if not self.scales:
+            return feats
+        for side in self.scales:
+            patch = self.camera_patch_features(observation, cloud.camera_names, (side, side))
+            feats = feats + lift_patch_features(cloud, patch, sizes)
+        return feats / np.maximum(np.linalg.norm(feats, axis=1, keepdims=True), 1e-8)
 
     def text_features(self, prompts: Sequence[str]) -> np.ndarray:
         """``(K, D)`` float32 unit-length text features (memoised per prompt)."""
@@ -235,20 +294,141 @@ class ClipGrounder:
         prompt = clip_prompt(target)
         key = content_key(
             "mask", cloud_key(cloud), *(image_key(observation.camera(n).rgb) for n in cloud.camera_names),
-            self.model_name, self.input_size, prompt, self.config.key(),
+            self.model_name, self.input_size, prompt, self.config.key(), *self._dense_key(), *self._mode_key(),
+            *self._scales_key(),
         )
         hit = self.cache.get(key)
         if hit is not None:
             return MaskField(hit["mask"], hit["heatmap"], bool(hit["found"]), target, prompt, hit["similarity"])
-        feats = self.point_features(observation, cloud)
-        text = self.text_features([prompt])[0]
-        negatives = None
-        if self.config.normalization == "softmax":
-            negatives = self.text_features(negative_prompts(self.config.negatives))
-        field = mask_field_from_features(feats, text, negatives, self.config, target, prompt)
+        field = self._ground_proposals(observation, cloud, target, prompt) if self.mode == "proposals" else None
+        if field is None:
+            feats = self.point_features(observation, cloud)
+            text = self.text_features([prompt])[0]
+            negatives = None
+            if self.config.normalization == "softmax":
+                negatives = self.text_features(negative_prompts(self.config.negatives))
+            field = mask_field_from_features(feats, text, negatives, self.config, target, prompt)
         self.cache.put(key, {"mask": field.mask, "heatmap": field.heatmap, "found": np.array(field.found),
                              "similarity": field.similarity})
         return field
+
+
+    def candidate_scores(self, observation: Observation, cloud: PointCloud, candidates: Sequence[np.ndarray],
+                         texts: np.ndarray, feats: np.ndarray | None) -> np.ndarray:
+        """``(C, T)`` CLIP scores of point-index candidates against unit text features ``texts`` ``(T, D)``:
+        the configured mix of the dense score (cosine of the candidate's mean point feature) and the crop
+        score (pixel-weighted mean cosine of the CLIP image embeddings of its camera crops)."""
+        cfg = self.proposal_config
+        out = np.zeros((len(candidates), len(texts)), np.float64)
+        if cfg.scoring != "crop":
+            assert feats is not None
+            mean = np.stack([feats[c].mean(0) for c in candidates])
+            mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-8)
+            dense = mean @ texts.T
+            out += dense if cfg.scoring == "dense" else (1.0 - cfg.crop_weight) * dense
+        if cfg.scoring != "dense":
+            chosen = np.arange(len(candidates))
+            if cfg.scoring == "combined" and 0 < cfg.crop_top_k < len(candidates):
+                chosen = np.sort(np.argsort(-dense[:, 0], kind="stable")[:cfg.crop_top_k])
+            crops, owner, weight = candidate_crops(observation, cloud, [candidates[i] for i in chosen], cfg)
+            owner = chosen[owner]
+            crop = np.zeros_like(out)
+            if crops:
+                side = (self.backbone.image_size, self.backbone.image_size)
+                emb = self.backbone.image_features(crops, side).cpu().numpy().astype(np.float64)
+                self.backbone_calls += len(crops)
+                sims = emb @ texts.T
+                total = np.bincount(owner, weights=weight, minlength=len(candidates))
+                for t in range(len(texts)):
+                    crop[:, t] = np.bincount(owner, weights=weight * sims[:, t], minlength=len(candidates))
+                seen = total > 0
+                crop[seen] /= total[seen][:, None]
+                crop[~seen] = -1.0  # no camera sees it well enough: never preferred by its crops
+            out += crop if cfg.scoring == "crop" else cfg.crop_weight * crop
+        return out
+
+    def _ground_proposals(self, observation: Observation, cloud: PointCloud, target: str, prompt: str
+                          ) -> MaskField | None:
+        """The best-scoring 3-D object candidate as the mask (None when the cloud has no candidate)."""
+        cfg = self.proposal_config
+        props = object_proposals(cloud.xyz, cloud.rgb, cfg)
+        if not len(props):
+            return None
+        texts = self.text_features([prompt, *negative_prompts(self.config.negatives)]).astype(np.float64)
+        feats = self.point_features(observation, cloud) if cfg.scoring != "crop" else None
+        scores = self.candidate_scores(observation, cloud, props.candidates, texts, feats)
+        best = int(np.argmax(scores[:, 0]))
+        found = bool(len(texts) == 1 or scores[best, 0] > scores[best, 1:].max())
+        logits = self.backbone.logit_scale * (scores[:, 0] - scores[best, 0])
+        probs = np.exp(logits) / np.exp(logits).sum()
+        heat = np.zeros(len(cloud), np.float32)
+        for c, p in zip(props.candidates, probs, strict=True):
+            heat[c] = np.maximum(heat[c], p)
+        chosen = with_base_points(cloud.xyz, cloud.rgb, props.candidates[best], props.table, cfg.voxel,
+                                  cfg.color_tol)
+        heat[chosen] = np.maximum(heat[chosen], probs[best])
+        mask = np.zeros(len(cloud), np.float32)
+        mask[chosen] = 1.0
+        sim = (feats @ texts[0]).astype(np.float32) if feats is not None else None
+        return MaskField(mask, heat, found, target, prompt, sim)
+
+
+def candidate_crops(observation: Observation, cloud: PointCloud, candidates: Sequence[np.ndarray],
+                    config: ProposalConfig) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """Square camera crops around each candidate: ``(crops, owner candidate per crop, weight per crop)``.
+
+    A crop is cut from the ``config.crop_cameras`` cameras that see most of the candidate's points (at least
+    ``min_crop_pixels``), around the box of those pixels, ``crop_margin`` times its larger side (as the
+    benchmark CLIP's training crops, 1.3-2.4x), moved to lie inside the image. Weight: the pixels seen.
+    """
+    crops: list[np.ndarray] = []
+    owner: list[int] = []
+    weight: list[float] = []
+    n_cams = len(cloud.camera_names)
+    for i, members in enumerate(candidates):
+        cams = cloud.camera_index[members]
+        counts = np.bincount(cams, minlength=n_cams)
+        for ci in np.argsort(-counts, kind="stable")[:config.crop_cameras]:
+            if counts[ci] < config.min_crop_pixels:
+                break
+            rgb = observation.camera(cloud.camera_names[ci]).rgb
+            height, width = rgb.shape[:2]
+            px = cloud.pixels[members[cams == ci]]
+            lo, hi = px.min(0), px.max(0) + 1
+            side = int(min(max(np.ceil((hi - lo).max() * config.crop_margin), 8), height, width))
+            centre = (lo + hi) / 2.0
+            top = int(np.clip(round(centre[0] - side / 2), 0, height - side))
+            left = int(np.clip(round(centre[1] - side / 2), 0, width - side))
+            crops.append(rgb[top:top + side, left:left + side])
+            owner.append(i)
+            weight.append(float(counts[ci]))
+    return crops, np.asarray(owner, np.int64), np.asarray(weight, np.float64)
+
+
+LEGACY_CLIP_OPTIONS: dict[str, Any] = {"mode": "field", "dense_mode": "maskclip", "input_size": None, "scales": ()}
+"""What the CLIP grounder did before these options existed (specs written then do not name them)."""
+
+
+def resolved_spec(spec: Mapping[str, Any]) -> dict[str, Any]:
+    """A grounder spec with the current defaults of the CLIP options it leaves out, for cache keys.
+
+    Only defaults that differ from :data:`LEGACY_CLIP_OPTIONS` are added (and the full proposal settings
+    in ``proposals`` mode), so a spec's key stays the same while the defaults do, and changes when they change.
+    """
+    out = dict(spec)
+    if out.get("kind") == "clip":
+        current = {"mode": DEFAULT_CLIP_MODE, "dense_mode": DEFAULT_DENSE_MODE, "input_size": DEFAULT_INPUT_SIZE,
+                   "scales": DEFAULT_SCALES}
+        out.update({k: v for k, v in current.items() if k not in out and v != LEGACY_CLIP_OPTIONS[k]})
+        if out.get("mode") == "proposals":
+            given = out.get("proposals") or {}
+            given = given.__dict__ if isinstance(given, ProposalConfig) else dict(given)
+            if "scoring" in out:
+                given["scoring"] = out.pop("scoring")
+            out["proposals"] = {**ProposalConfig().__dict__, **given}
+    elif out.get("kind") == "tracking" and isinstance(out.get("inner"), Mapping):
+        out["inner"] = resolved_spec(out["inner"])
+    return out
 
 
 def override_spec(kind: str | None, clip_model: str | None = None) -> dict[str, Any] | None:
@@ -284,6 +464,8 @@ def make_grounder(kind: str = "oracle", **kwargs: Any) -> Grounder:
     if kind == "clip":
         shortcuts = {k: kwargs.pop(k) for k in ("normalization", "threshold", "negatives", "logit_scale")
                      if k in kwargs}
+        if "scoring" in kwargs:
+            kwargs["proposals"] = {**dict(kwargs.get("proposals") or {}), "scoring": kwargs.pop("scoring")}
         if shortcuts:
             if "config" in kwargs:
                 raise TypeError("pass either config or its fields (normalization, threshold, ...), not both")

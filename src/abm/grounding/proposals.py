@@ -1,0 +1,234 @@
+"""3-D object proposals: split the fused cloud into object candidates, to be scored by CLIP.
+
+The mask of the method lives in 3-D, where objects are cheap to separate geometrically. A
+:class:`ClipGrounder` with ``mode="proposals"`` scores the candidates of :func:`object_proposals` against
+the target text and marks the best one's points, so the mask is a whole object instead of the patches that
+passed a threshold (:mod:`abm.grounding.grounders`).
+
+1. **Table.** The table top is the most common point height (the mode of a 5 mm histogram of ``z``; or
+   :attr:`ProposalConfig.table_height`). Points up to ``table_margin`` above it are table.
+2. **Clusters.** The other points are put in ``voxel``-sized cells; 26-connected occupied cells form a
+   cluster (``scipy.ndimage.label``). Clusters with fewer than ``min_points`` points are dropped.
+3. **Splits** (``split=True``; off by default). An object standing in or on another one (food on a plate,
+   the steak in the pan, a bottle in the rack, items on the shelf, a peg on its base) touches it and joins
+   its cluster.
+   Inside a cluster, neighbouring cells of one surface colour (:func:`same_colour`: the same chromaticity
+   within ``color_tol``, so shading does not split an object) are joined again: each such colour part is a
+   candidate, and so is the cluster
+   *without* each large colour part (the support removed: plate + cookies - plate = cookies, even when the
+   cookies' print splits them into several colours). The whole cluster stays a candidate too, so a
+   multi-coloured object that stands alone is not lost. Candidates may overlap; scoring picks one.
+4. **Base points.** The chosen candidate takes back the table-height points within one voxel of it that
+   have its colour (the bottom of a flat object lies inside the table margin).
+
+Nothing here needs CLIP; :func:`object_proposals` is pure geometry on ``(N, 3)`` positions and colours.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+SCORINGS: tuple[str, ...] = ("dense", "crop", "combined")
+
+
+@dataclass(frozen=True)
+class ProposalConfig:
+    """How the cloud is split into candidates and how CLIP scores them.
+
+    Attributes:
+        voxel: clustering cell size (m).
+        table_height: table top height (m); None estimates it as the most common point height.
+        table_margin: points up to this height above the table top are table (m).
+        min_points: smallest candidate, in points.
+        split: also propose colour parts of a cluster and the cluster minus each large colour part (off by
+            default: at the first observations of ABM-Bench it lowered IoU, docs/grounding.md section 9).
+        color_tol: largest per-channel chromaticity (``rgb / sum``) difference of joined cells
+            (:func:`same_colour`).
+        support_share: a colour part this large (share of its cluster) counts as a possible support.
+        max_candidates: at most this many candidates (the largest clusters' candidates first).
+        scoring: ``"dense"`` (mean MaskCLIP feature of the candidate's points against the text),
+            ``"crop"`` (CLIP image embedding of the candidate's image crops) or ``"combined"``.
+        crop_weight: weight of the crop score in ``combined`` (the dense score gets ``1 - crop_weight``).
+        crop_margin: crop side = this times the larger side of the candidate's pixel box.
+        crop_cameras: crops per candidate (the cameras that see most of its points).
+        min_crop_pixels: a camera must see at least this many of the candidate's points to be cropped.
+        crop_top_k: ``combined`` crops only the candidates with the ``crop_top_k`` best dense scores (the crops'
+            CLIP forwards are most of the cost); 0 crops every candidate.
+    """
+
+    voxel: float = 0.01
+    table_height: float | None = None
+    table_margin: float = 0.006
+    min_points: int = 15
+    split: bool = False
+    color_tol: float = 0.05
+    support_share: float = 0.3
+    max_candidates: int = 40
+    scoring: str = "combined"
+    crop_weight: float = 0.5
+    crop_margin: float = 1.6
+    crop_cameras: int = 2
+    min_crop_pixels: int = 12
+    crop_top_k: int = 8
+
+    def __post_init__(self) -> None:
+        if self.scoring not in SCORINGS:
+            raise ValueError(f"proposal scoring must be one of {SCORINGS}, got {self.scoring!r}")
+        if self.voxel <= 0 or self.min_points < 1 or self.crop_margin < 1 or not 0 <= self.crop_weight <= 1:
+            raise ValueError("ProposalConfig needs voxel > 0, min_points >= 1, crop_margin >= 1 and crop_weight "
+                             f"in [0, 1]; got {self}")
+
+    def key(self) -> str:
+        """A stable text form used in cache keys."""
+        return "|".join(f"{k}={getattr(self, k)}" for k in self.__dataclass_fields__)
+
+
+@dataclass
+class Proposals:
+    """Object candidates of one cloud.
+
+    Attributes:
+        candidates: point indices into the cloud, one array per candidate.
+        kinds: ``"cluster"``, ``"part"`` (a colour part) or ``"without"`` (the cluster minus a support).
+        cluster: index of the cluster each candidate comes from.
+        table: ``(N,)`` bool, the points taken as table.
+        table_height: the table top height used (m).
+    """
+
+    candidates: list[np.ndarray]
+    kinds: list[str]
+    cluster: list[int]
+    table: np.ndarray
+    table_height: float
+    extra: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.candidates)
+
+
+def estimate_table_height(z: np.ndarray, bin_size: float = 0.005) -> float:
+    """The most common point height (m): the table top, which holds most points of a tabletop scene."""
+    z = np.asarray(z, np.float64)
+    if z.size == 0:
+        return 0.0
+    edges = np.arange(z.min(), z.max() + 2 * bin_size, bin_size)
+    hist, edges = np.histogram(z, bins=edges)
+    i = int(hist.argmax())
+    in_bin = z[(z >= edges[i]) & (z <= edges[i + 1])]
+    return float(np.median(in_bin))
+
+
+def _cells(xyz: np.ndarray, voxel: float) -> np.ndarray:
+    return np.floor(xyz / voxel).astype(np.int64)
+
+
+def voxel_clusters(xyz: np.ndarray, voxel: float) -> np.ndarray:
+    """``(N,)`` cluster id of every point: 26-connected components of the occupied ``voxel`` cells."""
+    if len(xyz) == 0:
+        return np.zeros(0, np.int64)
+    cells = _cells(xyz, voxel)
+    cells -= cells.min(0)
+    grid = np.zeros(cells.max(0) + 1, bool)
+    grid[tuple(cells.T)] = True
+    labels, _ = ndimage.label(grid, structure=np.ones((3, 3, 3), bool))
+    return labels[tuple(cells.T)].astype(np.int64) - 1
+
+
+def same_colour(a: np.ndarray, b: np.ndarray, tol: float, shade: float = 2.0) -> np.ndarray:
+    """``(K,)`` bool: colours ``a`` and ``b`` ``(K, 3)`` in ``[0, 1]`` are one surface's. Shading changes the
+    brightness, not the hue: the chromaticities (``rgb / sum``) must agree within ``tol`` per channel and the
+    brightnesses within a factor ``shade``; two dark colours (mean below 0.1) agree."""
+    sa, sb = a.sum(1) + 1e-6, b.sum(1) + 1e-6
+    chroma = np.abs(a / sa[:, None] - b / sb[:, None]).max(1) <= tol
+    bright = np.abs(np.log(sa / sb)) <= np.log(shade)
+    dark = (sa < 0.3) & (sb < 0.3)
+    return (chroma & bright) | dark
+
+
+def color_parts(xyz: np.ndarray, rgb: np.ndarray, voxel: float, tol: float) -> np.ndarray:
+    """``(M,)`` part id of the points of one cluster: neighbouring cells (26-connectivity) are joined when
+    their mean colours are one surface's (:func:`same_colour` with chromaticity tolerance ``tol``)."""
+    cells = _cells(xyz, voxel)
+    cells -= cells.min(0) - 1
+    dims = cells.max(0) + 2
+    keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    n = len(uniq)
+    counts = np.bincount(inverse, minlength=n).astype(np.float64)
+    colour = np.stack([np.bincount(inverse, weights=rgb[:, c], minlength=n) for c in range(3)], 1) / counts[:, None]
+    rows, cols = [], []
+    offsets = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) > (0, 0, 0)]
+    for a, b, c in offsets:
+        shifted = uniq + (a * dims[1] + b) * dims[2] + c
+        pos = np.clip(np.searchsorted(uniq, shifted), 0, n - 1)
+        hit = uniq[pos] == shifted
+        src, dst = np.nonzero(hit)[0], pos[hit]
+        close = same_colour(colour[src], colour[dst], tol)
+        rows.append(src[close])
+        cols.append(dst[close])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(r)), (r, c)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return labels[inverse]
+
+
+def object_proposals(xyz: np.ndarray, rgb: np.ndarray, config: ProposalConfig | None = None) -> Proposals:
+    """Object candidates of a fused cloud (see the module docstring)."""
+    config = config or ProposalConfig()
+    xyz = np.asarray(xyz, np.float64)
+    rgb = np.asarray(rgb, np.float64)
+    height = config.table_height if config.table_height is not None else estimate_table_height(xyz[:, 2])
+    table = xyz[:, 2] <= height + config.table_margin
+    above = np.nonzero(~table)[0]
+    labels = voxel_clusters(xyz[above], config.voxel)
+    sizes = np.bincount(labels) if len(labels) else np.zeros(0, np.int64)
+    candidates: list[np.ndarray] = []
+    kinds: list[str] = []
+    cluster_of: list[int] = []
+    for ci in np.argsort(-sizes, kind="stable"):
+        if sizes[ci] < config.min_points or len(candidates) >= config.max_candidates:
+            break
+        members = above[labels == ci]
+        candidates.append(members)
+        kinds.append("cluster")
+        cluster_of.append(int(ci))
+        if not config.split:
+            continue
+        parts = color_parts(xyz[members], rgb[members], config.voxel, config.color_tol)
+        part_sizes = np.bincount(parts)
+        if len(part_sizes) < 2:
+            continue
+        for pi in np.argsort(-part_sizes, kind="stable"):
+            size = part_sizes[pi]
+            if size < config.min_points or len(candidates) >= config.max_candidates:
+                break
+            if size <= 0.9 * len(members):
+                candidates.append(members[parts == pi])
+                kinds.append("part")
+                cluster_of.append(int(ci))
+            rest = len(members) - size
+            if size >= config.support_share * len(members) and rest >= config.min_points and \
+                    len(candidates) < config.max_candidates:
+                candidates.append(members[parts != pi])
+                kinds.append("without")
+                cluster_of.append(int(ci))
+    return Proposals(candidates, kinds, cluster_of, table, float(height))
+
+
+def with_base_points(xyz: np.ndarray, rgb: np.ndarray, members: np.ndarray, table: np.ndarray,
+                     voxel: float, color_tol: float) -> np.ndarray:
+    """``members`` plus the table-height points within ``voxel`` of them that have their colour."""
+    low = np.nonzero(table)[0]
+    if not len(members) or not len(low):
+        return members
+    dist, index = cKDTree(xyz[members]).query(xyz[low], distance_upper_bound=voxel)
+    near = np.isfinite(dist)
+    same = np.zeros_like(near)
+    same[near] = same_colour(rgb[low[near]], rgb[members[index[near]]], color_tol)
+    return np.union1d(members, low[same])
