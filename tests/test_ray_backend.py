@@ -57,10 +57,11 @@ def test_killed_ray_generation_resumes_and_equals_the_local_pool(cluster, tmp_pa
     out = tmp_path / "ray"
     cmd = [sys.executable, "-m", "abm.cli", *_gen(out, "ray", extra=["--ray-address", cluster])]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 120
+    deadline = time.time() + 600  # generous: Ray's start-up on a loaded 2-core machine took minutes
     while time.time() < deadline and proc.poll() is None and not (out.is_dir() and find_episode_files(out)):
         time.sleep(0.1)
     assert proc.poll() is None, "finished before it could be killed"
+    assert out.is_dir() and find_episode_files(out), "no episode was written within the deadline"
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     assert len(find_episode_files(out)) == 1

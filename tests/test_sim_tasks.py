@@ -64,7 +64,7 @@ def test_env_step_records_observation_and_motion():
 @pytest.mark.parametrize(
     ("content", "match"),
     [
-        ("version: 1\ntasks: [1, 2", "not valid YAML"),
+        ("version: 1\ntasks: [1, 2", r"not a valid split file \(YAML error"),
         ("version: 2\ntasks: {}\n", "'version' must be 1"),
         ("version: 1\ntasks:\n  pick_block:\n    seen: [red block, gold block]\n", "unknown objects.*gold block"),
         ("version: 1\ntasks:\n  juggle:\n    seen: [red block]\n", "unknown task 'juggle'"),

@@ -31,7 +31,7 @@ def register(subparsers) -> None:
     gen.add_argument("--dense", action="store_true",
                      help="also record the full trajectory at a fixed control rate (camera frames, joint state, "
                           "joint and end-effector actions) for dense policies such as ACT or diffusion")
-    gen.add_argument("--dense-fps", type=float_range(0.0, 500.0, low_open=True), default=10.0,
+    gen.add_argument("--dense-fps", type=float_range(0.0, low_open=True), default=10.0,
                      help="control rate of --dense in frames per second (default 10; 1/fps must be a whole "
                           "number of 2 ms physics steps)")
     add_backend_arguments(gen)
