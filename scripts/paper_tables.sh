@@ -21,7 +21,8 @@
 # Resumable at every stage: demonstrations are kept, grounding caches are filled once, trainings continue
 # from their last checkpoint (--resume), evaluations skip finished episodes, finished exports are kept.
 # Across machines: at the end of every pair, unfinished trainings leave their latest checkpoint and log in
-# ZOO/carry/NAME/ (commit it); a rerun on a fresh clone continues from there.
+# ZOO/carry/NAME/ (commit it); a rerun on a fresh clone continues from there. Before a session ends while
+# trainings still run, `STAGES=carry bash scripts/paper_tables.sh OUT` copies their latest checkpoints there.
 # Cost on a 2-core CPU: data ~20 min, two trainings at a time with one thread each (~2 h per pair at
 # 5000 steps), evaluation ~4 s per rollout per worker (a Table-1 row: 850 rollouts).
 set -euo pipefail
@@ -116,6 +117,10 @@ carry_unfinished() {  # keep what a continuation on another machine needs (call 
     [ -f "$OUT/$name/log.csv" ] && cp "$OUT/$name/log.csv" "$ZOO/carry/$name/"
   done
 }
+
+if stage carry; then  # STAGES=carry: only copy the running trainings' latest state into ZOO/carry (then commit it)
+  carry_unfinished
+fi
 
 if stage train; then
   stamp train_start
