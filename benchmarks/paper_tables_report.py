@@ -20,13 +20,13 @@ Usage: python benchmarks/paper_tables_report.py OUT [--zoo models] [--clip model
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from abm.zoo import file_sha256
 from seen_unseen_report import _cell, _machine, _stage_minutes, _training, replace_block
 
 START, END = "<!-- paper-tables:start -->", "<!-- paper-tables:end -->"
@@ -166,14 +166,6 @@ def targets(cells: Mapping) -> str:
     return "Targets (issue 25): " + "; ".join(checks) + "."
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def zoo_index(out: Path, zoo: Path, clip: Path | None) -> list[dict[str, Any]]:
     """Describe every exported model of the zoo (and the benchmark CLIP); writes ZOO/index.json and README.md."""
     index_path = zoo / "index.json"
@@ -185,7 +177,7 @@ def zoo_index(out: Path, zoo: Path, clip: Path | None) -> list[dict[str, Any]]:
             continue
         entry = dict(known.get(run, {}))
         entry.update({"name": run, "file": file.name, "label": label, "method": method, "grounder": grounder,
-                      "tables": list(tables), "size_bytes": file.stat().st_size, "sha256": _sha256(file)})
+                      "tables": list(tables), "size_bytes": file.stat().st_size, "sha256": file_sha256(file)})
         cfg_path = out / run / "config.json"
         if cfg_path.is_file():  # the run folder is here: (re)read what only it knows
             cfg = json.loads(cfg_path.read_text())
@@ -205,7 +197,7 @@ def zoo_index(out: Path, zoo: Path, clip: Path | None) -> list[dict[str, Any]]:
         meta = json.loads((clip / "abm_clip.json").read_text()) if (clip / "abm_clip.json").is_file() else {}
         entries.append({"name": "benchmark-clip", "file": clip.name + "/", "method": "clip",
                         "size_bytes": (clip / "model.safetensors").stat().st_size,
-                        "sha256": _sha256(clip / "model.safetensors"),
+                        "sha256": file_sha256(clip / "model.safetensors"),
                         "recipe": meta.get("recipe"), "steps": meta.get("steps"),
                         "train_minutes": round(meta["train_seconds"] / 60, 1) if "train_seconds" in meta else None,
                         "zero_shot_top1": (meta.get("zero_shot") or {}).get("accuracy"),
