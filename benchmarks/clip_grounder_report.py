@@ -13,7 +13,7 @@ drawn from the kept JSON only, so ``--figures-only`` redraws it from what is com
 
 With the runs' training logs at hand it also keeps compact loss curves (``training_RUN.csv``) and draws them.
 
-Usage: python benchmarks/clip_grounder_report.py OUT [--clip runs/clip_bench] [--quality runs/clip_quality.json]
+Usage: python benchmarks/clip_grounder_report.py OUT [--clip models/benchmark-clip] [--quality runs/clip_quality.json]
        python benchmarks/clip_grounder_report.py --figures-only
 """
 
@@ -153,6 +153,21 @@ def mask_quality(quality: Mapping, tasks: Sequence[str], normalization: str, thr
     return "\n".join(out)
 
 
+def grounding_quality(quality: Mapping, tasks: Sequence[str], config: str) -> str:
+    """Mask quality of grounding configuration ``config`` on these tasks' scenes, from the records of
+    ``benchmarks/grounding_quality.py`` (``docs/results/grounding_quality.json``)."""
+    rows = [r for r in quality.get("records", []) if r["config"] == config and r["task"] in tasks]
+    if not rows:
+        return ""
+    out = ["| task | split | scenes | mask IoU | hit rate | top-1 point on the target |", "|---|---|---|---|---|---|"]
+    for t in tasks:
+        for s in ("seen", "unseen"):
+            for r in (r for r in rows if r["task"] == t and r["split"] == s):
+                out.append(f"| {t} | {s} | {r['n']} | {r['iou']:.2f} | {100 * r['hit_rate']:.0f} % | "
+                           f"{100 * r['top1']:.0f} % |")
+    return "\n".join(out)
+
+
 def _grounder_setting(config: Mapping) -> tuple[str, float]:
     """Normalisation and threshold the abm_clip run grounded with (its stored grounder options)."""
     from abm.grounding.mask_field import DEFAULT_NORMALIZATION, DEFAULT_THRESHOLD
@@ -161,9 +176,12 @@ def _grounder_setting(config: Mapping) -> tuple[str, float]:
     return options.get("normalization", DEFAULT_NORMALIZATION), float(options.get("threshold", DEFAULT_THRESHOLD))
 
 
-def report(out: Path, clip: Path, command: str, quality: Mapping | None = None, figures_md: str = ""
-           ) -> tuple[str, str]:
-    """The whole report and its summary for the README (everything but the mask-quality table)."""
+def report(out: Path, clip: Path, command: str, quality: Mapping | None = None, figures_md: str = "",
+           grounding: Mapping | None = None, grounding_config: str = "") -> tuple[str, str]:
+    """The whole report and its summary for the README (everything but the mask-quality tables).
+
+    ``grounding`` is the JSON of ``benchmarks/grounding_quality.py``; its records of ``grounding_config``
+    (the configuration the abm_clip run grounded with) on these tasks go into the full report."""
     rates = load_rates(out)
     tasks = sorted({r["task"] for r in rates})
     table, avg = success_table(rates)
@@ -182,7 +200,7 @@ def report(out: Path, clip: Path, command: str, quality: Mapping | None = None, 
         + (f"{arch.get('num_hidden_layers')}-layer, {arch.get('hidden_size')}-wide ViT at "
            f"{arch.get('image_size')}² " if arch else "")
         + "trained on simulator renders of every catalog object with their names, never on demonstrations; "
-        "see docs/grounding.md section 8). Policies: `small` preset at "
+        "see docs/grounding.md). Policies: `small` preset at "
         f"{policy['resolution']}² views over a {policy['workspace_size']} m cube, "
         f"{config['train']['steps']} steps of batch {config['train']['batch']}, {config['train']['optimizer']} "
         f"lr {config['train']['lr']}, trained two at a time with one thread each (the odd one out alone with two; "
@@ -212,7 +230,16 @@ def report(out: Path, clip: Path, command: str, quality: Mapping | None = None, 
         h, c = avg["rvt_hash"], avg["rvt_clip"]
         lines.append(f"CLIP text moves rvt from {h['unseen']:.0f} % to {c['unseen']:.0f} % on unseen objects "
                      f"({h['seen']:.0f} % to {c['seen']:.0f} % on seen).")
+    missing = [name for name in [*RUNS, *SWAPPED] if name not in avg]
+    if missing:
+        lines.append(f"Not evaluated in this run (the script's METHODS): {', '.join(missing)}.")
     summary = "\n".join(lines) + "\n"
+    if grounding and grounding_config:
+        q = grounding_quality(grounding, tasks, grounding_config)
+        if q:
+            lines += ["", f"Quality of the grounding configuration `{grounding_config}` on these tasks' scenes "
+                      "(`benchmarks/grounding_quality.py`, first observation of seeded scenes; "
+                      "[grounding_quality.json](grounding_quality.json)):", "", q]
     if quality:
         normalization, threshold = _grounder_setting(config)
         q = mask_quality(quality, tasks, normalization, threshold)
@@ -226,9 +253,13 @@ def report(out: Path, clip: Path, command: str, quality: Mapping | None = None, 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path, nargs="?", help="the folder given to scripts/clip_grounder.sh")
-    parser.add_argument("--clip", type=Path, default=Path("runs/clip_bench"), help="the CLIP model folder")
+    parser.add_argument("--clip", type=Path, default=Path("models/benchmark-clip"), help="the CLIP model folder")
     parser.add_argument("--quality", type=Path, default=Path("runs/clip_quality.json"),
                         help="benchmarks/clip_quality.py JSON (skipped when missing)")
+    parser.add_argument("--grounding-quality", type=Path, default=Path("docs/results/grounding_quality.json"),
+                        help="benchmarks/grounding_quality.py JSON (skipped when missing)")
+    parser.add_argument("--grounding-config", default="proposals (combined, no split)",
+                        help="its configuration the abm_clip run grounded with (the package default)")
     parser.add_argument("--report", type=Path, default=Path("docs/results/clip_grounder.md"), help="markdown file")
     parser.add_argument("--readme", default="README.md", help="README to update ('' = do not touch it)")
     parser.add_argument("--command", default="bash scripts/clip_grounder.sh", help="the command to quote")
@@ -243,14 +274,18 @@ def main() -> None:
     args.command = " ".join([*(f"{k}={shlex.quote(os.environ[k])}" for k in knobs if k in os.environ),
                              args.command.strip()])
     store.mkdir(parents=True, exist_ok=True)
+    for stale in [*store.glob("results_*.json"), *store.glob("training_*.csv")]:  # the kept JSON is this run's only
+        stale.unlink()
     for folder in sorted(args.run_dir.glob("eval_*")):
         if (folder / "results.json").is_file():
             (store / f"results_{folder.name[len('eval_'):]}.json").write_text((folder / "results.json").read_text())
     for name in RUNS:
         if (args.run_dir / name / "log.csv").is_file():
             keep_training_log(args.run_dir / name, store / f"training_{name}.csv")
+    grounding = json.loads(args.grounding_quality.read_text()) if args.grounding_quality.is_file() else None
     figs = figures(store, args.images)
-    text, _ = report(args.run_dir, args.clip, args.command, quality, figure_markdown(figs, args.report.parent))
+    text, _ = report(args.run_dir, args.clip, args.command, quality, figure_markdown(figs, args.report.parent),
+                     grounding, args.grounding_config)
     _, summary = report(args.run_dir, args.clip, args.command, quality,
                         figure_markdown(figs, Path(args.readme or ".").parent))
     args.report.write_text("# The learned (CLIP) grounder beside the oracle: abm, rvt and ifd\n\n" + text)

@@ -14,8 +14,8 @@
 # benchmarks/clip_grounder_report.py.
 #
 # Usage: bash scripts/clip_grounder.sh [OUT]       (default OUT=runs/clip_grounder)
-# Knobs (environment): CLIP (runs/clip_bench: an `abm clip train` folder), DATA (OUT/data; generated with
-#   DEMOS=20 seen demonstrations of each of TASKS when missing), TASKS ("pick_block place_food"),
+# Knobs (environment): CLIP (models/benchmark-clip, the committed benchmark CLIP, or any `abm clip train` folder),
+#   DATA (OUT/data; generated with DEMOS=20 seen demonstrations of each of TASKS when missing), TASKS ("pick_block place_food"),
 #   STEPS (1400), EVAL_EPISODES (10), REPEATS (3), METHODS (all five), REPORT (docs/results/clip_grounder.md).
 # Every stage resumes. 2-core CPU: ~1 min of CLIP caching, ~75 min of training (two runs side by side, one
 # thread each; 25 min per pair), ~25 min of evaluation (720 rollouts, ~4 s each per worker).
@@ -25,7 +25,7 @@ cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH" MUJOCO_GL="${MUJOCO_GL:-egl}"
 
 OUT="${1:-runs/clip_grounder}"
-CLIP="${CLIP:-runs/clip_bench}"
+CLIP="${CLIP:-models/benchmark-clip}"
 DATA="${DATA:-$OUT/data}"
 TASKS="${TASKS:-pick_block place_food}"
 DEMOS="${DEMOS:-20}"

@@ -75,3 +75,27 @@ def test_report_is_written_from_a_run_folder(tmp_path: Path) -> None:
     assert "20 steps of batch 8" in text and "abm_oracle 2 min" in text
     assert "| abm_oracle → CLIP | abm | trained on oracle masks" in text
     assert "grounded by CLIP only at evaluation reaches 30 % / 30 % (seen / unseen), the CLIP-trained one 50 %" in text
+
+
+def test_grounding_quality_rows_and_runs_left_out(tmp_path: Path) -> None:
+    record = {"config": "proposals (combined, no split)", "task": "pick_block", "split": "unseen", "iou": 0.81,
+              "hit_rate": 0.9, "top1": 0.7, "n": 10}
+    quality = {"records": [record, {**record, "config": "field (maskclip)", "iou": 0.1}]}
+    text = clip_grounder_report.grounding_quality(quality, ["pick_block"], "proposals (combined, no split)")
+    assert text.splitlines()[2:] == ["| pick_block | unseen | 10 | 0.81 | 90 % | 70 % |"]
+    assert clip_grounder_report.grounding_quality(quality, ["place_food"], "field (maskclip)") == ""
+
+    out = tmp_path / "run"  # only the two abm runs evaluated (METHODS="abm_oracle abm_clip")
+    for split in ("seen", "unseen"):
+        (out / f"eval_{split}").mkdir(parents=True)
+        rates = [_rate(f"abm ({n})", "pick_block", split, [50.0]) for n in ("abm_oracle", "abm_clip")]
+        (out / f"eval_{split}" / "results.json").write_text(json.dumps(rates))
+    (out / "abm_clip").mkdir()
+    config = {"train": {"steps": 20, "batch": 8, "optimizer": "adamw", "lr": 0.001, "grounder_options": {}},
+              "policy": {"resolution": 48, "workspace_size": 0.6}}
+    (out / "abm_clip" / "config.json").write_text(json.dumps(config))
+    text, summary = clip_grounder_report.report(out, tmp_path / "no_clip", "bash scripts/clip_grounder.sh",
+                                                grounding=quality, grounding_config=record["config"])
+    left_out = "Not evaluated in this run (the script's METHODS): rvt_hash, rvt_clip, ifd_clip, abm_oracle → CLIP."
+    assert left_out in summary
+    assert "| pick_block | unseen | 10 | 0.81 | 90 % | 70 % |" in text and "0.81" not in summary
