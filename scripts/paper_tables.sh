@@ -22,7 +22,8 @@
 # from their last checkpoint (--resume), evaluations skip finished episodes, finished exports are kept.
 # Across machines: at the end of every pair, unfinished trainings leave their latest checkpoint and log in
 # ZOO/carry/NAME/ (commit it); a rerun on a fresh clone continues from there. Before a session ends while
-# trainings still run, `STAGES=carry bash scripts/paper_tables.sh OUT` copies their latest checkpoints there.
+# trainings or evaluations still run, `STAGES=carry bash scripts/paper_tables.sh OUT` copies their latest
+# checkpoints and the outcomes of unfinished evaluations (ZOO/carry/eval/NAME/SPLIT) there.
 # Cost on a 2-core CPU: data ~20 min, two trainings at a time with one thread each (~2 h per pair at
 # 5000 steps), evaluation ~4 s per rollout per worker (a Table-1 row: 850 rollouts).
 set -euo pipefail
@@ -107,7 +108,14 @@ train_one() {  # run name, threads -> one multi-task training (resumes), then it
 }
 
 carry_unfinished() {  # keep what a continuation on another machine needs (call before the session ends)
-  local name latest
+  local name latest folder
+  for folder in "$OUT"/eval/*/*/; do  # unfinished evaluations: their outcomes so far (small JSON lines)
+    [ -f "$folder/outcomes.jsonl" ] && [ ! -f "$folder/results.json" ] || continue
+    name="${folder#"$OUT"/eval/}"; name="${name%/}"
+    rm -rf "$ZOO/carry/eval/$name" && mkdir -p "$ZOO/carry/eval/$name"
+    cp "$folder"/outcomes.jsonl "$ZOO/carry/eval/$name/"
+    [ -f "$folder/evaluation.json" ] && cp "$folder/evaluation.json" "$ZOO/carry/eval/$name/"
+  done
   for name in $RUNS; do
     [ -f "$ZOO/$name.pt" ] && continue
     latest=$(ls "$OUT/$name/checkpoints"/step_*.pt 2>/dev/null | sort | tail -n 1) || true
@@ -148,21 +156,31 @@ if stage train; then
 fi
 
 # ----------------------------------------------------------------------------------------- evaluation
+restore_eval() {  # eval folder -> on a fresh clone, continue from the outcomes carried in ZOO/carry/eval
+  local carried="$ZOO/carry/eval/${1#"$OUT"/eval/}"
+  if [ -d "$carried" ] && [ ! -f "$1/outcomes.jsonl" ]; then mkdir -p "$1" && cp "$carried"/* "$1/"; fi
+}
+
 if stage eval; then
   stamp eval_start
+  trap 'carry_unfinished; kill $(jobs -p) 2>/dev/null || true' INT TERM
   for name in $RUNS; do
     [ -f "$ZOO/$name.pt" ] || { echo "skip evaluating $name: $ZOO/$name.pt is not trained yet" >&2; continue; }
     for s in seen unseen; do
+      restore_eval "$OUT/eval/$name/$s"
       # shellcheck disable=SC2086
       abm eval --run "$ZOO/$name.pt" --tasks $TASKS --split "$s" --episodes "$EVAL_EPISODES" --repeats "$REPEATS" \
         --workers "$EVAL_WORKERS" --max-steps "$MAX_STEPS" --out "$OUT/eval/$name/$s"
     done
     if [[ " $TABLE1 " == *" $name "* ]]; then
+      restore_eval "$OUT/eval/$name/compositional"
       # shellcheck disable=SC2086
       abm eval --run "$ZOO/$name.pt" --tasks $COMPOSITIONAL --split compositional --episodes "$EVAL_EPISODES" \
         --repeats "$REPEATS" --workers "$EVAL_WORKERS" --max-steps "$MAX_STEPS" --out "$OUT/eval/$name/compositional"
     fi
   done
+  trap - INT TERM
+  rm -rf "$ZOO/carry/eval"
   stamp eval_end
 fi
 
