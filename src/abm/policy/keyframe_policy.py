@@ -254,7 +254,7 @@ class KeyframePolicy(nn.Module):
         compiled = self.__dict__["_compiled_model"]
         model = self.model if compiled is None else compiled
         with torch.autocast(device_type=dev, dtype=torch.bfloat16, enabled=autocast):
-            out = model(inputs["images"], inputs["proprio"], inputs["lang"], mask=inputs.get("mask"),
+            out: PolicyOutput = model(inputs["images"], inputs["proprio"], inputs["lang"], mask=inputs.get("mask"),
                         ifd_features=inputs.get("ifd_features"), ifd_index=inputs.get("ifd_index"),
                         pool_weights=pool_weights)
         return out
@@ -274,7 +274,8 @@ class KeyframePolicy(nn.Module):
 
     def compute_loss(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Same as calling the module (so ``DistributedDataParallel`` wrapping works)."""
-        return self(batch)
+        loss: tuple[torch.Tensor, dict[str, torch.Tensor]] = self(batch)
+        return loss
 
     @torch.no_grad()
     def predict(self, batch: Mapping[str, Any]) -> list[KeyframeAction]:
