@@ -37,6 +37,7 @@ from typing import Any, Protocol, TypeAlias
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 from torch.utils.data import Dataset, Sampler
 
 from abm.files import atomic_path
@@ -48,8 +49,8 @@ from abm.grounding.conditioning import (
     make_grounder_from_spec,
     split_roles,
 )
-from abm.grounding.grounders import resolved_spec
-from abm.samples import action_targets, collate, scene_sample
+from abm.grounding.grounders import Grounder, resolved_spec
+from abm.samples import Sample, action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
 
 __all__ = ["EpisodeMeta", "EpisodeSource", "KeyframeDataset", "StepSampler", "augmentation_margin_cube",
@@ -132,12 +133,12 @@ class EpisodeSource:
     def __len__(self) -> int:
         return len(self.indices)
 
-    def positions(self, j: int) -> np.ndarray:
+    def positions(self, j: int) -> NDArray[np.float64]:
         """``(K, 3)`` keyframe target positions (m) of the ``j``-th selected episode."""
         if isinstance(self.episodes, (list, tuple)):  # in memory
             return np.array([a.position for _, a in self.episodes[self.indices[j]].steps]).reshape(-1, 3)
         if hasattr(self.episodes, "load_positions"):
-            positions: np.ndarray = self.episodes.load_positions(self.indices[j])
+            positions: NDArray[np.float64] = self.episodes.load_positions(self.indices[j])
             return positions
         return np.array([self.load_step(j, k)[1].position for k in range(self.meta[j].num_steps)]).reshape(-1, 3)
 
@@ -215,7 +216,7 @@ def worker_init(worker_id: int) -> None:
     random.seed(seed)
 
 
-class KeyframeDataset(Dataset[dict[str, Any]]):
+class KeyframeDataset(Dataset[Sample]):
     """Policy-independent samples over a set of episodes (see module docstring and :mod:`abm.samples`).
 
     Args:
@@ -282,7 +283,7 @@ class KeyframeDataset(Dataset[dict[str, Any]]):
                 target = roles[0] if len(roles) == 1 else roles
             self.targets.append(target)
             self.skills.append(skill)
-        self._oracle = None
+        self._oracle: Grounder | None = None
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         if (self.mask and not self.oracle) or self.features:
             if self.cache_dir is None:
@@ -321,7 +322,7 @@ class KeyframeDataset(Dataset[dict[str, Any]]):
         digest = hashlib.sha1(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
         return self.cache_dir / f"{digest}_k{k:03d}.npz"
 
-    def _scene(self, j: int, obs: Observation, grounder: Any | None, mask: bool, features: bool
+    def _scene(self, j: int, obs: Observation, grounder: Grounder | None, mask: bool, features: bool
                ) -> ConditionedScene:
         meta = self.source.meta[j]
         return condition_scene(obs, meta.instruction, self.fuse_workspace, grounder=grounder,
@@ -383,7 +384,7 @@ class KeyframeDataset(Dataset[dict[str, Any]]):
             feats = data["features"] if self.features else None
         return dataclasses.replace(scene, point_mask=pm, features=feats)
 
-    def __getitem__(self, key: int | tuple[int, int]) -> dict[str, Any]:
+    def __getitem__(self, key: int | tuple[int, int]) -> Sample:
         index, sample_seed = (key, index_seed(key)) if isinstance(key, int) else key
         j, k = self.items[index]
         obs, action = self.source.load_step(j, k)
@@ -395,8 +396,7 @@ class KeyframeDataset(Dataset[dict[str, Any]]):
             points, action, transform = augment_scene(points, action, self.workspace, rng,
                                                       self.max_translation, self.max_yaw_deg)
             grip_pos = transform_points(transform, grip_pos[None])[0]
-        sample = scene_sample(scene, obs.gripper_open, grip_pos, points)
-        sample.update(action_targets(action))
+        sample: Sample = {**scene_sample(scene, obs.gripper_open, grip_pos, points), **action_targets(action)}
         return sample
 
 

@@ -116,7 +116,7 @@ class PolicyConfig:
         return self.resolution // self.patch_size
 
     @classmethod
-    def from_preset(cls, preset: str, variant: str = "abm", **overrides: Any) -> PolicyConfig:
+    def from_preset(cls, preset: str, variant: str = "abm", **overrides: object) -> PolicyConfig:
         """Config of a size preset (``paper`` or ``small``) for one variant; ``overrides`` replace fields.
 
         A config with overridden sizes keeps the preset name with ``+custom`` appended so a
