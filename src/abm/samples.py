@@ -21,8 +21,8 @@ itself (:class:`abm.policy.KeyframePolicy`), on its own device.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import Any, NotRequired, TypedDict, cast
 
 import numpy as np
 import torch
@@ -34,8 +34,54 @@ POINT_KEYS = ("points", "colors", "point_mask", "point_heatmap", "point_features
 TEXT_KEYS = ("instruction", "skill")
 
 
+class ActionTargets(TypedDict):
+    """The training-target entries of a sample (see module docstring)."""
+
+    action_position: torch.Tensor
+    action_quaternion: torch.Tensor
+    action_gripper: torch.Tensor
+    action_collision: torch.Tensor
+
+
+class Sample(TypedDict):
+    """One keyframe sample (see module docstring); the optional entries are there when asked for."""
+
+    points: torch.Tensor
+    colors: torch.Tensor
+    gripper_open: torch.Tensor
+    gripper_position: torch.Tensor
+    instruction: str
+    skill: str
+    point_mask: NotRequired[torch.Tensor]
+    point_heatmap: NotRequired[torch.Tensor]
+    point_features: NotRequired[torch.Tensor]
+    action_position: NotRequired[torch.Tensor]
+    action_quaternion: NotRequired[torch.Tensor]
+    action_gripper: NotRequired[torch.Tensor]
+    action_collision: NotRequired[torch.Tensor]
+
+
+class Batch(TypedDict):
+    """Samples stacked by :func:`collate`: a leading batch axis, point arrays zero-padded, texts as lists."""
+
+    points: torch.Tensor
+    colors: torch.Tensor
+    gripper_open: torch.Tensor
+    gripper_position: torch.Tensor
+    instruction: list[str]
+    skill: list[str]
+    valid: NotRequired[torch.Tensor]  # (B, N) real points; always set by collate
+    point_mask: NotRequired[torch.Tensor]
+    point_heatmap: NotRequired[torch.Tensor]
+    point_features: NotRequired[torch.Tensor]
+    action_position: NotRequired[torch.Tensor]
+    action_quaternion: NotRequired[torch.Tensor]
+    action_gripper: NotRequired[torch.Tensor]
+    action_collision: NotRequired[torch.Tensor]
+
+
 def scene_sample(scene: ConditionedScene, gripper_open: float, gripper_position: np.ndarray,
-                 points: np.ndarray | None = None) -> dict[str, Any]:
+                 points: np.ndarray | None = None) -> Sample:
     """The scene entries of a sample.
 
     Args:
@@ -45,7 +91,7 @@ def scene_sample(scene: ConditionedScene, gripper_open: float, gripper_position:
         points: ``(N, 3)`` replacement point positions (the augmented cloud); default the scene's.
     """
     xyz = scene.cloud.xyz if points is None else points
-    sample: dict[str, Any] = {
+    sample: Sample = {
         "points": torch.from_numpy(np.ascontiguousarray(xyz, np.float32)),
         "colors": torch.from_numpy(np.ascontiguousarray(scene.cloud.rgb, np.float32)),
         "gripper_open": torch.tensor(float(gripper_open), dtype=torch.float32),
@@ -61,7 +107,7 @@ def scene_sample(scene: ConditionedScene, gripper_open: float, gripper_position:
     return sample
 
 
-def action_targets(action: KeyframeAction) -> dict[str, torch.Tensor]:
+def action_targets(action: KeyframeAction) -> ActionTargets:
     """The training-target entries of a sample for the keyframe ``action``."""
     return {
         "action_position": torch.from_numpy(np.asarray(action.position, np.float32)),
@@ -71,15 +117,16 @@ def action_targets(action: KeyframeAction) -> dict[str, torch.Tensor]:
     }
 
 
-def collate(samples: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def collate(samples: Sequence[Sample]) -> Batch:
     """Stack samples into a batch (see module docstring); ``valid`` ``(B, N)`` marks real points."""
     if not samples:
         raise ValueError("cannot collate an empty list of samples")
     sizes = [int(s["points"].shape[0]) for s in samples]
     n = max(max(sizes), 1)
+    rows: Sequence[Mapping[str, Any]] = samples  # every key is handled alike, by its kind
     out: dict[str, Any] = {}
-    for key in samples[0]:
-        vals = [s[key] for s in samples]
+    for key in rows[0]:
+        vals = [s[key] for s in rows]
         if key in TEXT_KEYS:
             out[key] = list(vals)
         elif key in POINT_KEYS:
@@ -93,4 +140,4 @@ def collate(samples: Sequence[dict[str, Any]]) -> dict[str, Any]:
     for i, size in enumerate(sizes):
         valid[i, :size] = True
     out["valid"] = valid
-    return out
+    return cast(Batch, out)

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 Split = Literal["seen", "unseen", "compositional"]
 SPLITS: tuple[str, ...] = ("seen", "unseen", "compositional")
@@ -27,7 +28,7 @@ SPLITS: tuple[str, ...] = ("seen", "unseen", "compositional")
 
 def _check_array(
     name: str,
-    value: Any,
+    value: object,
     shape: tuple[int | None, ...],
     dtypes: tuple[type, ...] | None = None,
 ) -> np.ndarray:
@@ -69,11 +70,11 @@ class CameraFrame:
         segmentation: optional ``int32`` ``(H, W)`` object ids (simulation only; -1 = none).
     """
 
-    rgb: np.ndarray
-    depth: np.ndarray
-    intrinsics: np.ndarray
-    extrinsics: np.ndarray
-    segmentation: np.ndarray | None = None
+    rgb: NDArray[np.uint8]
+    depth: NDArray[np.floating]
+    intrinsics: NDArray[np.float64]
+    extrinsics: NDArray[np.float64]
+    segmentation: NDArray[np.integer] | None = None
 
     def __post_init__(self) -> None:
         _check_array("CameraFrame.rgb", self.rgb, (None, None, 3), (np.uint8,))
@@ -110,7 +111,7 @@ class Observation:
 
     cameras: dict[str, CameraFrame]
     gripper_open: float
-    gripper_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
+    gripper_pose: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
     step: int = 0
 
     def __post_init__(self) -> None:
@@ -151,8 +152,8 @@ class KeyframeAction:
             (:func:`abm.geometry.canonical_gripper_quat`).
     """
 
-    position: np.ndarray
-    quaternion: np.ndarray
+    position: NDArray[np.float64]
+    quaternion: NDArray[np.float64]
     gripper_open: bool
     ignore_collision: bool = False
     kind: str = ""
@@ -177,7 +178,7 @@ class KeyframeAction:
             raise ValueError(f"KeyframeAction.symmetry must be >= 0 (0 = any turn), got {self.symmetry}")
 
     @property
-    def matrix(self) -> np.ndarray:
+    def matrix(self) -> NDArray[np.float64]:
         """``(4, 4)`` gripper-to-world transform of the target."""
         from scipy.spatial.transform import Rotation
 
@@ -204,10 +205,10 @@ class Trajectory:
 
     fps: float
     observations: list[Observation]
-    joint_positions: np.ndarray
-    joint_actions: np.ndarray
-    ee_actions: np.ndarray
-    keyframe_frames: np.ndarray
+    joint_positions: NDArray[np.float64]
+    joint_actions: NDArray[np.float64]
+    ee_actions: NDArray[np.float64]
+    keyframe_frames: NDArray[np.int64]
 
     def __post_init__(self) -> None:
         n = len(self.observations)

@@ -49,12 +49,16 @@ import zlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from abm.files import WriteError, write_error, write_text_atomic
 from abm.types import CameraFrame, Episode, KeyframeAction, Observation, Trajectory
+
+if TYPE_CHECKING:  # h5py is imported where files are read or written
+    import h5py
 
 FORMAT_VERSION: int = 2
 EPISODE_SUFFIX = ".h5"
@@ -82,7 +86,7 @@ class EpisodeInfo:
     be mixed in one dataset."""
 
 
-def _json_default(value: Any) -> Any:
+def _json_default(value: object) -> object:
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
@@ -92,7 +96,7 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"metadata value of type {type(value).__name__} is not JSON-serialisable")
 
 
-def save_episode(episode: Episode, path: str | os.PathLike) -> None:
+def save_episode(episode: Episode, path: str | os.PathLike[str]) -> None:
     """Write ``episode`` to ``path`` atomically (parents are created)."""
     import h5py
 
@@ -147,7 +151,7 @@ def save_episode(episode: Episode, path: str | os.PathLike) -> None:
             tmp.unlink()
 
 
-def _write_cameras(cams, observations: list[Observation], camera_names: list[str]) -> None:
+def _write_cameras(cams: h5py.Group, observations: list[Observation], camera_names: list[str]) -> None:
     """``cams/<name>/{rgb,depth,segmentation,intrinsics,extrinsics}`` of a sequence of observations."""
     for name in camera_names:
         frames = [o.cameras[name] for o in observations]
@@ -156,14 +160,15 @@ def _write_cameras(cams, observations: list[Observation], camera_names: list[str
         g.create_dataset("rgb", data=np.stack([c.rgb for c in frames]), chunks=(1, h, w, 3), **_COMPRESSION)
         g.create_dataset("depth", data=np.stack([c.depth for c in frames]).astype(np.float32),
                          chunks=(1, h, w), **_COMPRESSION)
-        if all(c.segmentation is not None for c in frames):
-            g.create_dataset("segmentation", data=np.stack([c.segmentation for c in frames]).astype(np.int32),
+        segmentations = [c.segmentation for c in frames if c.segmentation is not None]
+        if len(segmentations) == len(frames):
+            g.create_dataset("segmentation", data=np.stack(segmentations).astype(np.int32),
                              chunks=(1, h, w), **_COMPRESSION)
         g["intrinsics"] = np.stack([c.intrinsics for c in frames])
         g["extrinsics"] = np.stack([c.extrinsics for c in frames])
 
 
-def _write_trajectory(g, trajectory: Trajectory, camera_names: list[str]) -> None:
+def _write_trajectory(g: h5py.Group, trajectory: Trajectory, camera_names: list[str]) -> None:
     """The optional ``/trajectory`` group of a ``--dense`` episode (same layout as ``/observations``, plus the
     joint state and the joint / end-effector actions of every control tick)."""
     obs = trajectory.observations
@@ -178,9 +183,9 @@ def _write_trajectory(g, trajectory: Trajectory, camera_names: list[str]) -> Non
     _write_cameras(g.create_group("cameras"), obs, camera_names)
 
 
-def _read_observation(g, k: int, camera_names: list[str]) -> Observation:
+def _read_observation(g: h5py.Group, k: int, camera_names: list[str]) -> Observation:
     """Observation ``k`` of a group written like ``/observations`` (or ``/trajectory``)."""
-    cameras = {}
+    cameras: dict[str, CameraFrame] = {}
     for name in camera_names:
         c = g["cameras"][name]
         cameras[name] = CameraFrame(rgb=c["rgb"][k], depth=c["depth"][k], intrinsics=c["intrinsics"][k],
@@ -190,7 +195,7 @@ def _read_observation(g, k: int, camera_names: list[str]) -> Observation:
                        step=int(g["step"][k]))
 
 
-def _read_trajectory(f, path: Path, camera_names: list[str]) -> Trajectory | None:
+def _read_trajectory(f: h5py.File, path: Path, camera_names: list[str]) -> Trajectory | None:
     if "trajectory" not in f:
         return None
     g = f["trajectory"]
@@ -204,7 +209,7 @@ def _read_trajectory(f, path: Path, camera_names: list[str]) -> Trajectory | Non
         raise EpisodeFormatError(f"{path}: the dense trajectory cannot be read ({err})") from None
 
 
-def _dataset_crc32(dataset) -> int:
+def _dataset_crc32(dataset: h5py.Dataset) -> int:
     """CRC-32 of a dataset's values (strings joined with NUL bytes)."""
     data = dataset[()]
     if data.dtype.kind == "O":
@@ -214,14 +219,14 @@ def _dataset_crc32(dataset) -> int:
     return zlib.crc32(payload)
 
 
-def _store_checksum(name: str, obj) -> None:
+def _store_checksum(name: str, obj: h5py.Group | h5py.Dataset) -> None:
     import h5py
 
     if isinstance(obj, h5py.Dataset):
         obj.attrs["crc32"] = _dataset_crc32(obj)
 
 
-def verify_episode(path: str | os.PathLike) -> bool:
+def verify_episode(path: str | os.PathLike[str]) -> bool:
     """Read every dataset of an episode file and compare it with the CRC-32 stored when it was written.
 
     Returns:
@@ -260,7 +265,7 @@ def verify_episode(path: str | os.PathLike) -> bool:
 VERIFIED_RECORD = ".abm_verified.json"
 
 
-def check_episodes(paths: Sequence[str | os.PathLike], root: str | os.PathLike | None = None
+def check_episodes(paths: Sequence[str | os.PathLike[str]], root: str | os.PathLike[str] | None = None
                    ) -> list[tuple[Path, str]]:
     """Verify the checksums of episode files (:func:`verify_episode`); ``(path, reason)`` of each bad one.
 
@@ -298,7 +303,7 @@ def check_episodes(paths: Sequence[str | os.PathLike], root: str | os.PathLike |
     return bad
 
 
-def _open(path: Path):
+def _open(path: Path) -> h5py.File:
     import h5py
 
     if not path.is_file():
@@ -321,14 +326,14 @@ def _open(path: Path):
     return f
 
 
-def _attr(f, path: Path, key: str):
+def _attr(f: h5py.File, path: Path, key: str) -> Any:  # an HDF5 attribute: str, number or array
     try:
         return f.attrs[key]
     except KeyError:
         raise EpisodeFormatError(f"{path}: missing attribute {key!r}") from None
 
 
-def _info(f, path: Path) -> EpisodeInfo:
+def _info(f: h5py.File, path: Path) -> EpisodeInfo:
     return EpisodeInfo(path=path, task=str(_attr(f, path, "task")), split=str(_attr(f, path, "split")),
                        variation=int(_attr(f, path, "variation")),
                        instruction=str(_attr(f, path, "instruction")),
@@ -337,7 +342,7 @@ def _info(f, path: Path) -> EpisodeInfo:
                        cameras=_camera_signature(f, path))
 
 
-def _camera_signature(f, path: Path) -> str:
+def _camera_signature(f: h5py.File, path: Path) -> str:
     names = list(_json_attr(f, path, "camera_names"))
     try:
         shape = f["observations"]["cameras"][names[0]]["depth"].shape[1:] if names else ()
@@ -346,15 +351,16 @@ def _camera_signature(f, path: Path) -> str:
     return ",".join(names) + "@" + "x".join(str(int(n)) for n in shape)
 
 
-def load_metadata(path: str | os.PathLike) -> dict[str, Any]:
+def load_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The free-form metadata of one episode file (no image data is read)."""
     path = Path(path)
     f = _open(path)
     with f:
-        return _json_attr(f, path, "metadata")
+        metadata: dict[str, Any] = _json_attr(f, path, "metadata")
+        return metadata
 
 
-def read_info(path: str | os.PathLike) -> EpisodeInfo:
+def read_info(path: str | os.PathLike[str]) -> EpisodeInfo:
     """Metadata of one episode file (no image data is read)."""
     path = Path(path)
     f = _open(path)
@@ -362,7 +368,7 @@ def read_info(path: str | os.PathLike) -> EpisodeInfo:
         return _info(f, path)
 
 
-def _read_step(f, path: Path, k: int, camera_names: list[str]) -> tuple[Observation, KeyframeAction]:
+def _read_step(f: h5py.File, path: Path, k: int, camera_names: list[str]) -> tuple[Observation, KeyframeAction]:
     try:
         act = f["actions"]
         obs = _read_observation(f["observations"], k, camera_names)
@@ -375,14 +381,14 @@ def _read_step(f, path: Path, k: int, camera_names: list[str]) -> tuple[Observat
     return obs, action
 
 
-def _json_attr(f, path: Path, key: str):
+def _json_attr(f: h5py.File, path: Path, key: str) -> Any:  # parsed JSON
     try:
         return json.loads(_attr(f, path, key))
     except json.JSONDecodeError as err:
         raise EpisodeFormatError(f"{path}: attribute {key!r} is not valid JSON ({err})") from None
 
 
-def load_episode(path: str | os.PathLike) -> Episode:
+def load_episode(path: str | os.PathLike[str]) -> Episode:
     """Read a whole episode written by :func:`save_episode`."""
     path = Path(path)
     f = _open(path)
@@ -401,7 +407,7 @@ def load_episode(path: str | os.PathLike) -> Episode:
             raise EpisodeFormatError(f"{path}: invalid episode ({err})") from None
 
 
-def find_episode_files(root: str | os.PathLike) -> list[Path]:
+def find_episode_files(root: str | os.PathLike[str]) -> list[Path]:
     """Episode files under ``root`` (recursively, sorted; temporary files are skipped)."""
     root = Path(root)
     if not root.is_dir():
@@ -416,7 +422,7 @@ class EpisodeStore:
         root: directory scanned recursively for ``*.h5`` episode files.
     """
 
-    def __init__(self, root: str | os.PathLike) -> None:
+    def __init__(self, root: str | os.PathLike[str]) -> None:
         self.root = Path(root)
         self.episodes: list[EpisodeInfo] = [read_info(p) for p in find_episode_files(self.root)]
 
@@ -441,7 +447,7 @@ class EpisodeStore:
         with f:
             return _read_step(f, info.path, k, _json_attr(f, info.path, "camera_names"))
 
-    def load_positions(self, i: int) -> np.ndarray:
+    def load_positions(self, i: int) -> NDArray[np.float64]:
         """``(K, 3)`` keyframe target positions (m) of episode ``i``, without reading any image."""
         info = self._info(i)
         f = _open(info.path)

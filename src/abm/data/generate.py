@@ -9,12 +9,18 @@ from __future__ import annotations
 
 import multiprocessing
 import time
+from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
+from multiprocessing.context import BaseContext
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from abm.configuration import CAMERA_RESOLUTION
 from abm.workers import die_with_parent
+
+if TYPE_CHECKING:
+    from abm.ray_pool import RayActorPool
 
 MAX_SEED_FACTOR = 3  # give up after trying this many seeds per requested episode
 ALL_TASKS = "all"
@@ -212,7 +218,9 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     next_seed = s
     args = (str(out), int(resolution), str(splits_path) if splits_path else None, dense_fps)
     with _pool(backend, workers, ctx, ray_address) as pool:
-        running: set[Future] = set()
+        running: set[Future[Any]] = set()  # generate_one's or generate_remote's result, by backend
+        worker: Callable[..., tuple[int, bool, str] | tuple[int, bool, str, bytes]] = (
+            generate_remote if backend == "ray" else generate_one)
         queue = list(pending_seeds)
 
         def submit_more() -> None:
@@ -228,8 +236,7 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
                         continue
                 else:
                     return
-                running.add(pool.submit(generate_remote if backend == "ray" else generate_one, task, split, sd,
-                                        *args))
+                running.add(pool.submit(worker, task, split, sd, *args))
 
         submit_more()
         while running:
@@ -248,7 +255,8 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
     return GenerationReport(created, skipped, sorted(failed), time.perf_counter() - start)
 
 
-def _pool(backend: str, workers: int, ctx, ray_address: str | None):
+def _pool(backend: str, workers: int, ctx: BaseContext, ray_address: str | None
+          ) -> ProcessPoolExecutor | RayActorPool:
     """The executor of the generation workers: the local process pool or Ray actors."""
     if backend == "ray":
         from abm.ray_pool import RayActorPool

@@ -33,10 +33,11 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Protocol, TypeAlias
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 from torch.utils.data import Dataset, Sampler
 
 from abm.files import atomic_path
@@ -48,12 +49,36 @@ from abm.grounding.conditioning import (
     make_grounder_from_spec,
     split_roles,
 )
-from abm.grounding.grounders import resolved_spec
-from abm.samples import action_targets, collate, scene_sample
+from abm.grounding.grounders import Grounder, resolved_spec
+from abm.samples import Sample, action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
 
 __all__ = ["EpisodeMeta", "EpisodeSource", "KeyframeDataset", "StepSampler", "augmentation_margin_cube",
            "check_inside_workspace", "collate", "ground_keyframes", "worker_init"]
+
+
+class EpisodeIndexEntry(Protocol):
+    """What a store's index knows of one episode without reading it (e.g. ``EpisodeInfo``)."""
+
+    @property
+    def path(self) -> str | Path: ...
+    @property
+    def task(self) -> str: ...
+    @property
+    def instruction(self) -> str: ...
+
+
+class EpisodeStoreLike(Protocol):
+    """The ``EpisodeStore`` API the dataset relies on: an index without images, lazy per-step loading."""
+
+    @property
+    def episodes(self) -> Sequence[EpisodeIndexEntry]: ...
+    def load(self, i: int) -> Episode: ...
+    def load_step(self, i: int, k: int) -> tuple[Observation, KeyframeAction]: ...
+
+
+#: Episodes held in memory (a list or tuple) or an on-disk store.
+Episodes: TypeAlias = "list[Episode] | tuple[Episode, ...] | EpisodeStoreLike"
 
 
 @dataclass
@@ -77,20 +102,21 @@ class EpisodeSource:
         indices: which episodes to use (default all).
     """
 
-    def __init__(self, episodes: Sequence[Episode] | Any, indices: Sequence[int] | None = None) -> None:
+    def __init__(self, episodes: Episodes, indices: Sequence[int] | None = None) -> None:
         self.in_memory = isinstance(episodes, (list, tuple))
         self.episodes = episodes
-        n = len(episodes) if self.in_memory else len(episodes.episodes)
+        n = len(episodes) if isinstance(episodes, (list, tuple)) else len(episodes.episodes)
         self.indices = list(range(n)) if indices is None else list(indices)
         self.meta = [self._meta(i) for i in self.indices]
 
     def _meta(self, i: int) -> EpisodeMeta:
-        if self.in_memory:
+        if isinstance(self.episodes, (list, tuple)):  # in memory
             ep = self.episodes[i]
             return EpisodeMeta(ep.task, ep.instruction, dict(ep.object_names), list(ep.target_names), len(ep),
                                f"memory:{i}")
         store = self.episodes
         info = store.episodes[i]
+        src: Any  # duck-typed: anything with task, instruction, object_names and target_names
         if getattr(info, "object_names", None) is not None and getattr(info, "target_names", None) is not None:
             src = info  # the store's index already has everything (no image is read)
         elif hasattr(store, "load_metadata"):
@@ -107,17 +133,18 @@ class EpisodeSource:
     def __len__(self) -> int:
         return len(self.indices)
 
-    def positions(self, j: int) -> np.ndarray:
+    def positions(self, j: int) -> NDArray[np.float64]:
         """``(K, 3)`` keyframe target positions (m) of the ``j``-th selected episode."""
-        if self.in_memory:
+        if isinstance(self.episodes, (list, tuple)):  # in memory
             return np.array([a.position for _, a in self.episodes[self.indices[j]].steps]).reshape(-1, 3)
         if hasattr(self.episodes, "load_positions"):
-            return self.episodes.load_positions(self.indices[j])
+            positions: NDArray[np.float64] = self.episodes.load_positions(self.indices[j])
+            return positions
         return np.array([self.load_step(j, k)[1].position for k in range(self.meta[j].num_steps)]).reshape(-1, 3)
 
     def load_step(self, j: int, k: int) -> tuple[Observation, KeyframeAction]:
         """Observation and action of keyframe ``k`` of the ``j``-th selected episode."""
-        if self.in_memory:
+        if isinstance(self.episodes, (list, tuple)):  # in memory
             return self.episodes[self.indices[j]].steps[k]
         return self.episodes.load_step(self.indices[j], k)
 
@@ -189,7 +216,7 @@ def worker_init(worker_id: int) -> None:
     random.seed(seed)
 
 
-class KeyframeDataset(Dataset):
+class KeyframeDataset(Dataset[Sample]):
     """Policy-independent samples over a set of episodes (see module docstring and :mod:`abm.samples`).
 
     Args:
@@ -212,7 +239,7 @@ class KeyframeDataset(Dataset):
 
     def __init__(
         self,
-        source: EpisodeSource | Sequence[Episode] | Any,
+        source: EpisodeSource | Episodes,
         workspace: Workspace,
         grounder: Mapping[str, Any] | None = None,
         *,
@@ -256,7 +283,7 @@ class KeyframeDataset(Dataset):
                 target = roles[0] if len(roles) == 1 else roles
             self.targets.append(target)
             self.skills.append(skill)
-        self._oracle = None
+        self._oracle: Grounder | None = None
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         if (self.mask and not self.oracle) or self.features:
             if self.cache_dir is None:
@@ -287,15 +314,15 @@ class KeyframeDataset(Dataset):
         assert self.cache_dir is not None
         meta = self.source.meta[j]
         target = self.targets[j] if self.mask else None  # CLIP point features do not depend on the target
-        target = list(target) if isinstance(target, tuple) else target  # sub-goal objects: one entry per step
+        target_key = list(target) if isinstance(target, tuple) else target  # sub-goal objects: one entry per step
         spec = resolved_spec(self.grounder_spec)  # the defaults it relies on are part of the key
         grounder = {k: v for k, v in spec.items() if k not in ("device", "cache")}  # not results
-        what = {"grounder": grounder, "target": target, "key": meta.key,
+        what = {"grounder": grounder, "target": target_key, "key": meta.key,
                 "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}
         digest = hashlib.sha1(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
         return self.cache_dir / f"{digest}_k{k:03d}.npz"
 
-    def _scene(self, j: int, obs: Observation, grounder: Any | None, mask: bool, features: bool
+    def _scene(self, j: int, obs: Observation, grounder: Grounder | None, mask: bool, features: bool
                ) -> ConditionedScene:
         meta = self.source.meta[j]
         return condition_scene(obs, meta.instruction, self.fuse_workspace, grounder=grounder,
@@ -331,7 +358,7 @@ class KeyframeDataset(Dataset):
                 arrays["features"] = scene.features.astype(np.float16)
             path = self._cache_file(j, k)
             with atomic_path(path) as tmp, tmp.open("wb") as fh:
-                np.savez(fh, **arrays)
+                np.savez(fh, **arrays)  # type: ignore[arg-type]  # numpy's stub confuses **arrays with allow_pickle
             bar.update(1)
         bar.close()
         return len(todo)
@@ -357,7 +384,7 @@ class KeyframeDataset(Dataset):
             feats = data["features"] if self.features else None
         return dataclasses.replace(scene, point_mask=pm, features=feats)
 
-    def __getitem__(self, key: int | tuple[int, int]) -> dict[str, Any]:
+    def __getitem__(self, key: int | tuple[int, int]) -> Sample:
         index, sample_seed = (key, index_seed(key)) if isinstance(key, int) else key
         j, k = self.items[index]
         obs, action = self.source.load_step(j, k)
@@ -369,8 +396,7 @@ class KeyframeDataset(Dataset):
             points, action, transform = augment_scene(points, action, self.workspace, rng,
                                                       self.max_translation, self.max_yaw_deg)
             grip_pos = transform_points(transform, grip_pos[None])[0]
-        sample = scene_sample(scene, obs.gripper_open, grip_pos, points)
-        sample.update(action_targets(action))
+        sample: Sample = {**scene_sample(scene, obs.gripper_open, grip_pos, points), **action_targets(action)}
         return sample
 
 
@@ -394,7 +420,7 @@ def check_inside_workspace(source: EpisodeSource, workspace: Workspace) -> None:
 
 
 def ground_keyframes(
-    source: EpisodeSource | Sequence[Episode] | Any,
+    source: EpisodeSource | Episodes,
     workspace: Workspace,
     grounder: Mapping[str, Any],
     cache_dir: str | Path,

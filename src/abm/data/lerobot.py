@@ -26,11 +26,15 @@ import shutil
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
+from numpy.typing import DTypeLike, NDArray
 
 from abm.types import CameraFrame, Episode, KeyframeAction, Observation, Trajectory
+
+if TYPE_CHECKING:  # pyarrow is imported where datasets are written or read
+    import pyarrow as pa
 
 CODEBASE_VERSION = "v3.0"
 KEYFRAME_FPS = 1.0  # nominal rate of keyframe-only exports
@@ -114,7 +118,7 @@ def _features(cameras: list[str], size: tuple[int, int], dense: bool, segmentati
     return feats
 
 
-def _arrow_type(feature: dict[str, Any]):
+def _arrow_type(feature: dict[str, Any]) -> pa.DataType:
     import pyarrow as pa
 
     base = {"float32": pa.float32(), "float64": pa.float64(), "int32": pa.int32(), "int64": pa.int64(),
@@ -127,7 +131,7 @@ def _arrow_type(feature: dict[str, Any]):
     return base
 
 
-def _column(feature: dict[str, Any], values: np.ndarray | list):
+def _column(feature: dict[str, Any], values: np.ndarray | list[str]) -> pa.Array:
     import pyarrow as pa
 
     typ = _arrow_type(feature)
@@ -147,21 +151,25 @@ class _Stats:
 
     def __init__(self) -> None:
         self.n = 0
-        self.sum = self.sq = self.min = self.max = None
+        self.sum: NDArray[np.float64] | None = None
+        self.sq: NDArray[np.float64] | None = None
+        self.min: NDArray[np.float64] | None = None
+        self.max: NDArray[np.float64] | None = None
 
     def add(self, values: np.ndarray, axes: tuple[int, ...]) -> None:
         v = np.asarray(values, np.float64)
         s, q = v.sum(axis=axes), (v * v).sum(axis=axes)
         lo, hi = v.min(axis=axes), v.max(axis=axes)
         count = int(np.prod([v.shape[a] for a in axes]))
-        if self.sum is None:
+        if self.sum is None or self.sq is None or self.min is None or self.max is None:  # the first add
             self.sum, self.sq, self.min, self.max = s, q, lo, hi
         else:
             self.sum, self.sq = self.sum + s, self.sq + q
             self.min, self.max = np.minimum(self.min, lo), np.maximum(self.max, hi)
         self.n += count
 
-    def result(self, shape: tuple[int, ...]) -> dict[str, Any]:
+    def result(self, shape: tuple[int, ...]) -> dict[str, list[Any]]:
+        assert self.sum is not None and self.sq is not None, "no values were added"
         mean = self.sum / self.n
         std = np.sqrt(np.maximum(self.sq / self.n - mean * mean, 0.0))
         return {k: np.asarray(v).reshape(shape).tolist() for k, v in
@@ -189,7 +197,7 @@ def _source_name(path: Path, root: Path) -> str:
         return path.name
 
 
-def export_lerobot(data: str | os.PathLike, out: str | os.PathLike, frames: str = "auto", crf: int = 18,
+def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], frames: str = "auto", crf: int = 18,
                    robot_type: str = "franka_panda", progress: bool = True) -> ExportReport:
     """Write every episode under ``data`` as one LeRobot v3 dataset in ``out`` (a new or empty folder).
 
@@ -256,20 +264,24 @@ def export_lerobot(data: str | os.PathLike, out: str | os.PathLike, frames: str 
     total = 0
     for ep_index, info in enumerate(tqdm(store.episodes, desc="export", unit="ep", disable=not progress)):
         episode = load_episode(info.path) if ep_index else first
-        if dense and episode.trajectory is None:
-            raise ValueError(f"{info.path} has no dense trajectory (generate with --dense)")
-        if dense and abs(episode.trajectory.fps - fps) > 1e-9:
-            raise ValueError(f"{info.path} was recorded at {episode.trajectory.fps} fps, the first episode at {fps}")
+        if dense:
+            if episode.trajectory is None:
+                raise ValueError(f"{info.path} has no dense trajectory (generate with --dense)")
+            if abs(episode.trajectory.fps - fps) > 1e-9:
+                raise ValueError(
+                    f"{info.path} was recorded at {episode.trajectory.fps} fps, the first episode at {fps}")
         observations, target, flags = _frames_of(episode, dense)
         n = len(observations)
         task_index = tasks.setdefault(episode.instruction, len(tasks))
         actions = [a for _, a in episode.steps]
-        cols: dict[str, Any] = {}
+        cols: dict[str, np.ndarray | list[str]] = {}
         for cam in cameras:
             cf = [o.cameras[cam] for o in observations]
             cols[f"observation.depth.{cam}"] = np.stack([c.depth for c in cf]).astype(np.float32)
             if segmentation:
-                cols[f"observation.segmentation.{cam}"] = np.stack([c.segmentation for c in cf]).astype(np.int32)
+                # every frame has one when the first has (a missing one fails in np.stack)
+                segs = cast("list[np.ndarray]", [c.segmentation for c in cf])
+                cols[f"observation.segmentation.{cam}"] = np.stack(segs).astype(np.int32)
             cols[f"observation.intrinsics.{cam}"] = np.stack([c.intrinsics for c in cf])
             cols[f"observation.extrinsics.{cam}"] = np.stack([c.extrinsics for c in cf])
             rgb = np.stack([c.rgb for c in cf])
@@ -292,6 +304,7 @@ def export_lerobot(data: str | os.PathLike, out: str | os.PathLike, frames: str 
         kf_open = np.array([actions[k].gripper_open for k in target], bool)
         if dense:
             traj = episode.trajectory
+            assert traj is not None  # checked above
             cols["observation.joint_positions"] = traj.joint_positions
             cols["action"] = traj.joint_actions.astype(np.float32)
             cols["action.ee"] = traj.ee_actions.astype(np.float32)
@@ -366,7 +379,7 @@ def _metadata(path: Path) -> dict[str, Any]:
     return load_metadata(path)
 
 
-def _json_default(value: Any) -> Any:
+def _json_default(value: object) -> object:
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
@@ -398,12 +411,13 @@ def _read_json(path: Path, what: str) -> dict[str, Any]:
     if not path.is_file():
         raise LeRobotFormatError(f"{path.parent.parent}: not a LeRobot dataset ({what} {path} is missing)")
     try:
-        return json.loads(path.read_text())
+        data: dict[str, Any] = json.loads(path.read_text())
+        return data
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise LeRobotFormatError(f"{path}: not valid JSON ({err})") from None
 
 
-def _read_parquet(path: Path):
+def _read_parquet(path: Path) -> pa.Table:
     import pyarrow.parquet as pq
 
     if not path.is_file():
@@ -433,9 +447,10 @@ class _VideoFrames:
         """Frames ``lo`` to ``hi - 1`` (``lo`` must be where the previous call stopped)."""
         import av
 
-        out = []
+        out: list[np.ndarray] = []
         try:
             for frame in self._frames:
+                assert frame.pts is not None and frame.time_base is not None  # set on every decoded frame
                 i = int(round(float(frame.pts * frame.time_base) * self.fps))
                 if i < lo:
                     continue
@@ -466,11 +481,12 @@ class _Rows:
             self.file = pq.ParquetFile(path)
         except Exception as err:  # noqa: BLE001 - pyarrow raises several types for damaged files
             raise LeRobotFormatError(f"{path}: not a readable parquet file ({err})") from None
-        self.path, self.group, self.start, self.buffer = path, 0, 0, None
+        self.path, self.group, self.start = path, 0, 0
+        self.buffer: pa.Table | None = None
         self.column_names = self.file.schema_arrow.names
         self.num_rows = self.file.metadata.num_rows
 
-    def take(self, lo: int, hi: int):
+    def take(self, lo: int, hi: int) -> pa.Table:
         import pyarrow as pa
 
         while self.buffer is None or self.start + self.buffer.num_rows < hi:
@@ -484,7 +500,7 @@ class _Rows:
         return rows
 
 
-def import_lerobot(dataset: str | os.PathLike, out: str | os.PathLike, progress: bool = True) -> list[Path]:
+def import_lerobot(dataset: str | os.PathLike[str], out: str | os.PathLike[str], progress: bool = True) -> list[Path]:
     """Read a LeRobot v3 dataset written by :func:`export_lerobot` back into abm episode files under ``out``
     (``OUT/<task>/<split>/episode_<seed>.h5``, as ``abm data generate`` lays them out). Returns the files.
     Frames and videos are read episode by episode, so memory does not grow with the dataset."""
@@ -525,13 +541,13 @@ def import_lerobot(dataset: str | os.PathLike, out: str | os.PathLike, progress:
             v.close()
 
 
-def _import_episodes(episodes, table: _Rows, videos: dict[str, _VideoFrames], out: Path, cameras: list[str],
-                     dense: bool, fps: float, ds: Path, progress: bool) -> list[Path]:
+def _import_episodes(episodes: list[dict[str, Any]], table: _Rows, videos: dict[str, _VideoFrames], out: Path,
+                     cameras: list[str], dense: bool, fps: float, ds: Path, progress: bool) -> list[Path]:
     from tqdm import tqdm
 
     from abm.data.episode_store import save_episode
 
-    written = []
+    written: list[Path] = []
     for row in tqdm(episodes, desc="import", unit="ep", disable=not progress):
         try:
             meta = json.loads(row["abm/episode"])
@@ -551,7 +567,7 @@ def _import_episodes(episodes, table: _Rows, videos: dict[str, _VideoFrames], ou
     return written
 
 
-def _np(col, shape: list[int], dtype) -> np.ndarray:
+def _np(col: pa.ChunkedArray, shape: list[int], dtype: DTypeLike) -> np.ndarray:
     n = len(col)
     if shape == [1]:
         return np.asarray(col.to_numpy(zero_copy_only=False), dtype)
@@ -561,8 +577,8 @@ def _np(col, shape: list[int], dtype) -> np.ndarray:
     return np.asarray(flat.to_numpy(zero_copy_only=False), dtype).reshape(n, *shape)
 
 
-def _episode_from_columns(meta: dict[str, Any], instruction: str, cols: dict[str, Any], rgb: dict[str, np.ndarray],
-                          cameras: list[str], dense: bool, fps: float) -> Episode:
+def _episode_from_columns(meta: dict[str, Any], instruction: str, cols: dict[str, pa.ChunkedArray],
+                          rgb: dict[str, np.ndarray], cameras: list[str], dense: bool, fps: float) -> Episode:
     n = len(cols["frame_index"])
     depth = {c: _np(cols[f"observation.depth.{c}"], [*rgb[c].shape[1:3]], np.float32) for c in cameras}
     seg = {c: (_np(cols[f"observation.segmentation.{c}"], [*rgb[c].shape[1:3]], np.int32)
@@ -574,7 +590,7 @@ def _episode_from_columns(meta: dict[str, Any], instruction: str, cols: dict[str
     step = _np(cols["observation.step"], [1], np.int64)
     observations = [Observation(
         cameras={c: CameraFrame(rgb=rgb[c][i], depth=depth[c][i], intrinsics=intr[c][i], extrinsics=extr[c][i],
-                                segmentation=None if seg[c] is None else seg[c][i]) for c in cameras},
+                                segmentation=None if (s := seg[c]) is None else s[i]) for c in cameras},
         gripper_open=float(state[i, 7]), gripper_pose=poses[i], step=int(step[i])) for i in range(n)]
     flags = _np(cols["keyframe.is_keyframe"], [1], bool)
     target = _np(cols["keyframe.index"], [1], np.int64)

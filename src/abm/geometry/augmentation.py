@@ -36,7 +36,8 @@ def random_se3(
 def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a ``(4, 4)`` transform to points ``(..., 3)``."""
     points = np.asarray(points)
-    return (points @ transform[:3, :3].T + transform[:3, 3]).astype(points.dtype, copy=False)
+    moved: np.ndarray = (points @ transform[:3, :3].T + transform[:3, 3]).astype(points.dtype, copy=False)
+    return moved
 
 
 def transform_action(transform: np.ndarray, action: KeyframeAction) -> KeyframeAction:

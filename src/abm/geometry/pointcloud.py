@@ -11,19 +11,21 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from abm.geometry.workspace import Workspace
 from abm.types import CameraFrame, Observation
 
 
-def valid_depth_mask(depth: np.ndarray) -> np.ndarray:
+def valid_depth_mask(depth: np.ndarray) -> NDArray[np.bool_]:
     """``(H, W)`` bool: pixels with a finite, strictly positive depth."""
-    return np.isfinite(depth) & (depth > 0)
+    valid: NDArray[np.bool_] = np.isfinite(depth) & (depth > 0)
+    return valid
 
 
 def depth_to_points(
     depth: np.ndarray, intrinsics: np.ndarray, extrinsics: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Deproject a depth image to world points.
 
     Args:
@@ -46,7 +48,7 @@ def depth_to_points(
     return world, np.stack([rows, cols], axis=-1).astype(np.int64)
 
 
-def project_to_camera(points: np.ndarray, intrinsics: np.ndarray, extrinsics: np.ndarray) -> np.ndarray:
+def project_to_camera(points: np.ndarray, intrinsics: np.ndarray, extrinsics: np.ndarray) -> NDArray[np.float64]:
     """World points ``(N, 3)`` -> ``(N, 3)`` of ``(u, v, depth)`` in one camera (u = column, v = row)."""
     world_to_cam = np.linalg.inv(extrinsics)
     cam = np.asarray(points, np.float64) @ world_to_cam[:3, :3].T + world_to_cam[:3, 3]
@@ -69,10 +71,10 @@ class PointCloud:
         camera_names: names of the fused cameras, in fusion order.
     """
 
-    xyz: np.ndarray
-    rgb: np.ndarray
-    camera_index: np.ndarray
-    pixels: np.ndarray
+    xyz: NDArray[np.float32]
+    rgb: NDArray[np.float32]
+    camera_index: NDArray[np.int64]
+    pixels: NDArray[np.int64]
     camera_names: list[str]
 
     def __len__(self) -> int:

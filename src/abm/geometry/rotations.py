@@ -12,13 +12,14 @@ encoding again is exact, and any angle decodes within half a bin (2.5 degrees fo
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 EULER_ORDER = "xyz"
 DEFAULT_ROTATION_BINS = 72
 
 
-def normalize_quaternion(quat: np.ndarray) -> np.ndarray:
+def normalize_quaternion(quat: np.ndarray) -> NDArray[np.float64]:
     """Unit quaternion ``(..., 4)`` with non-negative ``w`` (the two signs are the same rotation)."""
     quat = np.asarray(quat, np.float64)
     norm = np.linalg.norm(quat, axis=-1, keepdims=True)
@@ -28,34 +29,35 @@ def normalize_quaternion(quat: np.ndarray) -> np.ndarray:
     return np.where(quat[..., 3:4] < 0, -quat, quat)
 
 
-def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
+def quat_to_matrix(quat: np.ndarray) -> NDArray[np.float64]:
     """``(..., 4)`` quaternions (x, y, z, w) -> ``(..., 3, 3)`` rotation matrices."""
     quat = np.asarray(quat, np.float64)
-    return Rotation.from_quat(quat.reshape(-1, 4)).as_matrix().reshape(*quat.shape[:-1], 3, 3)
+    matrix: NDArray[np.float64] = Rotation.from_quat(quat.reshape(-1, 4)).as_matrix()
+    return matrix.reshape(*quat.shape[:-1], 3, 3)
 
 
-def matrix_to_quat(matrix: np.ndarray) -> np.ndarray:
+def matrix_to_quat(matrix: np.ndarray) -> NDArray[np.float64]:
     """``(..., 3, 3)`` rotation matrices -> ``(..., 4)`` unit quaternions (x, y, z, w), ``w >= 0``."""
     matrix = np.asarray(matrix, np.float64)
-    quat = Rotation.from_matrix(matrix.reshape(-1, 3, 3)).as_quat()
+    quat: NDArray[np.float64] = Rotation.from_matrix(matrix.reshape(-1, 3, 3)).as_quat()
     return normalize_quaternion(quat).reshape(*matrix.shape[:-2], 4)
 
 
-def quat_to_euler(quat: np.ndarray, degrees: bool = True) -> np.ndarray:
+def quat_to_euler(quat: np.ndarray, degrees: bool = True) -> NDArray[np.float64]:
     """``(..., 4)`` quaternions -> ``(..., 3)`` extrinsic xyz Euler angles."""
     quat = np.asarray(quat, np.float64)
-    euler = Rotation.from_quat(quat.reshape(-1, 4)).as_euler(EULER_ORDER, degrees=degrees)
+    euler: NDArray[np.float64] = Rotation.from_quat(quat.reshape(-1, 4)).as_euler(EULER_ORDER, degrees=degrees)
     return euler.reshape(*quat.shape[:-1], 3)
 
 
-def euler_to_quat(euler: np.ndarray, degrees: bool = True) -> np.ndarray:
+def euler_to_quat(euler: np.ndarray, degrees: bool = True) -> NDArray[np.float64]:
     """``(..., 3)`` extrinsic xyz Euler angles -> ``(..., 4)`` unit quaternions (x, y, z, w)."""
     euler = np.asarray(euler, np.float64)
-    quat = Rotation.from_euler(EULER_ORDER, euler.reshape(-1, 3), degrees=degrees).as_quat()
+    quat: NDArray[np.float64] = Rotation.from_euler(EULER_ORDER, euler.reshape(-1, 3), degrees=degrees).as_quat()
     return normalize_quaternion(quat).reshape(*euler.shape[:-1], 4)
 
 
-def pose_matrix(position: np.ndarray, quat: np.ndarray) -> np.ndarray:
+def pose_matrix(position: np.ndarray, quat: np.ndarray) -> NDArray[np.float64]:
     """Position ``(3,)`` (m) and quaternion ``(4,)`` -> ``(4, 4)`` homogeneous transform."""
     out = np.eye(4)
     out[:3, :3] = quat_to_matrix(quat)
@@ -63,20 +65,21 @@ def pose_matrix(position: np.ndarray, quat: np.ndarray) -> np.ndarray:
     return out
 
 
-def quat_angle_deg(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+def quat_angle_deg(q1: np.ndarray, q2: np.ndarray) -> NDArray[np.float64]:
     """Geodesic angle in degrees between two (batches of) quaternions."""
     r = Rotation.from_quat(np.atleast_2d(q1)).inv() * Rotation.from_quat(np.atleast_2d(q2))
-    return np.degrees(r.magnitude()).reshape(np.broadcast_shapes(np.shape(q1)[:-1], np.shape(q2)[:-1]))
+    magnitude: NDArray[np.float64] = r.magnitude()
+    return np.degrees(magnitude).reshape(np.broadcast_shapes(np.shape(q1)[:-1], np.shape(q2)[:-1]))
 
 
-def euler_to_bins(euler_deg: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.ndarray:
+def euler_to_bins(euler_deg: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> NDArray[np.int64]:
     """Euler angles in degrees ``(..., 3)`` -> integer bins ``(..., 3)`` in ``[0, num_bins)``."""
     width = 360.0 / num_bins
     shifted = np.asarray(euler_deg, np.float64) + 180.0
     return np.mod(np.round(shifted / width).astype(np.int64), num_bins)
 
 
-def bins_to_euler(bins: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.ndarray:
+def bins_to_euler(bins: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> NDArray[np.float64]:
     """Integer bins ``(..., 3)`` -> Euler angles in degrees at the bin centres."""
     bins = np.asarray(bins)
     if np.any(bins < 0) or np.any(bins >= num_bins):
@@ -85,12 +88,12 @@ def bins_to_euler(bins: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np
     return -180.0 + bins.astype(np.float64) * width
 
 
-def quat_to_bins(quat: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.ndarray:
+def quat_to_bins(quat: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> NDArray[np.int64]:
     """Quaternion(s) ``(..., 4)`` -> Euler bins ``(..., 3)``."""
     return euler_to_bins(quat_to_euler(quat, degrees=True), num_bins)
 
 
-def bins_to_quat(bins: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> np.ndarray:
+def bins_to_quat(bins: np.ndarray, num_bins: int = DEFAULT_ROTATION_BINS) -> NDArray[np.float64]:
     """Euler bins ``(..., 3)`` -> quaternion(s) ``(..., 4)`` at the bin centres."""
     return euler_to_quat(bins_to_euler(bins, num_bins), degrees=True)
 
@@ -107,7 +110,7 @@ ROUND_SYMMETRY = 0
 _ROUND_SAMPLES = 360
 
 
-def _reference_axis(z_axis: np.ndarray, reference_yaw_deg: float) -> np.ndarray:
+def _reference_axis(z_axis: np.ndarray, reference_yaw_deg: float) -> NDArray[np.float64]:
     """Unit reference direction for the finger axis, projected onto the plane normal to ``z_axis``."""
     yaw = np.radians(reference_yaw_deg)
     for ref in (np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.array([0.0, 0.0, 1.0])):
@@ -118,13 +121,13 @@ def _reference_axis(z_axis: np.ndarray, reference_yaw_deg: float) -> np.ndarray:
     raise AssertionError("unreachable: two orthogonal references cannot both be parallel to z")
 
 
-def _turn_z(angle: float) -> np.ndarray:
+def _turn_z(angle: float) -> NDArray[np.float64]:
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def canonical_gripper_matrix(rotation: np.ndarray, symmetry: int = GRIPPER_SYMMETRY,
-                             reference_yaw_deg: float = GRIPPER_REFERENCE_YAW_DEG) -> np.ndarray:
+                             reference_yaw_deg: float = GRIPPER_REFERENCE_YAW_DEG) -> NDArray[np.float64]:
     """The canonical member of a gripper orientation's equivalence class.
 
     Orientations ``R @ Rz(360° k / symmetry)`` (turns about the gripper's own z axis) are the same grasp:
@@ -158,7 +161,7 @@ def canonical_gripper_matrix(rotation: np.ndarray, symmetry: int = GRIPPER_SYMME
     return candidates[int(np.argmax(scores))]
 
 
-def canonical_gripper_quat(quat: np.ndarray, symmetry: int = GRIPPER_SYMMETRY) -> np.ndarray:
+def canonical_gripper_quat(quat: np.ndarray, symmetry: int = GRIPPER_SYMMETRY) -> NDArray[np.float64]:
     """Quaternion ``(4,)`` (x, y, z, w) version of :func:`canonical_gripper_matrix`."""
     return matrix_to_quat(canonical_gripper_matrix(quat_to_matrix(quat), symmetry))
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 # Robot base at the origin, table top at z = 0; the cube reaches 1 m in front of the base and
 # 15 cm below the table top so the table surface is always inside.
@@ -41,24 +42,25 @@ class Workspace:
         return self.size / 2.0
 
     @property
-    def lower(self) -> np.ndarray:
+    def lower(self) -> NDArray[np.float64]:
         """``(3,)`` minimum corner in metres."""
-        return np.asarray(self.center) - self.half
+        return np.asarray(self.center, np.float64) - self.half
 
     @property
-    def upper(self) -> np.ndarray:
+    def upper(self) -> NDArray[np.float64]:
         """``(3,)`` maximum corner in metres."""
-        return np.asarray(self.center) + self.half
+        return np.asarray(self.center, np.float64) + self.half
 
-    def contains(self, points: np.ndarray) -> np.ndarray:
+    def contains(self, points: np.ndarray) -> NDArray[np.bool_]:
         """Boolean ``(...)`` mask of the points ``(..., 3)`` inside the cube (boundary included)."""
         points = np.asarray(points)
-        return np.all((points >= self.lower) & (points <= self.upper), axis=-1)
+        inside: NDArray[np.bool_] = np.all((points >= self.lower) & (points <= self.upper), axis=-1)
+        return inside
 
-    def normalize(self, points: np.ndarray) -> np.ndarray:
+    def normalize(self, points: np.ndarray) -> NDArray[np.float64]:
         """World metres ``(..., 3)`` -> cube coordinates, ``[-1, 1]^3`` inside the cube."""
-        return (np.asarray(points, np.float64) - np.asarray(self.center)) / self.half
+        return (np.asarray(points, np.float64) - np.asarray(self.center, np.float64)) / self.half
 
-    def denormalize(self, coords: np.ndarray) -> np.ndarray:
+    def denormalize(self, coords: np.ndarray) -> NDArray[np.float64]:
         """Cube coordinates ``(..., 3)`` -> world metres."""
-        return np.asarray(coords, np.float64) * self.half + np.asarray(self.center)
+        return np.asarray(coords, np.float64) * self.half + np.asarray(self.center, np.float64)

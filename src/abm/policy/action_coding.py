@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from abm.geometry import bins_to_quat, quat_to_bins
 from abm.types import KeyframeAction
@@ -26,8 +27,8 @@ from abm.types import KeyframeAction
 class EncodedAction:
     """Discrete training targets of one keyframe (numpy; collated into batches of tensors)."""
 
-    position: np.ndarray  # (3,) float32, metres
-    rotation_bins: np.ndarray  # (3,) int64
+    position: NDArray[np.float32]  # (3,) metres
+    rotation_bins: NDArray[np.int64]  # (3,)
     gripper: int
     collision: int
 

@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 from abm.policy.variants import VARIANTS, VariantSpec, get_variant
 
-PRESETS: dict[str, dict[str, Any]] = {
+PRESETS: dict[str, dict[str, float]] = {
     "paper": dict(resolution=220, patch_size=11, width=512, layers_within=4, layers_joint=4, heads=8,
                   stem_channels=64, decoder_channels=16, mlp_ratio=4.0),
     "small": dict(resolution=96, patch_size=8, width=128, layers_within=2, layers_joint=2, heads=4,
@@ -90,7 +90,7 @@ class PolicyConfig:
     def __post_init__(self) -> None:
         get_variant(self.variant)  # raises on an unknown variant
         self.views = tuple(self.views)
-        self.workspace_center = tuple(float(c) for c in self.workspace_center)
+        self.workspace_center = cast("tuple[float, float, float]", tuple(float(c) for c in self.workspace_center))
         if self.resolution % self.patch_size:
             raise ValueError(f"patch_size {self.patch_size} must divide the view resolution {self.resolution}")
         if self.width % self.heads:
@@ -116,7 +116,7 @@ class PolicyConfig:
         return self.resolution // self.patch_size
 
     @classmethod
-    def from_preset(cls, preset: str, variant: str = "abm", **overrides: Any) -> PolicyConfig:
+    def from_preset(cls, preset: str, variant: str = "abm", **overrides: object) -> PolicyConfig:
         """Config of a size preset (``paper`` or ``small``) for one variant; ``overrides`` replace fields.
 
         A config with overridden sizes keeps the preset name with ``+custom`` appended so a

@@ -24,10 +24,11 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 from torch import nn
 
 from abm.geometry import Workspace, quat_to_bins
@@ -40,8 +41,11 @@ from abm.policy.language import LanguageEncoder, make_language_encoder
 from abm.policy.mvt import MultiViewTransformer, PolicyOutput
 from abm.policy.variants import mask_channel
 from abm.render import OrthographicRenderer
-from abm.samples import collate, scene_sample
+from abm.samples import Batch, Sample, collate, scene_sample
 from abm.types import KeyframeAction, Observation
+
+if TYPE_CHECKING:
+    from abm.grounding.grounders import Grounder
 
 LOSS_TERMS = ("total", "translation", "rotation", "gripper", "collision")
 
@@ -64,13 +68,13 @@ class PolicyExplanation:
     """
 
     action: KeyframeAction
-    sample: dict[str, Any]
+    sample: Sample
     view_names: list[str]
-    view_rgb: np.ndarray
-    view_occupied: np.ndarray
-    view_mask: np.ndarray | None
-    view_target: np.ndarray | None
-    heatmaps: np.ndarray
+    view_rgb: NDArray[np.float32]
+    view_occupied: NDArray[np.bool_]
+    view_mask: NDArray[np.float32] | None
+    view_target: NDArray[np.bool_] | None
+    heatmaps: NDArray[np.float32]
 
 
 class KeyframePolicy(nn.Module):
@@ -88,7 +92,7 @@ class KeyframePolicy(nn.Module):
         self,
         config: PolicyConfig,
         language: LanguageEncoder | Mapping[str, Any],
-        grounder: Mapping[str, Any] | Any | None = None,
+        grounder: Mapping[str, Any] | Grounder | None = None,
         camera_names: Sequence[str] | None = None,
     ) -> None:
         super().__init__()
@@ -104,7 +108,7 @@ class KeyframePolicy(nn.Module):
         if grounder is None:
             grounder = {"kind": "oracle"}
         self.grounder_spec: dict[str, Any] | None = dict(grounder) if isinstance(grounder, Mapping) else None
-        self._grounder = None if isinstance(grounder, Mapping) else grounder
+        self._grounder: Grounder | None = None if isinstance(grounder, Mapping) else grounder
         self.camera_names = list(camera_names) if camera_names else None
         self.workspace = Workspace(config.workspace_center, config.workspace_size)
         self._renderer = OrthographicRenderer(self.workspace, config.resolution, config.views)
@@ -128,7 +132,7 @@ class KeyframePolicy(nn.Module):
         return self._renderer
 
     @property
-    def grounder(self) -> Any:
+    def grounder(self) -> Grounder:
         if self._grounder is None:
             self._grounder = make_grounder_from_spec(self.grounder_spec or {"kind": "oracle"})
         return self._grounder
@@ -160,7 +164,7 @@ class KeyframePolicy(nn.Module):
         return torch.stack([self._lang_cache[t] for t in texts]).to(self.device)
 
     # ------------------------------------------------------------------ batch -> model inputs
-    def model_inputs(self, batch: Mapping[str, Any]) -> dict[str, torch.Tensor]:
+    def model_inputs(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Render a batch of samples into the network's inputs, on the policy's device.
 
         Returns ``images`` ``(B, V, 10, H, W)``, ``proprio`` ``(B, 4)``, ``lang`` ``(B, L, D)``, and
@@ -217,7 +221,7 @@ class KeyframePolicy(nn.Module):
             out[i, : k.shape[0]] = k
         return out, compact
 
-    def targets(self, batch: Mapping[str, Any]) -> dict[str, torch.Tensor]:
+    def targets(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Training targets: per-view heatmaps ``(B, V, H, W)``, rotation bins ``(B, 3)``, gripper and
         collision classes ``(B,)``."""
         dev = self.device
@@ -254,13 +258,13 @@ class KeyframePolicy(nn.Module):
         compiled = self.__dict__["_compiled_model"]
         model = self.model if compiled is None else compiled
         with torch.autocast(device_type=dev, dtype=torch.bfloat16, enabled=autocast):
-            out = model(inputs["images"], inputs["proprio"], inputs["lang"], mask=inputs.get("mask"),
+            out: PolicyOutput = model(inputs["images"], inputs["proprio"], inputs["lang"], mask=inputs.get("mask"),
                         ifd_features=inputs.get("ifd_features"), ifd_index=inputs.get("ifd_index"),
                         pool_weights=pool_weights)
         return out
 
     # ------------------------------------------------------------------ training / inference
-    def forward(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def forward(self, batch: Batch) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Loss of a batch of samples with targets: ``(total loss, detached loss terms)``.
 
         The rotation/gripper head pools at the ground-truth heatmap (as RVT-2 does in training).
@@ -272,18 +276,19 @@ class KeyframePolicy(nn.Module):
         metrics = {k: getattr(terms, k).detach() for k in LOSS_TERMS}
         return terms.total, metrics
 
-    def compute_loss(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def compute_loss(self, batch: Batch) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Same as calling the module (so ``DistributedDataParallel`` wrapping works)."""
-        return self(batch)
+        loss: tuple[torch.Tensor, dict[str, torch.Tensor]] = self(batch)
+        return loss
 
     @torch.no_grad()
-    def predict(self, batch: Mapping[str, Any]) -> list[KeyframeAction]:
+    def predict(self, batch: Batch) -> list[KeyframeAction]:
         """One keyframe action per sample of the batch (heatmaps decoded to a 3-D point, bins to a rotation)."""
         out = self.run_model(self.model_inputs(batch))
         return decode_output(out, self.renderer)
 
     def observe(self, observation: Observation, instruction: str,
-                object_names: Mapping[int, str] | None = None) -> dict[str, Any]:
+                object_names: Mapping[int, str] | None = None) -> Sample:
         """The sample of one observation (fuse, split the instruction, ground), as the dataset makes it."""
         opts = self.sample_options()
         if opts["mask"] and (self.grounder_spec or {}).get("kind") == "oracle" and object_names is None:
@@ -336,7 +341,7 @@ class KeyframePolicy(nn.Module):
         )
 
     def _step(self, observation: Observation, instruction: str, object_names: Mapping[int, str] | None
-              ) -> tuple[dict[str, Any], dict[str, torch.Tensor], PolicyOutput, KeyframeAction]:
+              ) -> tuple[Sample, dict[str, torch.Tensor], PolicyOutput, KeyframeAction]:
         sync = torch.cuda.synchronize if self.device.type == "cuda" else (lambda *_: None)
         t0 = time.perf_counter()
         sample = self.observe(observation, instruction, object_names)
@@ -363,7 +368,7 @@ class KeyframePolicy(nn.Module):
             "model": self.model.state_dict(),
         }
 
-    def save(self, path: str | Path, **extra: Any) -> Path:
+    def save(self, path: str | Path, **extra: object) -> Path:
         """Write an inference checkpoint (plus ``extra`` entries) atomically; returns the path."""
         return save_checkpoint(path, {**self.checkpoint_payload(), **extra})
 
@@ -372,7 +377,7 @@ class KeyframePolicy(nn.Module):
         cls,
         run_or_ckpt: str | Path,
         device: str | torch.device = "cpu",
-        grounder: Mapping[str, Any] | Any | None = None,
+        grounder: Mapping[str, Any] | Grounder | None = None,
         expect_variant: str | None = None,
     ) -> KeyframePolicy:
         """Load a checkpoint file or the latest checkpoint of a run folder, in eval mode on ``device``.

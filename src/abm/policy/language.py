@@ -21,6 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 
 _WORD = re.compile(r"[a-z0-9]+")
 
@@ -34,6 +35,12 @@ class LanguageEncoder(Protocol):
     def encode(self, texts: Sequence[str]) -> torch.Tensor: ...
 
     def spec(self) -> dict[str, Any]: ...
+
+
+class SkillEmbedder(Protocol):
+    """What :class:`ClipLanguageEncoder` needs of a grounder (the CLIP grounder has it)."""
+
+    def skill_embeddings(self, texts: Sequence[str]) -> torch.Tensor: ...
 
 
 class HashLanguageEncoder:
@@ -50,7 +57,7 @@ class HashLanguageEncoder:
         rng = np.random.default_rng([self.seed, 1])
         self._pos = rng.standard_normal((self.tokens, self.dim)).astype(np.float32) * 0.1
 
-    def _word(self, word: str) -> np.ndarray:
+    def _word(self, word: str) -> NDArray[np.float32]:
         rng = np.random.default_rng([self.seed, zlib.crc32(word.encode())])
         vec = rng.standard_normal(self.dim).astype(np.float32)
         return vec / np.linalg.norm(vec)
@@ -76,7 +83,7 @@ class ClipLanguageEncoder:
         spec: the options it was built from (stored in checkpoints).
     """
 
-    def __init__(self, grounder: Any, spec: dict[str, Any]) -> None:
+    def __init__(self, grounder: SkillEmbedder, spec: dict[str, Any]) -> None:
         self.grounder = grounder
         self._spec = dict(spec)
         probe = self.encode(["x"])

@@ -66,7 +66,8 @@ class Attention(nn.Module):
         b, t, d = x.shape
         q, k, v = self.qkv(x).view(b, t, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
         out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
-        return self.proj(out.transpose(1, 2).reshape(b, t, d))
+        projected: torch.Tensor = self.proj(out.transpose(1, 2).reshape(b, t, d))
+        return projected
 
 
 class Block(nn.Module):
@@ -82,7 +83,8 @@ class Block(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x = x + self.attn(self.norm1(x))
-        return x + self.mlp(self.norm2(x))
+        out: torch.Tensor = x + self.mlp(self.norm2(x))
+        return out
 
 
 class MultiViewTransformer(nn.Module):
@@ -201,12 +203,15 @@ class MultiViewTransformer(nn.Module):
         g, d = cfg.grid, cfg.width
         x = images
         if spec.uses_mask and spec.mask_stage == "input":
+            assert mask is not None  # checked by _check
             x = torch.cat([x, mask.to(x.dtype)], dim=2)
         stem = self.stem(x.flatten(0, 1))  # (B*V, C, H, W)
         parts = [stem]
         if spec.uses_mask and spec.mask_stage == "stem":
+            assert mask is not None  # checked by _check
             parts.append(mask.flatten(0, 1).to(stem.dtype))
         if spec.clip_features:
+            assert ifd_features is not None and ifd_index is not None  # checked by _check
             parts.append(self._render_features(ifd_features, ifd_index).to(stem.dtype))
         feat = self.fuse(torch.cat(parts, dim=1)) if len(parts) > 1 else stem
 
@@ -256,6 +261,7 @@ class MultiViewTransformer(nn.Module):
         Returns:
             ``(B*V, C, H, W)``, zero where no point is visible.
         """
+        assert self.ifd_proj is not None  # built for the variants with CLIP features
         b, v, h, w = index.shape
         proj = self.ifd_proj(features.to(self.ifd_proj.weight.dtype))  # (B, N, C)
         flat = index.reshape(b, v * h * w)

@@ -103,4 +103,5 @@ def mask_channel(spec: VariantSpec, rendered: torch.Tensor, threshold: float = 0
         out = binarize_mask(rendered[:, :, 0], threshold)
     else:
         raise ValueError(f"variant {spec.name!r} takes no mask")
-    return out.unsqueeze(2).to(torch.float32)
+    channel: torch.Tensor = out.unsqueeze(2).to(torch.float32)
+    return channel

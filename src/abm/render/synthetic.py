@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from abm.types import CameraFrame, Observation
 
@@ -44,7 +45,7 @@ class Box:
     color: tuple[float, float, float]
 
 
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+def look_at(eye: np.ndarray, target: np.ndarray) -> NDArray[np.float64]:
     """``(4, 4)`` camera-to-world transform (OpenCV axes) of a camera at ``eye`` looking at ``target``."""
     eye, target = np.asarray(eye, float), np.asarray(target, float)
     forward = target - eye
@@ -59,7 +60,7 @@ def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     return out
 
 
-def pinhole_intrinsics(resolution: int, fovy_deg: float) -> np.ndarray:
+def pinhole_intrinsics(resolution: int, fovy_deg: float) -> NDArray[np.float64]:
     """``(3, 3)`` intrinsics of a square image with vertical field of view ``fovy_deg`` (OpenCV pixel centres)."""
     f = (resolution / 2.0) / np.tan(np.radians(fovy_deg) / 2.0)
     c = (resolution - 1) / 2.0
@@ -80,7 +81,7 @@ def sample_blocks(rng: np.random.Generator, count: int = 4, size: float = 0.05) 
 
 def raycast(
     boxes: list[Box], intrinsics: np.ndarray, extrinsics: np.ndarray, resolution: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32]]:
     """Ray-cast the table and boxes.
 
     Returns:
