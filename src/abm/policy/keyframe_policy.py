@@ -31,7 +31,16 @@ import torch
 from torch import nn
 
 from abm.geometry import Workspace, quat_to_bins
-from abm.grounding.conditioning import condition_scene, make_grounder_from_spec
+from abm.grounding.conditioning import condition_scene
+from abm.grounding.config import (
+    GROUNDER_CONFIGS,
+    GrounderConfig,
+    OracleGrounderConfig,
+    as_grounder_config,
+    build_grounder,
+    grounder_config_from_dict,
+    merge_grounder_configs,
+)
 from abm.machine import cpu_supports_bf16
 from abm.policy.checkpoint import load_checkpoint, save_checkpoint
 from abm.policy.config import PolicyConfig
@@ -79,8 +88,9 @@ class KeyframePolicy(nn.Module):
     Args:
         config: variant and sizes.
         language: language encoder, or its spec (``{"kind": "hash", ...}`` / ``{"kind": "clip", ...}``).
-        grounder: grounder spec (``{"kind": "oracle"}``, ``{"kind": "clip", ...}``) or a grounder object
-            with ``ground(observation, cloud, target, object_names)``; used by :meth:`act`.
+        grounder: grounder configuration (:mod:`abm.grounding.config`; its dict form ``{"kind": "clip", ...}``
+            is read with ``grounder_config_from_dict``) or a grounder object with
+            ``ground(observation, cloud, target, object_names)``; used by :meth:`act`.
         camera_names: cameras to fuse in :meth:`act` (default all of the observation's).
     """
 
@@ -88,7 +98,7 @@ class KeyframePolicy(nn.Module):
         self,
         config: PolicyConfig,
         language: LanguageEncoder | Mapping[str, Any],
-        grounder: Mapping[str, Any] | Any | None = None,
+        grounder: GrounderConfig | Mapping[str, Any] | Any | None = None,
         camera_names: Sequence[str] | None = None,
     ) -> None:
         super().__init__()
@@ -101,10 +111,10 @@ class KeyframePolicy(nn.Module):
                 f"language encoder gives {self.language.tokens} x {self.language.dim} tokens but the policy "
                 f"expects {config.lang_tokens} x {config.lang_dim}"
             )
-        if grounder is None:
-            grounder = {"kind": "oracle"}
-        self.grounder_spec: dict[str, Any] | None = dict(grounder) if isinstance(grounder, Mapping) else None
-        self._grounder = None if isinstance(grounder, Mapping) else grounder
+        is_config = grounder is None or isinstance(grounder, (Mapping, *GROUNDER_CONFIGS))
+        # typed configuration of the grounder (None when a grounder object was given)
+        self.grounder_config: GrounderConfig | None = as_grounder_config(grounder) if is_config else None
+        self._grounder = None if is_config else grounder
         self.camera_names = list(camera_names) if camera_names else None
         self.workspace = Workspace(config.workspace_center, config.workspace_size)
         self._renderer = OrthographicRenderer(self.workspace, config.resolution, config.views)
@@ -128,9 +138,14 @@ class KeyframePolicy(nn.Module):
         return self._renderer
 
     @property
+    def grounder_spec(self) -> dict[str, Any] | None:
+        """The grounder configuration's dict form (what checkpoints store), ``None`` for a grounder object."""
+        return None if self.grounder_config is None else self.grounder_config.to_dict()
+
+    @property
     def grounder(self) -> Any:
         if self._grounder is None:
-            self._grounder = make_grounder_from_spec(self.grounder_spec or {"kind": "oracle"})
+            self._grounder = build_grounder(self.grounder_config or OracleGrounderConfig())
         return self._grounder
 
     def reset(self) -> None:
@@ -286,7 +301,7 @@ class KeyframePolicy(nn.Module):
                 object_names: Mapping[int, str] | None = None) -> dict[str, Any]:
         """The sample of one observation (fuse, split the instruction, ground), as the dataset makes it."""
         opts = self.sample_options()
-        if opts["mask"] and (self.grounder_spec or {}).get("kind") == "oracle" and object_names is None:
+        if opts["mask"] and isinstance(self.grounder_config, OracleGrounderConfig) and object_names is None:
             raise ValueError("the oracle grounder needs object_names (segmentation id -> name)")
         needs_grounder = opts["mask"] or opts["features"]
         scene = condition_scene(observation, instruction, self.workspace,
@@ -359,7 +374,8 @@ class KeyframePolicy(nn.Module):
         """What a checkpoint needs to rebuild this policy (training adds its own state)."""
         return {
             "policy_config": self.config.to_dict(), "variant": self.config.variant, "preset": self.config.preset,
-            "language": self.language.spec(), "grounder": self.grounder_spec, "camera_names": self.camera_names,
+            "language": self.language.spec(), "grounder": self.grounder_spec,  # the config's dict form
+            "camera_names": self.camera_names,
             "model": self.model.state_dict(),
         }
 
@@ -372,7 +388,7 @@ class KeyframePolicy(nn.Module):
         cls,
         run_or_ckpt: str | Path,
         device: str | torch.device = "cpu",
-        grounder: Mapping[str, Any] | Any | None = None,
+        grounder: GrounderConfig | Mapping[str, Any] | Any | None = None,
         expect_variant: str | None = None,
     ) -> KeyframePolicy:
         """Load a checkpoint file or the latest checkpoint of a run folder, in eval mode on ``device``.
@@ -380,25 +396,21 @@ class KeyframePolicy(nn.Module):
         Args:
             run_or_ckpt: ``RUN/`` or ``RUN/checkpoints/step_XXXXXXXX.pt``.
             device: where to run.
-            grounder: override the grounder stored in the checkpoint (spec or object); a spec of the
-                same kind only overrides the options it names.
+            grounder: override the grounder stored in the checkpoint (configuration, its dict form, or a
+                grounder object); a configuration of the same kind only overrides the options it names
+                (:func:`abm.grounding.config.merge_grounder_configs`).
             expect_variant: if given, a checkpoint of another variant raises ``ValueError``.
         """
         ckpt = load_checkpoint(run_or_ckpt, map_location="cpu")
         config = PolicyConfig.from_dict(ckpt["policy_config"])
         if expect_variant is not None and config.variant != expect_variant:
             raise ValueError(f"checkpoint {ckpt['path']} is a {config.variant!r} policy, expected {expect_variant!r}")
-        stored = ckpt.get("grounder")
-        if isinstance(grounder, Mapping) and isinstance(stored, Mapping) and grounder.get("kind") == stored.get("kind"):
-            grounder = {**stored, **grounder}  # same grounder: keep the trained options (e.g. the CLIP model)
-        elif isinstance(grounder, Mapping) and grounder.get("kind") == "tracking":
-            inner = grounder.get("inner")
-            if inner is None:
-                inner = stored or {"kind": "oracle"}  # track with the trained grounder
-            elif isinstance(inner, Mapping) and isinstance(stored, Mapping) and inner.get("kind") == stored.get("kind"):
-                inner = {**stored, **inner}  # e.g. another CLIP model with the trained threshold
-            grounder = {**grounder, "inner": inner}
-        policy = cls(config, ckpt["language"], grounder or stored, ckpt.get("camera_names"))
+        stored = ckpt.get("grounder")  # the dict form (file boundary)
+        stored_config = grounder_config_from_dict(stored) if stored is not None else None
+        if grounder is None or isinstance(grounder, (Mapping, *GROUNDER_CONFIGS)):
+            override = as_grounder_config(grounder) if grounder is not None else None
+            grounder = merge_grounder_configs(stored_config, override)
+        policy = cls(config, ckpt["language"], grounder, ckpt.get("camera_names"))
         policy.model.load_state_dict(ckpt["model"])
         policy.checkpoint_path = ckpt["path"]
         return policy.to(device).eval()

@@ -24,7 +24,8 @@ from scipy.spatial.transform import Rotation
 
 from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
 from abm.geometry import Workspace
-from abm.grounding.conditioning import condition_scene, make_grounder_from_spec, split_instruction
+from abm.grounding.conditioning import condition_scene, split_instruction
+from abm.grounding.config import build_grounder
 from abm.grounding.visualize import overlay_views
 from abm.render import OrthographicRenderer
 from abm.render.orthographic import VIEW_AXES
@@ -158,7 +159,7 @@ def scene_from_episode(
         ws = workspace or Workspace()
         renderer = OrthographicRenderer(ws, view_resolution)
         names = list(renderer.views)
-        g = make_grounder_from_spec(grounder or {"kind": "oracle"}) if not hasattr(grounder, "ground") else grounder
+        g = grounder if hasattr(grounder, "ground") else build_grounder(grounder)  # a config, its dict or None
         scene = ViewerScene(f"{episode.task}/{episode.split} seed {episode.seed}, grounding only",
                             episode.instruction, None, ws, names, success=episode.success)
     for done, k in enumerate(chosen, 1):

@@ -49,7 +49,8 @@ def main() -> None:
     for name, (source, grounder) in EXPORTS.items():
         policy = KeyframePolicy.from_checkpoint(HERE / f"run_{source}", grounder=grounder)
         policy.save(HERE / f"{name}.pt")
-    for name, path in [("oracle", HERE / "run_oracle"), ("clip", HERE / "run_clip"), ("tracking", HERE / "tracking.pt")]:
+    for name, path in [("oracle", HERE / "run_oracle"), ("clip", HERE / "run_clip"),
+                       ("tracking", HERE / "tracking.pt")]:
         policy = KeyframePolicy.from_checkpoint(path)
         seen = policy.explain(obs, episodes[0].instruction, episodes[0].object_names)
         expected[name] = {"grounder": policy.grounder_spec, "position": seen.action.position.tolist(),
