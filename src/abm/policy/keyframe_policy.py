@@ -6,7 +6,9 @@ the action coding and the network, for training and for acting.
   targets and returns ``(loss, metrics)``;
 * :meth:`KeyframePolicy.predict` decodes a batch into keyframe actions;
 * :meth:`KeyframePolicy.act` runs the whole per-step pipeline on one observation, and
-  :meth:`KeyframePolicy.explain` also returns the views, mask and heatmaps it used;
+  :meth:`KeyframePolicy.explain` also returns what it saw (:class:`PolicyExplanation`: the fused cloud,
+  target mask, virtual views, network input and heatmaps) - the one place that computes it; viewers, reports
+  and logs draw from it (and :func:`explain_scene` for the same without a network);
 * :meth:`KeyframePolicy.save` / :meth:`KeyframePolicy.from_checkpoint` write and read checkpoints.
 
 Example::
@@ -56,30 +58,80 @@ LOSS_TERMS = ("total", "translation", "rotation", "gripper", "collision")
 
 
 @dataclass
-class PolicyExplanation:
-    """One :meth:`KeyframePolicy.explain` step (``V`` virtual views of ``H x W`` pixels).
+class SceneExplanation:
+    """What a policy sees of one observation: the fused cloud, the target's mask over it and the ``V``
+    virtual views (``H x W`` pixels each) it is rendered into. Positions are world coordinates in metres.
 
     Attributes:
-        action: the predicted keyframe.
-        sample: the policy's input sample (``points`` ``(N, 3)`` m, ``colors`` ``(N, 3)`` in ``[0, 1]``,
-            ``point_mask`` / ``point_heatmap`` ``(N,)`` for mask variants), see :mod:`abm.samples`.
+        sample: the policy's input sample (:mod:`abm.samples`): ``points`` ``(N, 3)`` float32 m (the fused,
+            workspace-cropped cloud), ``colors`` ``(N, 3)`` float32 in ``[0, 1]``, and for grounded scenes
+            ``point_mask`` ``(N,)`` float32 in {0, 1} (the target) and ``point_heatmap`` ``(N,)`` float32 in
+            ``[0, 1]`` (the grounder's score); CPU tensors.
+        target: the grounded object's name (the active sub-goal's), ``None`` when the instruction is not split.
         view_names: names of the ``V`` views.
         view_rgb: ``(V, H, W, 3)`` float32 in ``[0, 1]``, the rendered colour of each view.
         view_occupied: ``(V, H, W)`` bool, where a point is visible.
+        view_target: ``(V, H, W)`` bool, where the target's masked points are visible (``None`` without a mask).
+    """
+
+    sample: dict[str, Any]
+    target: str | None
+    view_names: list[str]
+    view_rgb: np.ndarray
+    view_occupied: np.ndarray
+    view_target: np.ndarray | None
+
+
+@dataclass
+class PolicyExplanation(SceneExplanation):
+    """One :meth:`KeyframePolicy.explain` step: :class:`SceneExplanation` (``view_rgb`` is the colour the
+    network saw) plus the network's input and output.
+
+    Attributes:
+        action: the predicted keyframe.
+        view_images: ``(V, 10, H, W)`` float32, the network's image input (rgb in ``[0, 1]``, depth in m from
+            the view's near face, xyz in m, pixel location; :meth:`abm.render.RenderedViews.rvt_channels`).
         view_mask: ``(V, H, W)`` float32, the mask channel the network saw (``None`` for rvt / ifd); abm's
             marks only the target's centre pixel.
-        view_target: ``(V, H, W)`` bool, where the target's masked points are visible (``None`` for rvt / ifd).
         heatmaps: ``(V, H, W)`` float32, the predicted translation distribution of each view (sums to 1).
     """
 
     action: KeyframeAction
-    sample: dict[str, Any]
-    view_names: list[str]
-    view_rgb: np.ndarray
-    view_occupied: np.ndarray
+    view_images: np.ndarray
     view_mask: np.ndarray | None
-    view_target: np.ndarray | None
     heatmaps: np.ndarray
+
+
+def _occupied(images: torch.Tensor, renderer: OrthographicRenderer) -> np.ndarray:
+    """``(V, H, W)`` bool from ``(V, 10, H, W)`` RVT channels: the depth of an empty pixel is the cube's edge."""
+    return (images[:, 3] < float(renderer.workspace.size) - 1e-6).cpu().numpy()
+
+
+def _target_views(renderer: OrthographicRenderer, sample: Mapping[str, Any]) -> tuple[torch.Tensor, np.ndarray | None]:
+    """Render a sample's cloud with its target mask: ``((V, 10, H, W)`` RVT channels, ``(V, H, W)`` bool target
+    pixels or ``None``); the whole target as the views show it (abm's mask channel may mark less)."""
+    dev = renderer.device
+    mask = sample.get("point_mask")
+    with torch.no_grad():
+        views = renderer.render(sample["points"][None].to(dev), sample["colors"][None].to(dev),
+                                extra=None if mask is None else mask[None, :, None].to(dev))
+    target = None if mask is None else (views.extra[0, :, 0] > 0.5).cpu().numpy()
+    return views.rvt_channels()[0].float().cpu(), target
+
+
+def explain_scene(observation: Observation, instruction: str, renderer: OrthographicRenderer, grounder: Any,
+                  object_names: Mapping[int, str] | None = None,
+                  camera_names: Sequence[str] | None = None) -> SceneExplanation:
+    """What a mask policy with ``renderer``'s views would see of ``observation``, without a network: fuse the
+    cameras in the renderer's workspace, ground the target with ``grounder`` and render the views (the viewer's
+    grounding-only scenes). :meth:`KeyframePolicy.explain` is the same with a policy."""
+    scene = condition_scene(observation, instruction, renderer.workspace, grounder=grounder, object_names=object_names,
+                            mask=True, camera_names=list(camera_names) if camera_names else None)
+    sample = scene_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
+    images, target = _target_views(renderer, sample)
+    return SceneExplanation(sample=sample, target=scene.target, view_names=list(renderer.views),
+                            view_rgb=images[:, :3].permute(0, 2, 3, 1).clamp(0, 1).numpy(),
+                            view_occupied=_occupied(images, renderer), view_target=target)
 
 
 class KeyframePolicy(nn.Module):
@@ -121,6 +173,7 @@ class KeyframePolicy(nn.Module):
         self._lang_cache: dict[str, torch.Tensor] = {}
         self.last_timings: dict[str, float] = {}
         self.checkpoint_path: str | None = None
+        self._last_target: str | None = None  # the grounded object of the last observe()
         # kept out of the module tree (plain attributes), so state_dict keys never change
         self.__dict__["_compiled_model"] = None
         self.cpu_bf16 = False
@@ -308,6 +361,7 @@ class KeyframePolicy(nn.Module):
                                 grounder=self.grounder if needs_grounder else None, object_names=object_names,
                                 split=opts["split"], mask=opts["mask"], features=opts["features"],
                                 camera_names=self.camera_names)
+        self._last_target = scene.target  # for explain()
         return scene_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
 
     def act(self, observation: Observation, instruction: str,
@@ -332,21 +386,17 @@ class KeyframePolicy(nn.Module):
         images = inputs["images"][0].float().cpu()
         heat = torch.softmax(out.heatmap[0].float().flatten(1), -1).view_as(out.heatmap[0]).cpu().numpy()
         mask = inputs.get("mask")
-        target = None
-        if "point_mask" in sample:  # the whole target as the views show it (the mask channel may mark less)
-            with torch.no_grad():
-                views = self.renderer.render(sample["points"][None].to(self.device),
-                                             sample["colors"][None].to(self.device),
-                                             extra=sample["point_mask"][None, :, None].to(self.device))
-            target = (views.extra[0, :, 0] > 0.5).cpu().numpy()
+        target = _target_views(self.renderer, sample)[1] if "point_mask" in sample else None
         return PolicyExplanation(
             action=action,
             sample=sample,
+            target=self._last_target,
             view_names=list(self.renderer.views),
             view_rgb=images[:, :3].permute(0, 2, 3, 1).clamp(0, 1).numpy(),
-            view_occupied=(images[:, 3] < float(self.renderer.workspace.size) - 1e-6).numpy(),
-            view_mask=None if mask is None else mask[0, :, 0].float().cpu().numpy(),
+            view_occupied=_occupied(images, self.renderer),
             view_target=target,
+            view_images=images.numpy(),
+            view_mask=None if mask is None else mask[0, :, 0].float().cpu().numpy(),
             heatmaps=heat.astype(np.float32),
         )
 
