@@ -55,7 +55,7 @@ def _explicit(config: Any, given: frozenset[str]) -> list[str]:
     for f in dataclasses.fields(config):
         if f.name.startswith("_") or not f.init:
             continue
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc,operator]
         if f.name in given or getattr(config, f.name) != default:
             out.append(f.name)
     return out
@@ -249,8 +249,8 @@ def as_grounder_config(value: GrounderConfig | Mapping[str, Any] | str | None) -
     """A typed config from a typed config, a dict, a kind name or ``None`` (the oracle)."""
     if value is None:
         return OracleGrounderConfig()
-    if isinstance(value, GROUNDER_CONFIGS):
-        return value  # type: ignore[return-value]
+    if isinstance(value, (OracleGrounderConfig, ClipGrounderConfig, TrackingGrounderConfig)):
+        return value
     if isinstance(value, str):
         return grounder_config_from_dict({"kind": value})
     return grounder_config_from_dict(value)
