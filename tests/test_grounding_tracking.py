@@ -173,6 +173,7 @@ def test_policy_and_evaluation_select_tracking(tmp_path) -> None:
 
 
 def test_clip_model_override_keeps_the_trained_clip_options(tmp_path) -> None:
+    from abm.grounding.config import ClipGrounderConfig, OracleGrounderConfig
     from abm.grounding.grounders import override_spec
     from abm.policy import KeyframePolicy
     from abm.train import TrainConfig, train
@@ -186,5 +187,6 @@ def test_clip_model_override_keeps_the_trained_clip_options(tmp_path) -> None:
     other = str(tmp_path / "elsewhere")  # a CLIP folder that was moved: only the model changes
     spec = KeyframePolicy.from_checkpoint(tmp_path, grounder=override_spec("tracking", "tiny")).grounder_spec
     assert spec == {"kind": "tracking", "inner": {"kind": "clip", "model": "tiny", "threshold": 0.4}}
-    assert override_spec("clip", other) == {"kind": "clip", "model": other}
-    assert override_spec(None) is None and override_spec("oracle") == {"kind": "oracle"}
+    assert override_spec("clip", other) == ClipGrounderConfig(model=other)  # typed (abm.grounding.config)
+    assert override_spec("clip", other).to_dict() == {"kind": "clip", "model": other}
+    assert override_spec(None) is None and override_spec("oracle") == OracleGrounderConfig()

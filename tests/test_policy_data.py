@@ -101,7 +101,7 @@ def test_ifd_features_through_index_map(episodes, monkeypatch, tmp_path) -> None
         def ground(self, *a):  # pragma: no cover - not used by ifd
             raise AssertionError
 
-    monkeypatch.setattr(keyframes, "make_grounder_from_spec", lambda spec: FakeClip())
+    monkeypatch.setattr(keyframes, "build_grounder", lambda config: FakeClip())
     policy = _policy("ifd")
     with pytest.raises(ValueError, match="lacks 6 of 6 keyframes.*abm data ground"):
         _dataset(episodes, policy, grounder={"kind": "clip"}, cache_dir=tmp_path)  # grounding is an explicit step

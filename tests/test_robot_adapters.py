@@ -269,18 +269,11 @@ class StubPolicy:
     def reset(self) -> None:
         pass
 
-    def act(self, obs, instruction, names) -> KeyframeAction:
-        return self.action
-
-    def observe(self, obs, instruction, names) -> dict:
+    def explain(self, obs, instruction, names) -> SimpleNamespace:  # like abm.policy.PolicyExplanation
         import torch
 
-        return {"points": torch.zeros(1, 3)}
-
-    def model_inputs(self, batch) -> dict:
-        import torch
-
-        return {"images": torch.zeros(1, 5, 3, 4, 4)}
+        return SimpleNamespace(action=self.action, sample={"points": torch.zeros(1, 3)},
+                               view_images=np.zeros((5, 10, 4, 4), np.float32), view_mask=None)
 
 
 def test_a_keyframe_outside_the_limits_never_reaches_movel(tmp_path) -> None:

@@ -10,6 +10,7 @@ import torch
 
 from abm.cli import main as cli_main
 from abm.data.keyframes import KeyframeDataset, collate
+from abm.grounding.config import ClipGrounderConfig
 from abm.policy import KeyframePolicy, PolicyConfig
 from abm.policy.checkpoint import list_checkpoints
 from abm.policy.language import HashLanguageEncoder
@@ -148,8 +149,11 @@ def test_grounder_override_of_the_same_kind_keeps_trained_options(episodes, tmp_
     torch.save(ckpt, path)
     merged = KeyframePolicy.from_checkpoint(tmp_path, grounder={"kind": "clip", "threshold": 0.5})
     assert merged.grounder_spec == {"kind": "clip", "model": "tiny", "threshold": 0.5}
+    assert merged.grounder_config == ClipGrounderConfig(model="tiny", threshold=0.5)  # typed
     replaced = KeyframePolicy.from_checkpoint(tmp_path, grounder={"kind": "oracle"})
     assert replaced.grounder_spec == {"kind": "oracle"}
+    typed = KeyframePolicy.from_checkpoint(tmp_path, grounder=ClipGrounderConfig(threshold=0.5))  # same as the dict
+    assert typed.grounder_config == merged.grounder_config
 
 
 def test_cli_errors(tmp_path, capsys) -> None:

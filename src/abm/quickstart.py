@@ -243,7 +243,6 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
     from abm.evaluation.report import plot_training_curves, views_figure
     from abm.evaluation.results import OutcomeLog, aggregate, combined_table
     from abm.policy import KeyframePolicy
-    from abm.samples import collate
 
     report.mkdir(parents=True, exist_ok=True)
     plot_training_curves({m: r for m, r in runs.items()}, report / "training_curves.png")
@@ -254,9 +253,9 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
         episode = store.load(index)
         obs, _ = episode.steps[0]
         policy = KeyframePolicy.from_checkpoint(runs["abm"], device="cpu")
-        inputs = policy.model_inputs(collate([policy.observe(obs, episode.instruction, episode.object_names)]))
-        mask = inputs["mask"][0].numpy() if "mask" in inputs else None
-        views_figure(inputs["images"][0].numpy(), mask, list(policy.config.views), report / "virtual_views.png")
+        seen = policy.explain(obs, episode.instruction, episode.object_names)  # what the network saw
+        mask = None if seen.view_mask is None else seen.view_mask[:, None]
+        views_figure(seen.view_images, mask, seen.view_names, report / "virtual_views.png")
         figures.append(f"![virtual views]({'virtual_views.png'})\n\n*{episode.instruction}*: the five virtual "
                        "views (top) and the target's centre-pixel mask in magenta (bottom).")
     gifs = sorted(eval_dir.glob("*/gifs/*.gif"))

@@ -225,8 +225,11 @@ def _ground(args: argparse.Namespace) -> int:
         store.check_consistent(indices)
     except EpisodeFormatError as err:
         raise CommandError(str(err)) from None
-    spec = {"kind": args.grounder, **{k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v}}
-    made = ground_keyframes(EpisodeSource(store, indices), workspace, spec, args.cache, mask=not args.features,
+    from abm.grounding.config import grounder_config_from_dict
+
+    grounder = grounder_config_from_dict(
+        {"kind": args.grounder, **{k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v}})
+    made = ground_keyframes(EpisodeSource(store, indices), workspace, grounder, args.cache, mask=not args.features,
                             features=args.features, augment=not args.no_augment, camera_names=args.cameras)
     what = "CLIP point features" if args.features else "mask fields"
     print(f"{what} of {made} keyframes computed ({len(indices)} episodes) -> {args.cache}")

@@ -46,9 +46,9 @@ from abm.grounding.conditioning import (
     ConditionedScene,
     PointMask,
     condition_scene,
-    make_grounder_from_spec,
     split_roles,
 )
+from abm.grounding.config import GrounderConfig, OracleGrounderConfig, as_grounder_config, build_grounder
 from abm.grounding.grounders import Grounder, resolved_spec
 from abm.samples import Sample, action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
@@ -222,7 +222,7 @@ class KeyframeDataset(Dataset[Sample]):
     Args:
         source: the episodes (:class:`EpisodeSource`, a list of episodes or an ``EpisodeStore``).
         workspace: the policy's workspace cube (crop and augmentation bounds).
-        grounder: grounder spec (``{"kind": "oracle"}`` or ``{"kind": "clip", ...}``).
+        grounder: grounder configuration (:mod:`abm.grounding.config`, or its dict form; default the oracle).
         split: split each instruction into the target X and the skill text.
         mask: compute the per-point mask field of X (implies ``split``).
         features: compute per-point CLIP features (needs a CLIP grounder and ``cache_dir``).
@@ -241,7 +241,7 @@ class KeyframeDataset(Dataset[Sample]):
         self,
         source: EpisodeSource | Episodes,
         workspace: Workspace,
-        grounder: Mapping[str, Any] | None = None,
+        grounder: GrounderConfig | Mapping[str, Any] | None = None,
         *,
         split: bool = True,
         mask: bool = False,
@@ -255,7 +255,7 @@ class KeyframeDataset(Dataset[Sample]):
         require_cache: bool = True,
     ) -> None:
         self.source = source if isinstance(source, EpisodeSource) else EpisodeSource(source)
-        self.grounder_spec = dict(grounder or {"kind": "oracle"})
+        self.grounder_config: GrounderConfig = as_grounder_config(grounder)
         self.split, self.mask, self.features = split or mask, mask, features
         self.augment = augment
         self.seed = seed
@@ -268,7 +268,7 @@ class KeyframeDataset(Dataset[Sample]):
         if not self.items:
             raise ValueError("the dataset is empty: the selected episodes have no keyframes")
         self.check_inside_workspace()
-        self.oracle = self.grounder_spec.get("kind") == "oracle"
+        self.oracle = isinstance(self.grounder_config, OracleGrounderConfig)
         # per-episode split of the instruction: the sub-goals' objects (X, or X and Y) and the skill text;
         # each keyframe grounds the active one (abm.grounding.conditioning.active_role)
         self.targets: list[str | tuple[str, ...] | None] = []
@@ -288,14 +288,14 @@ class KeyframeDataset(Dataset[Sample]):
         if (self.mask and not self.oracle) or self.features:
             if self.cache_dir is None:
                 raise ValueError(
-                    f"grounder {self.grounder_spec.get('kind')!r} (mask field or CLIP features) needs a cache_dir "
+                    f"grounder {self.grounder_config.kind!r} (mask field or CLIP features) needs a cache_dir "
                     "for grounding results / CLIP features"
                 )
             missing = len(self.missing_cache_entries())
             if missing and require_cache:
                 raise ValueError(
                     f"the grounding cache {self.cache_dir} lacks {missing} of {len(self.items)} keyframes for grounder "
-                    f"{self.grounder_spec.get('kind')!r}: fill it first with `abm data ground` (abm train does this "
+                    f"{self.grounder_config.kind!r}: fill it first with `abm data ground` (abm train does this "
                     "itself before training). Entries are keyed by the grounder's options (e.g. the CLIP model), "
                     "the episode, the target, the cameras and the workspace cube (with augmentation's margin), "
                     "so these must match")
@@ -315,7 +315,7 @@ class KeyframeDataset(Dataset[Sample]):
         meta = self.source.meta[j]
         target = self.targets[j] if self.mask else None  # CLIP point features do not depend on the target
         target_key = list(target) if isinstance(target, tuple) else target  # sub-goal objects: one entry per step
-        spec = resolved_spec(self.grounder_spec)  # the defaults it relies on are part of the key
+        spec = resolved_spec(self.grounder_config.to_dict())  # the defaults it relies on are part of the key
         grounder = {k: v for k, v in spec.items() if k not in ("device", "cache")}  # not results
         what = {"grounder": grounder, "target": target_key, "key": meta.key,
                 "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}
@@ -345,7 +345,7 @@ class KeyframeDataset(Dataset[Sample]):
             return 0
         assert self.cache_dir is not None
         self.cache_dir.mkdir(parents=True, exist_ok=True)
-        grounder = make_grounder_from_spec(self.grounder_spec)
+        grounder = build_grounder(self.grounder_config)
         bar = Progress(len(todo), "grounding keyframes", "keyframes", bar=show_progress)
         for j, k in todo:
             obs, _ = self.source.load_step(j, k)
@@ -370,7 +370,7 @@ class KeyframeDataset(Dataset[Sample]):
     def _conditioned(self, j: int, k: int, obs: Observation) -> ConditionedScene:
         if not self.cached:
             if self.mask and self._oracle is None:
-                self._oracle = make_grounder_from_spec({"kind": "oracle"})
+                self._oracle = build_grounder(OracleGrounderConfig())
             return self._scene(j, obs, self._oracle, self.mask, False)
         path = self._cache_file(j, k)
         if not path.exists():
@@ -422,7 +422,7 @@ def check_inside_workspace(source: EpisodeSource, workspace: Workspace) -> None:
 def ground_keyframes(
     source: EpisodeSource | Episodes,
     workspace: Workspace,
-    grounder: Mapping[str, Any],
+    grounder: GrounderConfig | Mapping[str, Any],
     cache_dir: str | Path,
     *,
     mask: bool = True,

@@ -10,8 +10,8 @@ active sub-goal's: X while the gripper is open, Y once it has closed (:func:`act
 needs no extra label, so demonstrations and rollouts pick the same target at the same moments, and
 one-target policies and checkpoints are unchanged.
 
-Grounders are described by a JSON-compatible spec stored in checkpoints: ``{"kind": "oracle"}``,
-``{"kind": "clip", ...options passed to make_grounder}`` or ``{"kind": "tracking", "inner": {...}}``.
+Grounders are configured by the typed configurations of :mod:`abm.grounding.config` (stored in checkpoints
+as their dict form ``{"kind": "oracle"}``, ``{"kind": "clip", ...}`` or ``{"kind": "tracking", "inner": {...}}``).
 """
 
 from __future__ import annotations
@@ -94,12 +94,11 @@ def active_role(gripper_open: float, roles: int) -> int:
     return 0 if roles < 2 or float(gripper_open) >= 0.5 else 1
 
 
-def make_grounder_from_spec(spec: Mapping[str, Any]) -> Any:
-    """Build a grounder (``abm.grounding.make_grounder``) from its JSON-compatible spec."""
-    from abm.grounding import make_grounder
+def make_grounder_from_spec(spec: Any) -> Any:
+    """Build a grounder from its typed configuration or its dict form (:func:`abm.grounding.config.build_grounder`)."""
+    from abm.grounding.config import build_grounder
 
-    options = {k: v for k, v in spec.items() if k != "kind"}
-    return make_grounder(spec.get("kind", "oracle"), **options)
+    return build_grounder(spec)
 
 
 def ground_points(grounder: Any, observation: Observation, cloud: PointCloud, target: str,

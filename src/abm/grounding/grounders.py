@@ -27,17 +27,23 @@ import torch
 
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
+from abm.grounding.config import (  # noqa: F401 - the defaults live with the typed configurations
+    CLIP_MODES,
+    DEFAULT_CLIP_MODE,
+    DEFAULT_DENSE_MODE,
+    DEFAULT_INPUT_SIZE,
+    DEFAULT_SCALES,
+    GROUNDERS,
+    ClipGrounderConfig,
+    GrounderConfig,
+    TrackingGrounderConfig,
+    build_grounder,
+    grounder_config_from_dict,
+)
 from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import MaskField, MaskFieldConfig, mask_field_from_features, negative_prompts
 from abm.grounding.proposals import ProposalConfig, object_proposals, with_base_points
 from abm.types import Observation
-
-GROUNDERS: tuple[str, ...] = ("oracle", "clip", "tracking")
-CLIP_MODES: tuple[str, ...] = ("field", "proposals")
-DEFAULT_CLIP_MODE = "proposals"  # measured best (docs/grounding.md section 9); "field" is the paper's
-DEFAULT_DENSE_MODE = "maskclip"
-DEFAULT_INPUT_SIZE: int | None = None  # None: the model's native input size
-DEFAULT_SCALES: tuple[int, ...] = ()
 
 
 @runtime_checkable
@@ -163,8 +169,8 @@ class ClipGrounder:
         config: MaskFieldConfig | None = None,
         cache: GroundingCache | str | Path | None = None,
         input_size: tuple[int, int] | None = None,
-        cache_features: bool = True,
-        allow_download: bool = False,
+        cache_features: bool = ClipGrounderConfig.cache_features,
+        allow_download: bool = ClipGrounderConfig.allow_download,
         dense_mode: str = DEFAULT_DENSE_MODE,
         mode: str = DEFAULT_CLIP_MODE,
         proposals: ProposalConfig | Mapping[str, Any] | None = None,
@@ -409,13 +415,13 @@ LEGACY_CLIP_OPTIONS: dict[str, Any] = {"mode": "field", "dense_mode": "maskclip"
 """What the CLIP grounder did before these options existed (specs written then do not name them)."""
 
 
-def resolved_spec(spec: Mapping[str, Any]) -> dict[str, Any]:
+def resolved_spec(spec: GrounderConfig | Mapping[str, Any]) -> dict[str, Any]:
     """A grounder spec with the current defaults of the CLIP options it leaves out, for cache keys.
 
     Only defaults that differ from :data:`LEGACY_CLIP_OPTIONS` are added (and the full proposal settings
     in ``proposals`` mode), so a spec's key stays the same while the defaults do, and changes when they change.
     """
-    out = dict(spec)
+    out = spec.to_dict() if hasattr(spec, "to_dict") else dict(spec)
     if out.get("kind") == "clip":
         current = {"mode": DEFAULT_CLIP_MODE, "dense_mode": DEFAULT_DENSE_MODE, "input_size": DEFAULT_INPUT_SIZE,
                    "scales": DEFAULT_SCALES}
@@ -431,7 +437,7 @@ def resolved_spec(spec: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def override_spec(kind: str | None, clip_model: str | None = None) -> dict[str, Any] | None:
+def override_spec(kind: str | None, clip_model: str | None = None) -> GrounderConfig | None:
     """The grounder spec of the ``--grounder KIND [--clip-model M]`` flags of ``abm eval`` and ``abm run``.
 
     ``None`` keeps the checkpoint's grounder; ``clip_model`` names the CLIP weights of the ``clip`` grounder,
@@ -439,11 +445,11 @@ def override_spec(kind: str | None, clip_model: str | None = None) -> dict[str, 
     normalisation) stay those stored in the checkpoint (:meth:`abm.policy.KeyframePolicy.from_checkpoint`).
     """
     if clip_model is None:
-        return {"kind": kind} if kind else None
+        return grounder_config_from_dict({"kind": kind}) if kind else None
     if kind == "clip":
-        return {"kind": "clip", "model": clip_model}
+        return ClipGrounderConfig(model=clip_model)
     if kind == "tracking":
-        return {"kind": "tracking", "inner": {"kind": "clip", "model": clip_model}}
+        return TrackingGrounderConfig(inner=ClipGrounderConfig(model=clip_model))
     raise ValueError(f"--clip-model applies to --grounder clip or tracking, not {kind or 'the checkpoint default'!r}: "
                      f"add --grounder clip to ground with {clip_model}")
 
@@ -457,24 +463,15 @@ def make_grounder(kind: str = "oracle", **kwargs: Any) -> Grounder:
     (:class:`abm.grounding.tracking.TrackingGrounder`). Keyword ``normalization`` and ``threshold`` are
     accepted as shortcuts for the clip config.
     """
-    if kind == "oracle":
-        if kwargs:
-            raise TypeError(f"the oracle grounder takes no options, got {sorted(kwargs)}")
-        return OracleGrounder()
-    if kind == "clip":
-        shortcuts = {k: kwargs.pop(k) for k in ("normalization", "threshold", "negatives", "logit_scale")
-                     if k in kwargs}
-        if "scoring" in kwargs:
-            kwargs["proposals"] = {**dict(kwargs.get("proposals") or {}), "scoring": kwargs.pop("scoring")}
-        if shortcuts:
-            if "config" in kwargs:
-                raise TypeError("pass either config or its fields (normalization, threshold, ...), not both")
-            kwargs["config"] = MaskFieldConfig(**shortcuts)
-        return ClipGrounder(**kwargs)
-    if kind == "tracking":
-        from abm.grounding.tracking import TrackingGrounder
-
-        inner = kwargs.pop("inner", {"kind": "oracle"})
-        inner = dict(inner) if isinstance(inner, Mapping) else {"kind": str(inner)}
-        return TrackingGrounder(make_grounder(inner.pop("kind", "oracle"), **inner), **kwargs)
-    raise ValueError(f"unknown grounder {kind!r}; choose from {list(GROUNDERS)}")
+    if kind == "oracle" and kwargs:
+        raise TypeError(f"the oracle grounder takes no options, got {sorted(kwargs)}")
+    if kind == "clip" and "config" in kwargs and any(
+            k in kwargs for k in ("normalization", "threshold", "negatives", "logit_scale")):
+        raise TypeError("pass either config or its fields (normalization, threshold, ...), not both")
+    # objects (a loaded backbone, a cache object) go to the constructor; the options through the typed config
+    runtime = {k: kwargs.pop(k) for k in ("backbone",) if k in kwargs}
+    if isinstance(kwargs.get("cache"), GroundingCache):
+        runtime["cache"] = kwargs.pop("cache")
+    if kind == "tracking" and "inner" in kwargs and not isinstance(kwargs["inner"], (Mapping, str)):
+        kwargs["inner"] = kwargs["inner"].to_dict()
+    return build_grounder(grounder_config_from_dict({"kind": kind, **kwargs}), **runtime)

@@ -37,8 +37,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from abm.geometry import PointCloud
+from abm.grounding.config import TrackingGrounderConfig
 from abm.grounding.mask_field import MaskField
 from abm.types import Observation
+
+_DEFAULTS = TrackingGrounderConfig()  # the defaults' one source
 
 
 @dataclass
@@ -70,8 +73,9 @@ class TrackingGrounder:
 
     name = "tracking"
 
-    def __init__(self, inner, radius: float = 0.01, min_kept: float = 0.3, closed_below: float = 0.5,
-                 color_tol: float = 0.2, reacquire: bool = False, reacquire_ratio: float = 0.5) -> None:
+    def __init__(self, inner, radius: float = _DEFAULTS.radius, min_kept: float = _DEFAULTS.min_kept,
+                 closed_below: float = _DEFAULTS.closed_below, color_tol: float = _DEFAULTS.color_tol,
+                 reacquire: bool = _DEFAULTS.reacquire, reacquire_ratio: float = _DEFAULTS.reacquire_ratio) -> None:
         if radius <= 0 or not 0 < min_kept <= 1 or color_tol <= 0:
             raise ValueError(f"radius and color_tol must be > 0 and min_kept in (0, 1], got {radius}, "
                              f"{color_tol}, {min_kept}")

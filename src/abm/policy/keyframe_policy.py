@@ -6,7 +6,9 @@ the action coding and the network, for training and for acting.
   targets and returns ``(loss, metrics)``;
 * :meth:`KeyframePolicy.predict` decodes a batch into keyframe actions;
 * :meth:`KeyframePolicy.act` runs the whole per-step pipeline on one observation, and
-  :meth:`KeyframePolicy.explain` also returns the views, mask and heatmaps it used;
+  :meth:`KeyframePolicy.explain` also returns what it saw (:class:`PolicyExplanation`: the fused cloud,
+  target mask, virtual views, network input and heatmaps) - the one place that computes it; viewers, reports
+  and logs draw from it (and :func:`explain_scene` for the same without a network);
 * :meth:`KeyframePolicy.save` / :meth:`KeyframePolicy.from_checkpoint` write and read checkpoints.
 
 Example::
@@ -24,7 +26,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
@@ -32,7 +34,16 @@ from numpy.typing import NDArray
 from torch import nn
 
 from abm.geometry import Workspace, quat_to_bins
-from abm.grounding.conditioning import condition_scene, make_grounder_from_spec
+from abm.grounding.conditioning import condition_scene
+from abm.grounding.config import (
+    GROUNDER_CONFIGS,
+    GrounderConfig,
+    OracleGrounderConfig,
+    as_grounder_config,
+    build_grounder,
+    grounder_config_from_dict,
+    merge_grounder_configs,
+)
 from abm.machine import cpu_supports_bf16
 from abm.policy.checkpoint import load_checkpoint, save_checkpoint
 from abm.policy.config import PolicyConfig
@@ -51,30 +62,80 @@ LOSS_TERMS = ("total", "translation", "rotation", "gripper", "collision")
 
 
 @dataclass
-class PolicyExplanation:
-    """One :meth:`KeyframePolicy.explain` step (``V`` virtual views of ``H x W`` pixels).
+class SceneExplanation:
+    """What a policy sees of one observation: the fused cloud, the target's mask over it and the ``V``
+    virtual views (``H x W`` pixels each) it is rendered into. Positions are world coordinates in metres.
 
     Attributes:
-        action: the predicted keyframe.
-        sample: the policy's input sample (``points`` ``(N, 3)`` m, ``colors`` ``(N, 3)`` in ``[0, 1]``,
-            ``point_mask`` / ``point_heatmap`` ``(N,)`` for mask variants), see :mod:`abm.samples`.
+        sample: the policy's input sample (:mod:`abm.samples`): ``points`` ``(N, 3)`` float32 m (the fused,
+            workspace-cropped cloud), ``colors`` ``(N, 3)`` float32 in ``[0, 1]``, and for grounded scenes
+            ``point_mask`` ``(N,)`` float32 in {0, 1} (the target) and ``point_heatmap`` ``(N,)`` float32 in
+            ``[0, 1]`` (the grounder's score); CPU tensors.
+        target: the grounded object's name (the active sub-goal's), ``None`` when the instruction is not split.
         view_names: names of the ``V`` views.
         view_rgb: ``(V, H, W, 3)`` float32 in ``[0, 1]``, the rendered colour of each view.
         view_occupied: ``(V, H, W)`` bool, where a point is visible.
+        view_target: ``(V, H, W)`` bool, where the target's masked points are visible (``None`` without a mask).
+    """
+
+    sample: Sample
+    target: str | None
+    view_names: list[str]
+    view_rgb: NDArray[np.float32]
+    view_occupied: NDArray[np.bool_]
+    view_target: NDArray[np.bool_] | None
+
+
+@dataclass
+class PolicyExplanation(SceneExplanation):
+    """One :meth:`KeyframePolicy.explain` step: :class:`SceneExplanation` (``view_rgb`` is the colour the
+    network saw) plus the network's input and output.
+
+    Attributes:
+        action: the predicted keyframe.
+        view_images: ``(V, 10, H, W)`` float32, the network's image input (rgb in ``[0, 1]``, depth in m from
+            the view's near face, xyz in m, pixel location; :meth:`abm.render.RenderedViews.rvt_channels`).
         view_mask: ``(V, H, W)`` float32, the mask channel the network saw (``None`` for rvt / ifd); abm's
             marks only the target's centre pixel.
-        view_target: ``(V, H, W)`` bool, where the target's masked points are visible (``None`` for rvt / ifd).
         heatmaps: ``(V, H, W)`` float32, the predicted translation distribution of each view (sums to 1).
     """
 
     action: KeyframeAction
-    sample: Sample
-    view_names: list[str]
-    view_rgb: NDArray[np.float32]
-    view_occupied: NDArray[np.bool_]
+    view_images: NDArray[np.float32]
     view_mask: NDArray[np.float32] | None
-    view_target: NDArray[np.bool_] | None
     heatmaps: NDArray[np.float32]
+
+
+def _occupied(images: torch.Tensor, renderer: OrthographicRenderer) -> NDArray[np.bool_]:
+    """``(V, H, W)`` bool from ``(V, 10, H, W)`` RVT channels: the depth of an empty pixel is the cube's edge."""
+    return (images[:, 3] < float(renderer.workspace.size) - 1e-6).cpu().numpy()
+
+
+def _target_views(renderer: OrthographicRenderer, sample: Sample) -> tuple[torch.Tensor, NDArray[np.bool_] | None]:
+    """Render a sample's cloud with its target mask: ``((V, 10, H, W)`` RVT channels, ``(V, H, W)`` bool target
+    pixels or ``None``); the whole target as the views show it (abm's mask channel may mark less)."""
+    dev = renderer.device
+    mask = sample.get("point_mask")
+    with torch.no_grad():
+        views = renderer.render(sample["points"][None].to(dev), sample["colors"][None].to(dev),
+                                extra=None if mask is None else mask[None, :, None].to(dev))
+    target = None if mask is None else (views.extra[0, :, 0] > 0.5).cpu().numpy()
+    return views.rvt_channels()[0].float().cpu(), target
+
+
+def explain_scene(observation: Observation, instruction: str, renderer: OrthographicRenderer, grounder: Grounder,
+                  object_names: Mapping[int, str] | None = None,
+                  camera_names: Sequence[str] | None = None) -> SceneExplanation:
+    """What a mask policy with ``renderer``'s views would see of ``observation``, without a network: fuse the
+    cameras in the renderer's workspace, ground the target with ``grounder`` and render the views (the viewer's
+    grounding-only scenes). :meth:`KeyframePolicy.explain` is the same with a policy."""
+    scene = condition_scene(observation, instruction, renderer.workspace, grounder=grounder, object_names=object_names,
+                            mask=True, camera_names=list(camera_names) if camera_names else None)
+    sample = scene_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
+    images, target = _target_views(renderer, sample)
+    return SceneExplanation(sample=sample, target=scene.target, view_names=list(renderer.views),
+                            view_rgb=images[:, :3].permute(0, 2, 3, 1).clamp(0, 1).numpy(),
+                            view_occupied=_occupied(images, renderer), view_target=target)
 
 
 class KeyframePolicy(nn.Module):
@@ -83,8 +144,9 @@ class KeyframePolicy(nn.Module):
     Args:
         config: variant and sizes.
         language: language encoder, or its spec (``{"kind": "hash", ...}`` / ``{"kind": "clip", ...}``).
-        grounder: grounder spec (``{"kind": "oracle"}``, ``{"kind": "clip", ...}``) or a grounder object
-            with ``ground(observation, cloud, target, object_names)``; used by :meth:`act`.
+        grounder: grounder configuration (:mod:`abm.grounding.config`; its dict form ``{"kind": "clip", ...}``
+            is read with ``grounder_config_from_dict``) or a grounder object with
+            ``ground(observation, cloud, target, object_names)``; used by :meth:`act`.
         camera_names: cameras to fuse in :meth:`act` (default all of the observation's).
     """
 
@@ -92,7 +154,7 @@ class KeyframePolicy(nn.Module):
         self,
         config: PolicyConfig,
         language: LanguageEncoder | Mapping[str, Any],
-        grounder: Mapping[str, Any] | Grounder | None = None,
+        grounder: GrounderConfig | Mapping[str, Any] | Grounder | None = None,
         camera_names: Sequence[str] | None = None,
     ) -> None:
         super().__init__()
@@ -105,16 +167,18 @@ class KeyframePolicy(nn.Module):
                 f"language encoder gives {self.language.tokens} x {self.language.dim} tokens but the policy "
                 f"expects {config.lang_tokens} x {config.lang_dim}"
             )
-        if grounder is None:
-            grounder = {"kind": "oracle"}
-        self.grounder_spec: dict[str, Any] | None = dict(grounder) if isinstance(grounder, Mapping) else None
-        self._grounder: Grounder | None = None if isinstance(grounder, Mapping) else grounder
+        is_config = grounder is None or isinstance(grounder, (Mapping, *GROUNDER_CONFIGS))
+        # typed configuration of the grounder (None when a grounder object was given)
+        self.grounder_config: GrounderConfig | None = (
+            as_grounder_config(cast("GrounderConfig | Mapping[str, Any] | None", grounder)) if is_config else None)
+        self._grounder: Grounder | None = None if is_config else cast("Grounder", grounder)
         self.camera_names = list(camera_names) if camera_names else None
         self.workspace = Workspace(config.workspace_center, config.workspace_size)
         self._renderer = OrthographicRenderer(self.workspace, config.resolution, config.views)
         self._lang_cache: dict[str, torch.Tensor] = {}
         self.last_timings: dict[str, float] = {}
         self.checkpoint_path: str | None = None
+        self._last_target: str | None = None  # the grounded object of the last observe()
         # kept out of the module tree (plain attributes), so state_dict keys never change
         self.__dict__["_compiled_model"] = None
         self.cpu_bf16 = False
@@ -132,9 +196,14 @@ class KeyframePolicy(nn.Module):
         return self._renderer
 
     @property
+    def grounder_spec(self) -> dict[str, Any] | None:
+        """The grounder configuration's dict form (what checkpoints store), ``None`` for a grounder object."""
+        return None if self.grounder_config is None else self.grounder_config.to_dict()
+
+    @property
     def grounder(self) -> Grounder:
         if self._grounder is None:
-            self._grounder = make_grounder_from_spec(self.grounder_spec or {"kind": "oracle"})
+            self._grounder = build_grounder(self.grounder_config or OracleGrounderConfig())
         return self._grounder
 
     def reset(self) -> None:
@@ -291,13 +360,14 @@ class KeyframePolicy(nn.Module):
                 object_names: Mapping[int, str] | None = None) -> Sample:
         """The sample of one observation (fuse, split the instruction, ground), as the dataset makes it."""
         opts = self.sample_options()
-        if opts["mask"] and (self.grounder_spec or {}).get("kind") == "oracle" and object_names is None:
+        if opts["mask"] and isinstance(self.grounder_config, OracleGrounderConfig) and object_names is None:
             raise ValueError("the oracle grounder needs object_names (segmentation id -> name)")
         needs_grounder = opts["mask"] or opts["features"]
         scene = condition_scene(observation, instruction, self.workspace,
                                 grounder=self.grounder if needs_grounder else None, object_names=object_names,
                                 split=opts["split"], mask=opts["mask"], features=opts["features"],
                                 camera_names=self.camera_names)
+        self._last_target = scene.target  # for explain()
         return scene_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
 
     def act(self, observation: Observation, instruction: str,
@@ -322,21 +392,17 @@ class KeyframePolicy(nn.Module):
         images = inputs["images"][0].float().cpu()
         heat = torch.softmax(out.heatmap[0].float().flatten(1), -1).view_as(out.heatmap[0]).cpu().numpy()
         mask = inputs.get("mask")
-        target = None
-        if "point_mask" in sample:  # the whole target as the views show it (the mask channel may mark less)
-            with torch.no_grad():
-                views = self.renderer.render(sample["points"][None].to(self.device),
-                                             sample["colors"][None].to(self.device),
-                                             extra=sample["point_mask"][None, :, None].to(self.device))
-            target = (views.extra[0, :, 0] > 0.5).cpu().numpy()
+        target = _target_views(self.renderer, sample)[1] if "point_mask" in sample else None
         return PolicyExplanation(
             action=action,
             sample=sample,
+            target=self._last_target,
             view_names=list(self.renderer.views),
             view_rgb=images[:, :3].permute(0, 2, 3, 1).clamp(0, 1).numpy(),
-            view_occupied=(images[:, 3] < float(self.renderer.workspace.size) - 1e-6).numpy(),
-            view_mask=None if mask is None else mask[0, :, 0].float().cpu().numpy(),
+            view_occupied=_occupied(images, self.renderer),
             view_target=target,
+            view_images=images.numpy(),
+            view_mask=None if mask is None else mask[0, :, 0].float().cpu().numpy(),
             heatmaps=heat.astype(np.float32),
         )
 
@@ -364,7 +430,8 @@ class KeyframePolicy(nn.Module):
         """What a checkpoint needs to rebuild this policy (training adds its own state)."""
         return {
             "policy_config": self.config.to_dict(), "variant": self.config.variant, "preset": self.config.preset,
-            "language": self.language.spec(), "grounder": self.grounder_spec, "camera_names": self.camera_names,
+            "language": self.language.spec(), "grounder": self.grounder_spec,  # the config's dict form
+            "camera_names": self.camera_names,
             "model": self.model.state_dict(),
         }
 
@@ -377,7 +444,7 @@ class KeyframePolicy(nn.Module):
         cls,
         run_or_ckpt: str | Path,
         device: str | torch.device = "cpu",
-        grounder: Mapping[str, Any] | Grounder | None = None,
+        grounder: GrounderConfig | Mapping[str, Any] | Grounder | None = None,
         expect_variant: str | None = None,
     ) -> KeyframePolicy:
         """Load a checkpoint file or the latest checkpoint of a run folder, in eval mode on ``device``.
@@ -385,25 +452,22 @@ class KeyframePolicy(nn.Module):
         Args:
             run_or_ckpt: ``RUN/`` or ``RUN/checkpoints/step_XXXXXXXX.pt``.
             device: where to run.
-            grounder: override the grounder stored in the checkpoint (spec or object); a spec of the
-                same kind only overrides the options it names.
+            grounder: override the grounder stored in the checkpoint (configuration, its dict form, or a
+                grounder object); a configuration of the same kind only overrides the options it names
+                (:func:`abm.grounding.config.merge_grounder_configs`).
             expect_variant: if given, a checkpoint of another variant raises ``ValueError``.
         """
         ckpt = load_checkpoint(run_or_ckpt, map_location="cpu")
         config = PolicyConfig.from_dict(ckpt["policy_config"])
         if expect_variant is not None and config.variant != expect_variant:
             raise ValueError(f"checkpoint {ckpt['path']} is a {config.variant!r} policy, expected {expect_variant!r}")
-        stored = ckpt.get("grounder")
-        if isinstance(grounder, Mapping) and isinstance(stored, Mapping) and grounder.get("kind") == stored.get("kind"):
-            grounder = {**stored, **grounder}  # same grounder: keep the trained options (e.g. the CLIP model)
-        elif isinstance(grounder, Mapping) and grounder.get("kind") == "tracking":
-            inner = grounder.get("inner")
-            if inner is None:
-                inner = stored or {"kind": "oracle"}  # track with the trained grounder
-            elif isinstance(inner, Mapping) and isinstance(stored, Mapping) and inner.get("kind") == stored.get("kind"):
-                inner = {**stored, **inner}  # e.g. another CLIP model with the trained threshold
-            grounder = {**grounder, "inner": inner}
-        policy = cls(config, ckpt["language"], grounder or stored, ckpt.get("camera_names"))
+        stored = ckpt.get("grounder")  # the dict form (file boundary)
+        stored_config = grounder_config_from_dict(stored) if stored is not None else None
+        if grounder is None or isinstance(grounder, (Mapping, *GROUNDER_CONFIGS)):
+            override = (as_grounder_config(cast("GrounderConfig | Mapping[str, Any]", grounder))
+                        if grounder is not None else None)
+            grounder = merge_grounder_configs(stored_config, override)
+        policy = cls(config, ckpt["language"], grounder, ckpt.get("camera_names"))
         policy.model.load_state_dict(ckpt["model"])
         policy.checkpoint_path = ckpt["path"]
         return policy.to(device).eval()

@@ -103,8 +103,9 @@ def make_language_encoder(spec: dict[str, Any]) -> LanguageEncoder:
     if kind == "hash":
         return HashLanguageEncoder(int(spec.get("dim", 512)), int(spec.get("tokens", 77)), int(spec.get("seed", 0)))
     if kind == "clip":
-        from abm.grounding.conditioning import make_grounder_from_spec
+        from abm.grounding.config import ClipGrounderConfig, build_grounder
 
-        grounder = make_grounder_from_spec({**spec, "kind": "clip"})
+        # the spec is the language encoder's file form: the CLIP grounder's options (whose text tower encodes)
+        grounder = build_grounder(ClipGrounderConfig.from_dict(spec))
         return ClipLanguageEncoder(grounder, spec)
     raise ValueError(f"unknown language encoder kind {kind!r}; use 'hash' or 'clip'")

@@ -28,7 +28,6 @@ import numpy as np
 
 from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot
 from abm.robot.limits import LIMITS_SCHEMA, LimitError, MotionLimits
-from abm.samples import collate
 from abm.schema import Field, SchemaError, any_mapping, check_mapping, integer, number, strings, text, vector
 from abm.types import SPLITS, Observation
 
@@ -202,18 +201,18 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
             t0 = time.perf_counter()
             pose, opening = arm.state()
             obs = Observation(camera.read(), opening, pose, k)
-            sample = policy.observe(obs, instruction, names)
-            views = policy.model_inputs(collate([sample]))
+            seen = policy.explain(obs, instruction, names)  # the action and what the policy saw, in one pass
+            sample = seen.sample
             arrays = {f"camera/{n}": f.rgb for n, f in obs.cameras.items()}
-            arrays["views"] = views["images"][0, :, :3].cpu().numpy()
-            if "mask" in views:
-                arrays["mask"] = views["mask"][0, :, 0].cpu().numpy()
+            arrays["views"] = seen.view_images[:, :3]
+            if seen.view_mask is not None:
+                arrays["mask"] = seen.view_mask
             np.savez_compressed(log_dir / f"step_{k:03d}.npz", **arrays)
             if "point_mask" in sample and not float(sample["point_mask"].sum()) > 0 and not allow_no_target:
                 reason = no_target_message(instruction, names)
                 out.write(json.dumps({"step": k, "status": "refused", "reason": reason}) + "\n")
                 raise NoTargetError(reason)
-            action = policy.act(obs, instruction, names)
+            action = seen.action
             record = {"step": k, **({"instruction": instruction} if k == 0 else {}),
                       "position": action.position.round(4).tolist(),
                       "quaternion": action.quaternion.round(4).tolist(), "gripper_open": action.gripper_open,

@@ -7,9 +7,12 @@ import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from abm.policy.variants import VARIANTS
+
+if TYPE_CHECKING:
+    from abm.grounding.config import GrounderConfig
 
 
 @dataclass
@@ -42,7 +45,8 @@ class TrainConfig:
         workers: DataLoader worker processes.
         device: ``cpu``, ``cuda`` or ``cuda:N`` (under torchrun CUDA uses ``cuda:LOCAL_RANK``).
         grounder: target-object grounding (``oracle`` or ``clip``); options in ``grounder_options``.
-        grounder_options: options of the grounder (``abm train``: ``--clip-model``, ``--clip-device``).
+        grounder_options: options of the grounder (``abm train``: ``--clip-model``, ``--clip-device``); the run
+            uses them as the typed :attr:`grounder_config`.
         language: language encoder (``hash`` or ``clip``; default: ``clip`` with the clip grounder, else ``hash``).
         seed: seed of model init and the data stream.
         resume: continue from the latest checkpoint in ``out`` (from scratch if it has none).
@@ -101,6 +105,16 @@ class TrainConfig:
     bf16: str = field(default="auto", metadata={"choices": ["auto", "on", "off"]})
     verify: bool = field(default=True, metadata={
         "off_help": "skip the episode checksum check: train on the files as they are"})
+
+    @property
+    def grounder_config(self) -> GrounderConfig:
+        """The typed grounder configuration of ``grounder`` + ``grounder_options`` (the two fields are its
+        form in flags, recipes and ``config.json``); unknown options raise ``ValueError``."""
+        from abm.grounding.config import OracleGrounderConfig, grounder_config_from_dict
+
+        if self.grounder == "oracle":
+            return OracleGrounderConfig()
+        return grounder_config_from_dict({"kind": self.grounder, **self.grounder_options})
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=str))

@@ -44,7 +44,7 @@ from abm.data.keyframes import (
     worker_init,
 )
 from abm.files import FolderLock, write_text_atomic
-from abm.grounding.conditioning import make_grounder_from_spec
+from abm.grounding.config import build_grounder
 from abm.policy.checkpoint import (
     checkpoint_path,
     list_checkpoints,
@@ -243,7 +243,24 @@ RESUME_FIXED = ("tasks", "splits", "batch", "lr", "optimizer", "warmup", "min_lr
 def changed_settings(saved: dict[str, Any], cfg: TrainConfig) -> dict[str, tuple[Any, Any]]:
     """``{option: (value in the checkpoint, value now)}`` of the :data:`RESUME_FIXED` options that differ."""
     now = cfg.to_dict()
-    return {k: (saved[k], now[k]) for k in RESUME_FIXED if k in saved and saved[k] != now[k]}
+    changed = {k: (saved[k], now[k]) for k in RESUME_FIXED if k in saved and saved[k] != now[k]}
+    if "grounder_options" in changed and "grounder" not in changed:
+        # compare what the options mean, not how they were written (e.g. a default named or left out)
+        try:
+            same = _grounder_config(saved) == cfg.grounder_config
+        except ValueError:
+            same = False
+        if same:
+            del changed["grounder_options"]
+    return changed
+
+
+def _grounder_config(saved: dict[str, Any]) -> Any:
+    from abm.grounding.config import OracleGrounderConfig, grounder_config_from_dict
+
+    if saved.get("grounder", "oracle") == "oracle":
+        return OracleGrounderConfig()
+    return grounder_config_from_dict({"kind": saved["grounder"], **(saved.get("grounder_options") or {})})
 
 
 def _claim_run_folder(run: Path, cfg: TrainConfig, dinfo: DistInfo) -> None:
@@ -307,18 +324,17 @@ class Trainer:
         base_lang = int(cfg.policy_overrides.get("lang_dim", 512))
         self.language_spec = ckpt["language"] if ckpt is not None else language_spec(cfg, base_lang)
         encoder = make_language_encoder(self.language_spec)
-        self.grounder_spec = gspec = ({"kind": "oracle"} if cfg.grounder == "oracle"
-                                      else {"kind": cfg.grounder, **cfg.grounder_options})
+        self.grounder_config = gconfig = cfg.grounder_config
         ifd_dim = None
         if cfg.method == "ifd":
             if cfg.grounder != "clip":
                 raise ValueError("method 'ifd' re-renders CLIP features: use --grounder clip")
-            g = make_grounder_from_spec(gspec)
+            g = build_grounder(gconfig)
             ifd_dim = getattr(g, "feature_dim", None) or getattr(getattr(g, "backbone", None), "embed_dim", None)
         self.policy_config = build_policy_config(cfg, encoder.dim, ifd_dim)
         if ckpt is not None:
             check_compatible(PolicyConfig.from_dict(ckpt["policy_config"]), self.policy_config)
-        self.policy = KeyframePolicy(self.policy_config, encoder, gspec, cfg.camera_names).to(device)
+        self.policy = KeyframePolicy(self.policy_config, encoder, gconfig, cfg.camera_names).to(device)
         if device.type == "cpu" and self.policy.use_cpu_bf16(cfg.bf16) and dinfo.main:
             log.info("abm train: bf16 autocast on the CPU (--bf16 %s)", cfg.bf16)
         if cfg.compile:
@@ -355,7 +371,7 @@ class Trainer:
         if dinfo.main:
             write_text_atomic(self.run / "config.json", json.dumps(
                 {"train": cfg.to_dict(), "policy": self.policy_config.to_dict(), "language": self.language_spec,
-                 "grounder": gspec, "world_size": world, "lr": self.lr, "warmup": self.warmup,
+                 "grounder": gconfig.to_dict(), "world_size": world, "lr": self.lr, "warmup": self.warmup,
                  **({"changed_on_resume": self.changed} if self.changed else {})}, indent=2))
             import yaml
 
@@ -398,15 +414,15 @@ class Trainer:
         augment = cfg.augment if augment is None else augment
         cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else self.run / "cache"
         opts = self.policy.sample_options()
-        if dinfo.main and ((opts["mask"] and self.grounder_spec["kind"] != "oracle") or opts["features"]):
+        if dinfo.main and ((opts["mask"] and self.grounder_config.kind != "oracle") or opts["features"]):
             # the explicit grounding step (what `abm data ground` does ahead of time); resumable
-            made = ground_keyframes(source, self.policy.workspace, self.grounder_spec, cache, mask=opts["mask"],
+            made = ground_keyframes(source, self.policy.workspace, self.grounder_config, cache, mask=opts["mask"],
                                     features=opts["features"], augment=augment, camera_names=cfg.camera_names,
                                     show_progress=cfg.progress)
-            log.info("abm train: grounded %d keyframes with %s into %s", made, self.grounder_spec["kind"], cache)
+            log.info("abm train: grounded %d keyframes with %s into %s", made, self.grounder_config.kind, cache)
         if dinfo.enabled:
             dist.barrier()  # rank 0 has filled the grounding cache
-        return KeyframeDataset(source, self.policy.workspace, self.grounder_spec, **opts, augment=augment,
+        return KeyframeDataset(source, self.policy.workspace, self.grounder_config, **opts, augment=augment,
                                cache_dir=cache, seed=cfg.seed, camera_names=cfg.camera_names)
 
     # ------------------------------------------------------------------ checkpoints
@@ -486,7 +502,7 @@ class Trainer:
                 f"{cfg.optimizer} lr {self.lr:g}, warm-up {self.warmup}"
                 f"{' (not shorter than the run: the lr never reaches its peak)' if self.warmup >= cfg.steps else ''}"
                 f", device {self.device}, grounder "
-                f"{self.grounder_spec['kind']}, from step {self.start}; run folder {self.run}")
+                f"{self.grounder_config.kind}, from step {self.start}; run folder {self.run}")
 
     def fit(self, on_step: Callable[[int, dict[str, float]], None] | None = None) -> dict[str, Any]:
         """Train from the current step to ``cfg.steps``; returns the run summary (also ``summary.json``)."""

@@ -57,9 +57,10 @@ def run(args: argparse.Namespace) -> int:
                                "install chromium) or leave --screenshot out to serve the page")
     grounder = None
     if args.grounder:
-        grounder = {"kind": args.grounder}
-        if args.clip_model:
-            grounder["model"] = args.clip_model
+        from abm.grounding.config import grounder_config_from_dict
+
+        grounder = grounder_config_from_dict(
+            {"kind": args.grounder, **({"model": args.clip_model} if args.clip_model else {})})
     policy = None
     if args.run is not None:
         from abm.policy import KeyframePolicy

@@ -24,8 +24,10 @@ from scipy.spatial.transform import Rotation
 
 from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
 from abm.geometry import Workspace
-from abm.grounding.conditioning import condition_scene, make_grounder_from_spec, split_instruction
+from abm.grounding.conditioning import split_instruction
+from abm.grounding.config import build_grounder
 from abm.grounding.visualize import overlay_views
+from abm.policy.keyframe_policy import explain_scene
 from abm.render import OrthographicRenderer
 from abm.render.orthographic import VIEW_AXES
 from abm.types import Episode, KeyframeAction, Observation
@@ -142,7 +144,7 @@ def scene_from_episode(
         episode: the episode; its actions are shown as the expert's keyframes.
         policy: a :class:`abm.policy.KeyframePolicy`; when given, each step shows what it saw
             (:meth:`~abm.policy.KeyframePolicy.explain`) and predicted, in its workspace and views.
-        grounder: without a policy, the grounder spec or object that computes the mask field
+        grounder: without a policy, the grounder configuration (its dict form) or object that computes the mask field
             (default the oracle: the simulator's segmentation of the named object).
         workspace: without a policy, the crop cube (default :class:`Workspace`'s default).
         view_resolution: without a policy, the side of the rendered virtual views.
@@ -158,7 +160,7 @@ def scene_from_episode(
         ws = workspace or Workspace()
         renderer = OrthographicRenderer(ws, view_resolution)
         names = list(renderer.views)
-        g = make_grounder_from_spec(grounder or {"kind": "oracle"}) if not hasattr(grounder, "ground") else grounder
+        g = grounder if hasattr(grounder, "ground") else build_grounder(grounder)  # a config, its dict or None
         scene = ViewerScene(f"{episode.task}/{episode.split} seed {episode.seed}, grounding only",
                             episode.instruction, None, ws, names, success=episode.success)
     for done, k in enumerate(chosen, 1):
@@ -167,17 +169,11 @@ def scene_from_episode(
             seen = policy.explain(obs, episode.instruction, episode.object_names)
             views = overlay_views(seen.view_rgb, seen.view_target, seen.heatmaps, seen.view_mask)
             scene.steps.append(_step_from_sample(k, seen.sample, views, obs, expert, seen.action))
-        else:
-            cond = condition_scene(obs, episode.instruction, scene.workspace, grounder=g,
-                                   object_names=episode.object_names, mask=True)
-            scene.target_name = cond.target
-            sample = {"points": cond.cloud.xyz, "colors": cond.cloud.rgb,
-                      "point_mask": cond.point_mask.mask, "point_heatmap": cond.point_mask.heatmap}
-            rendered = renderer.render(torch.from_numpy(cond.cloud.xyz)[None], torch.from_numpy(cond.cloud.rgb)[None],
-                                       extra=torch.from_numpy(cond.point_mask.mask[:, None])[None])
-            rgb = rendered.rgb[0].permute(0, 2, 3, 1).numpy()
-            views = overlay_views(rgb, rendered.extra[0, :, 0].numpy())
-            scene.steps.append(_step_from_sample(k, sample, views, obs, expert, None))
+        else:  # what a mask policy with these views would see (the policy module's one way of computing it)
+            seen = explain_scene(obs, episode.instruction, renderer, g, episode.object_names)
+            scene.target_name = seen.target
+            views = overlay_views(seen.view_rgb, seen.view_target)
+            scene.steps.append(_step_from_sample(k, seen.sample, views, obs, expert, None))
         if progress is not None:
             progress(done, len(chosen))
     if policy is not None and scene.target_name is None:
