@@ -19,7 +19,7 @@ Each view yields:
 Nothing comes from policy demonstrations. Samples are written to ``.npz`` shards (one shard = a fixed
 list of world seeds, so rendering resumes shard by shard and gives the same data again):
 ``images (N, S, S, 3) uint8``, ``classes (N, S, S) uint8`` (class index per pixel, see
-:func:`abm.grounding.clip_captions.class_names`), ``kind (N,) uint8`` (:data:`KINDS`), ``label (N,) int16``
+:func:`abm.clip_training.captions.class_names`), ``kind (N,) uint8`` (:data:`KINDS`), ``label (N,) int16``
 (the caption's class, -1 for scenes) and ``caption (N,) str``.
 """
 
@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from abm.clip_training.captions import BACKGROUND_CLASSES, FLOOR, ROBOT, TABLE, caption, class_names
 from abm.files import atomic_path, write_text_atomic
-from abm.grounding.clip_captions import BACKGROUND_CLASSES, FLOOR, ROBOT, TABLE, caption, class_names
 
 log = logging.getLogger("abm")
 
@@ -268,9 +268,9 @@ class World:
 
     def renderer(self, size: int) -> Any:
         if size not in self._renderers:
-            from abm.sim.cameras import _make_renderer
+            from abm.sim.cameras import make_renderer
 
-            self._renderers[size] = _make_renderer(self.model, size, size)
+            self._renderers[size] = make_renderer(self.model, size, size)
         return self._renderers[size]
 
     def close(self) -> None:

@@ -1,6 +1,6 @@
 """Class vocabulary and caption templates for training the benchmark CLIP (``abm clip train``).
 
-Every image the renderer (:mod:`abm.grounding.clip_data`) produces is labelled with *classes*: one per
+Every image the renderer (:mod:`abm.clip_training.data`) produces is labelled with *classes*: one per
 catalog object (:data:`abm.sim.catalog.CATALOG`, seen, unseen and compositional objects alike — an
 internet-scale CLIP would have seen all of them) plus three background classes (the table, the floor /
 everything behind it, the robot arm). Captions are drawn from templates over the name, its colour and
@@ -9,7 +9,7 @@ its category ("a photo of a red block", "a ketchup", "a photo of a ketchup, a ty
 The generic phrases the mask field contrasts against (:data:`abm.grounding.mask_field.DEFAULT_NEGATIVES`:
 "object", "things", "stuff", "texture") get a meaning the way web captions would give it: the table is
 also captioned "a photo of a texture", the floor "a photo of stuff", the robot "a photo of things", and
-the dense (per-patch) loss of :mod:`abm.grounding.clip_train` makes "an object" the second-best phrase of
+the dense (per-patch) loss of :mod:`abm.clip_training.train` makes "an object" the second-best phrase of
 every object patch (see :data:`GENERIC_PARENT`).
 """
 

@@ -15,7 +15,7 @@ Loss = contrastive + ``dense_weight`` x dense:
   negatives ("a photo of an object", "... things", "... stuff", "... texture"). A patch's label is the
   object covering at least ``object_fraction`` of it (the largest one), else the background class covering
   most of it; the target puts ``1 - parent_weight`` on the label and ``parent_weight`` on its generic
-  phrase (:data:`abm.grounding.clip_captions.GENERIC_PARENT`), so "an object" is the best match after
+  phrase (:data:`abm.clip_training.captions.GENERIC_PARENT`), so "an object" is the best match after
   the object's own name and the softmax-vs-negatives normalisation means something.
 
 The run is resumable (``checkpoint.pt`` every ``checkpoint_every`` steps: weights, optimiser, data order,
@@ -40,10 +40,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from abm.clip_training.captions import GENERIC_PARENT, OBJECT_PARENT, class_prompts
+from abm.clip_training.data import SCENE, ClipDataset
 from abm.files import atomic_path, load_torch_data, write_text_atomic
 from abm.grounding.clip import maskclip_head, run_encoder_layer
-from abm.grounding.clip_captions import GENERIC_PARENT, OBJECT_PARENT, class_prompts
-from abm.grounding.clip_data import SCENE, ClipDataset
 from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import DEFAULT_NEGATIVES
 
@@ -63,7 +63,7 @@ BENCH_ARCH: dict[str, Any] = dict(
 
 
 @dataclass
-class TrainConfig:
+class ClipTrainConfig:
     """Recipe of one training run.
 
     Attributes:
@@ -264,7 +264,7 @@ class BatchOrder:
         return {"epoch": self.epoch, "position": self.position}
 
 
-def run_fraction(step: int, elapsed_s: float, config: TrainConfig) -> float:
+def run_fraction(step: int, elapsed_s: float, config: ClipTrainConfig) -> float:
     """Fraction of the run done: steps, or time when ``max_minutes`` is set and runs out first."""
     done = step / config.steps
     if config.max_minutes:
@@ -272,7 +272,7 @@ def run_fraction(step: int, elapsed_s: float, config: TrainConfig) -> float:
     return min(1.0, done)
 
 
-def lr_at(step: int, config: TrainConfig, elapsed_s: float = 0.0) -> float:
+def lr_at(step: int, config: ClipTrainConfig, elapsed_s: float = 0.0) -> float:
     """Learning rate at ``step``: linear warm-up over ``warmup_steps``, then cosine decay to 0 at the end
     of the run (:func:`run_fraction`)."""
     if step < config.warmup_steps:
@@ -285,7 +285,7 @@ def lr_at(step: int, config: TrainConfig, elapsed_s: float = 0.0) -> float:
 # --------------------------------------------------------------------------------------------------
 # The trainer
 # --------------------------------------------------------------------------------------------------
-def new_model(config: TrainConfig) -> tuple[Any, Any]:
+def new_model(config: ClipTrainConfig) -> tuple[Any, Any]:
     """A freshly initialised ``(CLIPModel, tokenizer)`` (seeded)."""
     from transformers import CLIPModel
 
@@ -298,7 +298,7 @@ def new_model(config: TrainConfig) -> tuple[Any, Any]:
     return model, tokenizer
 
 
-def _optimizer(model: Any, config: TrainConfig) -> torch.optim.Optimizer:
+def _optimizer(model: Any, config: ClipTrainConfig) -> torch.optim.Optimizer:
     decay = [p for n, p in model.named_parameters() if p.ndim >= 2 and "embedding" not in n]
     other = [p for n, p in model.named_parameters() if not (p.ndim >= 2 and "embedding" not in n)]
     return torch.optim.AdamW([{"params": decay, "weight_decay": config.weight_decay},
@@ -306,7 +306,7 @@ def _optimizer(model: Any, config: TrainConfig) -> torch.optim.Optimizer:
 
 
 def train_step(model: Any, tokenizer: Any, batch: dict[str, Any], vocab_prompts: Sequence[str],
-               parents: torch.Tensor, num_objects: int, config: TrainConfig) -> dict[str, torch.Tensor]:
+               parents: torch.Tensor, num_objects: int, config: ClipTrainConfig) -> dict[str, torch.Tensor]:
     """Losses of one batch (``loss`` = contrastive + dense_weight x dense), with the graph for backward."""
     patch = int(model.config.vision_config.patch_size)
     scale = model.logit_scale.exp().clamp(max=100.0)
@@ -357,7 +357,7 @@ def load_training_state(path: str | Path) -> dict[str, Any]:
     return state
 
 
-def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None, resume: bool = False,
+def train(data: ClipDataset, out: str | Path, config: ClipTrainConfig | None = None, resume: bool = False,
           progress: bool = True, extra_summary: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train on ``data`` and write the model folder ``out``; returns the summary written to ``abm_clip.json``.
 
@@ -366,7 +366,7 @@ def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None,
     """
     from abm.progress import Progress
 
-    config = config or TrainConfig()
+    config = config or ClipTrainConfig()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(config.threads)
@@ -477,7 +477,7 @@ def zero_shot_accuracy(backbone: Any, data: ClipDataset, classes: Sequence[str] 
     feature over the object's pixels (the dense features the grounder uses). Returns overall and
     per-class accuracies.
     """
-    from abm.grounding.clip_data import OBJECT_CROP
+    from abm.clip_training.data import OBJECT_CROP
 
     names = list(classes or data.class_names[:len(data.class_names) - 3])
     text = backbone.text_features(class_prompts(names)).cpu()
