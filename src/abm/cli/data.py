@@ -1,4 +1,12 @@
-"""``abm data generate``, ``abm data ground`` and ``abm data info``."""
+"""``abm data generate``, ``abm data ground`` and ``abm data info``.
+
+These parsers are written by hand, not generated from a config dataclass (abm.configuration) like the other
+commands': they use what add_config_arguments cannot express without changing the flags or their help —
+positional arguments (``abm data info DIR``, ``abm data import DATASET``), ``--workspace-center X Y Z``'s
+metavar, ``--dense-fps``'s open lower bound, ``--clip-model``'s computed help, ``--backend``/``--ray-address``
+from abm.ray_pool. Every option still has a checked range type and a help text (tests/test_cli_help.py,
+tests/test_fuzz.py).
+"""
 
 from __future__ import annotations
 

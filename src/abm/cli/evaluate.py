@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from abm.configuration import WORKERS, add_config_arguments, count, int_range
-from abm.evaluation.runner import EvalSettings
+from abm.evaluation.settings import EvalSettings
 from abm.ray_pool import add_backend_arguments
 
 SPLITS = ("seen", "unseen", "compositional")

@@ -20,6 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from abm.grounding.instruction import clip_prompt
+from abm.sim.catalog import BLOCK_COLOURS, CATALOG
 
 TABLE, FLOOR, ROBOT = "table", "floor", "robot arm"
 BACKGROUND_CLASSES: tuple[str, ...] = (TABLE, FLOOR, ROBOT)
@@ -56,8 +57,6 @@ def article(word: str) -> str:
 def class_names(object_names: Sequence[str] | None = None) -> tuple[str, ...]:
     """The class list: object names (default: the whole catalog, in catalog order), then the background."""
     if object_names is None:
-        from abm.sim.catalog import CATALOG
-
         object_names = list(CATALOG)
     return (*object_names, *BACKGROUND_CLASSES)
 
@@ -69,8 +68,6 @@ def class_prompts(classes: Sequence[str]) -> list[str]:
 
 def _colour_and_category(name: str) -> tuple[str | None, str]:
     """(colour word of a coloured primitive or None, category word) of an object name."""
-    from abm.sim.catalog import BLOCK_COLOURS, CATALOG
-
     entry = CATALOG.get(name)
     category = entry.category if entry is not None else "object"
     first = name.split()[0]

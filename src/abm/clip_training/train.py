@@ -41,11 +41,13 @@ import torch
 import torch.nn.functional as F
 
 from abm.clip_training.captions import GENERIC_PARENT, OBJECT_PARENT, class_prompts
-from abm.clip_training.data import SCENE, ClipDataset
+from abm.clip_training.data import OBJECT_CROP, SCENE, ClipDataset
 from abm.files import atomic_path, load_torch_data, write_text_atomic
-from abm.grounding.clip import maskclip_head, run_encoder_layer
+from abm.grounding.clip import TEXT_CONTEXT, maskclip_head, run_encoder_layer
 from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import DEFAULT_NEGATIVES
+from abm.grounding.tokenizer import char_vocab, tiny_tokenizer
+from abm.progress import Progress
 
 log = logging.getLogger("abm")
 
@@ -111,8 +113,6 @@ def bench_clip_config(arch: dict[str, Any], vocab_size: int) -> Any:
     (the text model pools at the first EOS).
     """
     from transformers import CLIPConfig
-
-    from abm.grounding.clip import TEXT_CONTEXT
 
     proj = int(arch["projection_dim"])
     text = dict(arch["text"], max_position_embeddings=TEXT_CONTEXT, projection_dim=proj, vocab_size=vocab_size,
@@ -289,8 +289,6 @@ def new_model(config: ClipTrainConfig) -> tuple[Any, Any]:
     """A freshly initialised ``(CLIPModel, tokenizer)`` (seeded)."""
     from transformers import CLIPModel
 
-    from abm.grounding.tokenizer import tiny_tokenizer
-
     tokenizer = tiny_tokenizer()
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
@@ -325,8 +323,6 @@ def train_step(model: Any, tokenizer: Any, batch: dict[str, Any], vocab_prompts:
 
 def save_model(model: Any, tokenizer: Any, out: Path, mean: Sequence[float], std: Sequence[float]) -> None:
     """Write the transformers folder :func:`abm.grounding.clip.load_clip` reads."""
-    from abm.grounding.tokenizer import char_vocab
-
     out.mkdir(parents=True, exist_ok=True)
     model.save_pretrained(out)
     tokenizer.save_pretrained(out)
@@ -364,8 +360,6 @@ def train(data: ClipDataset, out: str | Path, config: ClipTrainConfig | None = N
     Raises:
         FileExistsError: ``out`` holds a checkpoint and ``resume`` is False.
     """
-    from abm.progress import Progress
-
     config = config or ClipTrainConfig()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -477,8 +471,6 @@ def zero_shot_accuracy(backbone: Any, data: ClipDataset, classes: Sequence[str] 
     feature over the object's pixels (the dense features the grounder uses). Returns overall and
     per-class accuracies.
     """
-    from abm.clip_training.data import OBJECT_CROP
-
     names = list(classes or data.class_names[:len(data.class_names) - 3])
     text = backbone.text_features(class_prompts(names)).cpu()
     lookup = {n: i for i, n in enumerate(names)}

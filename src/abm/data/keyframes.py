@@ -49,6 +49,7 @@ from abm.grounding.conditioning import (
     split_roles,
 )
 from abm.grounding.grounders import resolved_spec
+from abm.progress import Progress
 from abm.samples import action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
 
@@ -311,8 +312,6 @@ class KeyframeDataset(Dataset):
     def precompute(self, show_progress: bool = True) -> int:
         """Compute (in this process) and cache the missing grounding results and CLIP point features;
         returns how many keyframes were computed."""
-        from abm.progress import Progress
-
         todo = self.missing_cache_entries()
         if not todo:
             return 0

@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from abm.data.episode_store import EpisodeStore, load_episode, load_metadata, save_episode
+from abm.geometry.rotations import matrix_to_quat
 from abm.types import CameraFrame, Episode, KeyframeAction, Observation, Trajectory
 
 CODEBASE_VERSION = "v3.0"
@@ -203,8 +205,6 @@ def export_lerobot(data: str | os.PathLike, out: str | os.PathLike, frames: str 
     import pyarrow.parquet as pq
     from tqdm import tqdm
 
-    from abm.data.episode_store import EpisodeStore, load_episode
-
     data, out = Path(data), Path(out)
     if not data.is_dir():
         raise FileNotFoundError(f"--data {data} is not a folder of abm episodes")
@@ -280,7 +280,6 @@ def export_lerobot(data: str | os.PathLike, out: str | os.PathLike, frames: str 
                     containers[cam].mux(packet)
             stats[_image_key(cam)].add(rgb / 255.0, (0, 1, 2))
         poses = np.stack([o.gripper_pose for o in observations])
-        from abm.geometry.rotations import matrix_to_quat
 
         cols["observation.state"] = np.concatenate(
             [poses[:, :3, 3], matrix_to_quat(poses[:, :3, :3]),
@@ -361,8 +360,6 @@ def export_lerobot(data: str | os.PathLike, out: str | os.PathLike, frames: str 
 
 
 def _metadata(path: Path) -> dict[str, Any]:
-    from abm.data.episode_store import load_metadata
-
     return load_metadata(path)
 
 
@@ -528,8 +525,6 @@ def import_lerobot(dataset: str | os.PathLike, out: str | os.PathLike, progress:
 def _import_episodes(episodes, table: _Rows, videos: dict[str, _VideoFrames], out: Path, cameras: list[str],
                      dense: bool, fps: float, ds: Path, progress: bool) -> list[Path]:
     from tqdm import tqdm
-
-    from abm.data.episode_store import save_episode
 
     written = []
     for row in tqdm(episodes, desc="import", unit="ep", disable=not progress):

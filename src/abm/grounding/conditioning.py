@@ -24,6 +24,8 @@ from typing import Any
 import numpy as np
 
 from abm.geometry import PointCloud, Workspace, fuse_cameras
+from abm.grounding.grounders import make_grounder
+from abm.grounding.instruction import MultiStepInstructionError, default_parser
 from abm.types import Observation
 
 PLACEHOLDER = "X"
@@ -64,8 +66,6 @@ def split_roles(instruction: str, object_names: Mapping[int, str] | None = None,
         ValueError: no target can be identified, or the instruction asks for several skills
             (:class:`abm.grounding.instruction.MultiStepInstructionError`).
     """
-    from abm.grounding.instruction import MultiStepInstructionError, default_parser
-
     try:
         parsed = default_parser().parse(instruction)
         return parsed.targets, parsed.skill
@@ -96,8 +96,6 @@ def active_role(gripper_open: float, roles: int) -> int:
 
 def make_grounder_from_spec(spec: Mapping[str, Any]) -> Any:
     """Build a grounder (``abm.grounding.make_grounder``) from its JSON-compatible spec."""
-    from abm.grounding import make_grounder
-
     options = {k: v for k, v in spec.items() if k != "kind"}
     return make_grounder(spec.get("kind", "oracle"), **options)
 

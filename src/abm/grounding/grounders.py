@@ -27,9 +27,12 @@ import torch
 
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
+from abm.grounding.clip import DEFAULT_MODEL, DENSE_MODES, load_clip
+from abm.grounding.feature_cloud import lift_patch_features
 from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import MaskField, MaskFieldConfig, mask_field_from_features, negative_prompts
 from abm.grounding.proposals import ProposalConfig, object_proposals, with_base_points
+from abm.grounding.tracking import TrackingGrounder
 from abm.types import Observation
 
 GROUNDERS: tuple[str, ...] = ("oracle", "clip", "tracking")
@@ -170,15 +173,11 @@ class ClipGrounder:
         proposals: ProposalConfig | Mapping[str, Any] | None = None,
         scales: Sequence[int] | None = None,
     ) -> None:
-        from abm.grounding.clip import DENSE_MODES
-
         if dense_mode not in DENSE_MODES:
             raise ValueError(f"dense_mode must be one of {DENSE_MODES}, got {dense_mode!r}")
         if mode not in CLIP_MODES:
             raise ValueError(f"mode must be one of {CLIP_MODES}, got {mode!r}")
         if backbone is None:
-            from abm.grounding.clip import DEFAULT_MODEL, load_clip
-
             backbone = load_clip(model or DEFAULT_MODEL, device=device, allow_download=allow_download)
         self.backbone = backbone
         self.config = config or MaskFieldConfig()
@@ -241,8 +240,6 @@ class ClipGrounder:
 
     def point_features(self, observation: Observation, cloud: PointCloud) -> np.ndarray:
         """``(N, D)`` float32 unit-length CLIP feature of every point of ``cloud`` (the Feature Cloud)."""
-        from abm.grounding.feature_cloud import lift_patch_features
-
         _check_cloud(observation, cloud)
         patch = self.camera_patch_features(observation, cloud.camera_names)
         sizes = {n: (observation.camera(n).height, observation.camera(n).width) for n in cloud.camera_names}
@@ -472,8 +469,6 @@ def make_grounder(kind: str = "oracle", **kwargs: Any) -> Grounder:
             kwargs["config"] = MaskFieldConfig(**shortcuts)
         return ClipGrounder(**kwargs)
     if kind == "tracking":
-        from abm.grounding.tracking import TrackingGrounder
-
         inner = kwargs.pop("inner", {"kind": "oracle"})
         inner = dict(inner) if isinstance(inner, Mapping) else {"kind": str(inner)}
         return TrackingGrounder(make_grounder(inner.pop("kind", "oracle"), **inner), **kwargs)

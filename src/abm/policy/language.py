@@ -22,6 +22,8 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
+from abm.grounding.conditioning import make_grounder_from_spec
+
 _WORD = re.compile(r"[a-z0-9]+")
 
 
@@ -96,8 +98,6 @@ def make_language_encoder(spec: dict[str, Any]) -> LanguageEncoder:
     if kind == "hash":
         return HashLanguageEncoder(int(spec.get("dim", 512)), int(spec.get("tokens", 77)), int(spec.get("seed", 0)))
     if kind == "clip":
-        from abm.grounding.conditioning import make_grounder_from_spec
-
         grounder = make_grounder_from_spec({**spec, "kind": "clip"})
         return ClipLanguageEncoder(grounder, spec)
     raise ValueError(f"unknown language encoder kind {kind!r}; use 'hash' or 'clip'")

@@ -12,7 +12,6 @@ from abm.robot.calibration import BoardSpec, calibrate_from_recording, load_cali
 from abm.robot.devices import record_observations
 from abm.robot.limits import LimitError
 from abm.robot.run import NoTargetError, RobotConfig, run_robot
-from abm.sim.env import TaskEnv, run_expert
 
 
 def parse_board(text: str):
@@ -38,6 +37,8 @@ def calibrate(args: argparse.Namespace) -> int:
 
 
 def run_record(args: argparse.Namespace) -> int:
+    from abm.sim.env import TaskEnv, run_expert  # mujoco (optional `sim` extra): `abm run`/`calibrate` need none
+
     with TaskEnv(args.task, args.split, args.seed, resolution=args.resolution) as env:
         episode = run_expert(env)
     record_observations([obs for obs, _ in episode.steps], args.out, episode.object_names, episode.instruction)
