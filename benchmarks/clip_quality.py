@@ -6,7 +6,7 @@ Usage: python benchmarks/clip_quality.py --clip-model runs/clip_bench [--seeds 5
                                          [--figure OUT.png]
 
 * **Zero-shot classification**: every object crop of the held-out renders (``DIR``, default
-  ``MODEL/data_heldout``; rendered with ``abm.grounding.clip_data`` and other seeds than the training set
+  ``MODEL/data_heldout``; rendered with ``abm.clip_training.data`` and other seeds than the training set
   when missing) is classified by comparing its CLS image embedding with ``"a photo of a X"`` for every
   catalog object X (top-1), and by the mean MaskCLIP patch feature over the object's pixels ("dense").
   Also per object group: objects of some task's seen split, of an unseen split only, of a compositional
@@ -81,8 +81,8 @@ def object_groups() -> dict[str, str]:
 
 
 def zero_shot(backbones: dict[str, Any], heldout: Path) -> list[dict[str, Any]]:
-    from abm.grounding.clip_data import load_dataset
-    from abm.grounding.clip_train import zero_shot_accuracy
+    from abm.clip_training.data import load_dataset
+    from abm.clip_training.train import zero_shot_accuracy
 
     data = load_dataset(heldout)
     groups = object_groups()
@@ -307,7 +307,7 @@ def main() -> None:
     if not args.skip_zero_shot:
         heldout = args.heldout or Path(args.clip_model) / "data_heldout"
         if not (heldout / "dataset.json").is_file() or not list(heldout.glob("shard_*.npz")):
-            from abm.grounding.clip_data import build_dataset
+            from abm.clip_training.data import build_dataset
 
             build_dataset(heldout, args.heldout_shards, base_seed=1, workers=2)
         rows = zero_shot(backbones, heldout)

@@ -23,11 +23,11 @@ from collections import defaultdict
 
 import torch
 
+from abm.cli.train import parse_override
 from abm.data.keyframes import KeyframeDataset, StepSampler, collate, worker_init
 from abm.machine import describe_machine
 from abm.policy import KeyframePolicy, PolicyConfig
 from abm.policy.language import HashLanguageEncoder
-from abm.train.commands import parse_override
 from abm.train.loop import make_optimizer
 from abm.train.synthetic import synthetic_episodes
 

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from abm.cli import build_parser, main
+from abm.cli import build_parser, command_function, main
 
 
 def all_parsers(parser: argparse.ArgumentParser, name: str = "abm") -> list[tuple[str, argparse.ArgumentParser]]:
@@ -28,6 +28,16 @@ def test_the_walk_finds_every_command() -> None:
     names = {name for name, _ in PARSERS}
     assert {"abm train", "abm eval", "abm data generate", "abm clip train", "abm ground", "abm run",
             "abm view", "abm quickstart", "abm export"} <= names
+
+
+def test_every_command_names_a_function_that_exists() -> None:
+    """Parsers name their command as ``"abm.cli.commands.<group>:<function>"`` (imported when it runs)."""
+    named = [(name, parser._defaults["func"]) for name, parser in PARSERS if "func" in parser._defaults]
+    assert len(named) > 15
+    for name, func in named:
+        assert callable(command_function(func)), name
+        if isinstance(func, str):
+            assert func.startswith("abm.cli.commands."), (name, func)
 
 
 @pytest.mark.parametrize("name,parser", PARSERS, ids=[n for n, _ in PARSERS])

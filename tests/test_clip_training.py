@@ -11,12 +11,12 @@ import torch
 
 pytest.importorskip("transformers")
 
-from abm.grounding.clip_captions import (  # noqa: E402
+from abm.clip_training.captions import (  # noqa: E402
     BACKGROUND_CLASSES,
     caption,
     class_names,
 )
-from abm.grounding.clip_data import (  # noqa: E402
+from abm.clip_training.data import (  # noqa: E402
     BACKGROUND_CROP,
     OBJECT_CROP,
     SCENE,
@@ -25,9 +25,9 @@ from abm.grounding.clip_data import (  # noqa: E402
     render_world,
     square_crop_box,
 )
-from abm.grounding.clip_train import (  # noqa: E402
+from abm.clip_training.train import (  # noqa: E402
     CHECKPOINT,
-    TrainConfig,
+    ClipTrainConfig,
     contrastive_loss,
     dense_vocabulary,
     encode_images,
@@ -72,7 +72,7 @@ def trained(tmp_path_factory):
     """A tiny CLIP trained for 60 steps on the toy set (shared by the tests below)."""
     out = tmp_path_factory.mktemp("clip") / "model"
     data = toy_dataset()
-    config = TrainConfig(steps=60, batch_size=12, lr=2e-3, warmup_steps=5, log_every=10, checkpoint_every=30,
+    config = ClipTrainConfig(steps=60, batch_size=12, lr=2e-3, warmup_steps=5, log_every=10, checkpoint_every=30,
                          threads=1, arch=TINY_ARCH)  # one thread: immune to a busy machine
     summary = train(data, out, config, progress=False)
     return out, data, config, summary
@@ -187,8 +187,8 @@ def test_training_lowers_the_contrastive_and_dense_losses(trained):
 
 
 def test_saved_folder_round_trips_through_load_clip(trained):
+    from abm.clip_training.train import new_model
     from abm.grounding.clip import load_clip
-    from abm.grounding.clip_train import new_model
 
     out, data, config, summary = trained
     for name in ("config.json", "model.safetensors", "preprocessor_config.json", "vocab.json", "merges.txt"):
@@ -238,18 +238,18 @@ def test_resume_continues_and_a_new_run_refuses_to_overwrite(trained, tmp_path):
     copy.mkdir()
     for f in out.iterdir():
         (copy / f.name).write_bytes(f.read_bytes())
-    more = TrainConfig(**{**config.__dict__, "steps": config.steps + 10})
+    more = ClipTrainConfig(**{**config.__dict__, "steps": config.steps + 10})
     summary = train(data, copy, more, resume=True, progress=False)
     assert summary["steps"] == config.steps + 10
     assert len((copy / "train_log.csv").read_text().splitlines()) == 1 + (config.steps + 10) // config.log_every
 
 
 def test_cli_registers_clip_train():
-    from abm.cli import build_parser
-    from abm.grounding.clip_commands import run_train
+    from abm.cli import build_parser, command_function
+    from abm.cli.commands.clip import run_train
 
     args = build_parser().parse_args(["clip", "train", "--out", "x", "--steps", "5", "--resume"])
-    assert args.func is run_train and args.steps == 5 and args.resume and args.shards > 0
+    assert command_function(args.func) is run_train and args.steps == 5 and args.resume and args.shards > 0
 
 
 def test_cli_refuses_to_overwrite_a_run(tmp_path, capsys):

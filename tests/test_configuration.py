@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
+from abm.cli.quickstart import QuickstartConfig
 from abm.configuration import add_config_arguments, attribute_docs, config_from_args
 from abm.evaluation.runner import EvalSettings
 from abm.policy.config import PolicyConfig
-from abm.quickstart import QuickstartConfig
 from abm.train.config import TrainConfig
 
 
@@ -98,7 +98,7 @@ def test_abm_train_flags_build_the_train_config(tmp_path) -> None:
 
 def test_policy_flags_are_overrides_of_the_preset(tmp_path, monkeypatch) -> None:
     """Only the policy flags given reach policy_overrides (the preset supplies the rest)."""
-    import abm.train.loop as loop
+    import abm.cli.commands.train as loop  # the command's `train` (abm.train.loop.train)
     from abm.cli import main
 
     seen = {}
@@ -114,9 +114,9 @@ def test_policy_flags_are_overrides_of_the_preset(tmp_path, monkeypatch) -> None
 def test_train_config_file_with_flags_overriding_it(tmp_path, monkeypatch, capsys) -> None:
     """`abm train --config RECIPE`: the file's values (policy ones under `policy:`) are the defaults, flags win,
     the file can supply required options, and the shipped recipes load (the quickstart reads its own)."""
-    import abm.train.loop as loop
+    import abm.cli.commands.train as loop  # the command's `train` (abm.train.loop.train)
     from abm.cli import main
-    from abm.quickstart import QuickstartConfig
+    from abm.cli.quickstart import QuickstartConfig
     from abm.train.config import TrainConfig
 
     seen = {}
@@ -152,7 +152,7 @@ def test_train_config_file_with_flags_overriding_it(tmp_path, monkeypatch, capsy
 
 def test_every_run_writes_the_recipe_that_retrains_it(tmp_path, monkeypatch) -> None:
     """RUN/recipe.yaml, given back to `abm train --config`, yields the same options (only --out differs)."""
-    import abm.train.loop as loop
+    import abm.cli.commands.train as loop  # the command's `train` (abm.train.loop.train)
     from abm.cli import main
 
     flags = ["train", "--method", "rvt", "--synthetic", "1", "--camera-resolution", "32", "--steps", "1",

@@ -262,6 +262,7 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
     import functools
     import shutil
 
+    import abm.cli.commands.evaluate as command
     from abm.cli import main as cli_main
     from abm.evaluation import runner
     from abm.train import TrainConfig, train
@@ -278,7 +279,7 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
                               job.episode == 0 or job.split == "seen", checkpoint=job.checkpoint,
                               settings=job.settings)
 
-    monkeypatch.setattr(runner, "evaluate", functools.partial(runner.evaluate, runner=fake, progress=False))
+    monkeypatch.setattr(command, "evaluate", functools.partial(runner.evaluate, runner=fake, progress=False))
     assert cli_main(["eval", "--run", str(run), "--episodes", "2", "--repeats", "1", "--workers", "1"]) == 0
     out = capsys.readouterr()
     assert "tasks seen: pick_block; unseen: pick_block (trained on: pick_block" in caplog.text

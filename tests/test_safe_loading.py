@@ -59,7 +59,7 @@ def test_policy_checkpoint(tmp_path, marker) -> None:
 
 
 def test_clip_training_checkpoint(tmp_path, marker, capsys) -> None:
-    from abm.grounding.clip_train import CHECKPOINT, load_training_state
+    from abm.clip_training.train import CHECKPOINT, load_training_state
 
     bad = tmp_path / CHECKPOINT
     torch.save({"model": {}, "history": [_Payload(marker)]}, bad)
@@ -149,7 +149,7 @@ def test_camera_recording(tmp_path, marker) -> None:
 
 
 def test_clip_dataset_shard(tmp_path, marker) -> None:
-    from abm.grounding.clip_data import META, load_dataset, shard_path
+    from abm.clip_training.data import META, load_dataset, shard_path
 
     (tmp_path / META).write_text(json.dumps({"classes": ["a"]}))
     np.savez(shard_path(tmp_path, 0), images=np.array([_Payload(marker)], dtype=object))

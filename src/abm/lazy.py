@@ -1,5 +1,5 @@
 """Lazy package exports: ``from abm.render import OrthographicRenderer`` works as before, but importing the
-package (which every ``abm.X.commands`` module does) no longer imports torch, so ``abm --help`` stays fast.
+package (which the parsers in ``abm.cli`` do) no longer imports torch, so ``abm --help`` stays fast.
 
 Usage in a package's ``__init__.py``::
 

@@ -1,19 +1,9 @@
-"""``abm zoo``: the committed model zoo (``models/``) — list it, verify it, and see the paper's finding without
-training.
-
-* ``abm zoo list`` prints the index (``models/index.json``, written by ``benchmarks/paper_tables_report.py``)
-  and checks every file against its recorded sha256;
-* ``abm zoo eval`` evaluates the zoo's abm and rvt models on seen and unseen objects of a few tasks through
-  the full pipeline (simulator, grounding, policy, executor) and prints one table: about 10 minutes on 2 CPU
-  cores with the defaults.
-
-The abm model is the CLIP-grounded one (``abm_clip``) when it and the benchmark CLIP are in the zoo, else
-the oracle-grounded one (``abm_oracle``); rvt is ``rvt_clip``.
+"""The committed model zoo (``models/``): its index (``models/index.json``), the sha256 checks of its files and
+the choice of the entries ``abm zoo eval`` compares. The ``abm zoo`` command is :mod:`abm.cli.zoo`.
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 from pathlib import Path
@@ -81,69 +71,3 @@ def pick(entries: list[dict[str, Any]], names: tuple[str, ...]) -> dict[str, Any
                 continue
         return e
     return None
-
-
-def _list(args: argparse.Namespace) -> int:
-    entries = read_index(args.zoo)
-    print(f"{'name':20s} {'method':18s} {'grounder':18s} {'steps':>6s} {'MB':>6s}  check")
-    bad = 0
-    for e in entries:
-        try:
-            verify(args.zoo, e)
-            status = "ok"
-        except ZooError as err:
-            status, bad = f"FAILED: {err}", bad + 1
-        print(f"{e['name']:20s} {e.get('method', '?'):18s} {str(e.get('grounder', '–')):18s} "
-              f"{str(e.get('steps', '–')):>6s} {e.get('size_bytes', 0) / 1e6:6.1f}  {status}")
-    if bad:
-        raise ZooError(f"{bad} zoo file(s) failed verification")
-    return 0
-
-
-def _eval(args: argparse.Namespace) -> int:
-    from abm.evaluation.results import markdown_table  # heavy (torch, mujoco): only when evaluating
-    from abm.evaluation.runner import EvalSettings, evaluate
-
-    entries = read_index(args.zoo)
-    chosen = [e for e in (pick(entries, ABM_ENTRIES), pick(entries, RVT_ENTRIES)) if e]
-    if not chosen:
-        raise ZooError(f"{args.zoo} holds neither an abm ({', '.join(ABM_ENTRIES)}) nor an rvt model "
-                       f"({', '.join(RVT_ENTRIES)})")
-    runs = [verify(args.zoo, e) for e in chosen]
-    clip = next((e for e in entries if e["name"] == "benchmark-clip"), None)
-    if clip is not None:
-        verify(args.zoo, clip)
-    labels = {str(r): e["name"] for r, e in zip(runs, chosen, strict=True)}
-    settings = EvalSettings(max_steps=args.max_steps)
-    rates = []
-    for split in ("seen", "unseen"):
-        print(f"abm zoo eval: {', '.join(labels.values())} on {split} objects of {', '.join(args.tasks)} "
-              f"({args.episodes} episodes each)")
-        rates += evaluate(runs, args.tasks, split, args.out / split, args.episodes, 1, args.workers, settings,
-                          labels=labels)
-    table = markdown_table(rates)
-    (args.out / "results.md").write_text(table + "\n")
-    print(table)
-    print(f"results: {args.out / 'results.md'}; the full tables: docs/results/paper_tables.md")
-    return 0
-
-
-def register(subparsers: argparse._SubParsersAction) -> None:
-    from abm.configuration import int_range
-
-    p = subparsers.add_parser("zoo", help="the committed model zoo: list and verify it, or evaluate its models",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = p.add_subparsers(dest="zoo_command", metavar="ZOO_COMMAND", required=True)
-    lst = sub.add_parser("list", help="print the zoo's models and verify their sha256")
-    lst.add_argument("--zoo", type=Path, default=DEFAULT_ZOO, help=f"zoo folder (default {DEFAULT_ZOO})")
-    lst.set_defaults(func=_list)
-    ev = sub.add_parser("eval", help="evaluate the zoo's abm and rvt models on seen and unseen objects (~10 min)")
-    ev.add_argument("--zoo", type=Path, default=DEFAULT_ZOO, help=f"zoo folder (default {DEFAULT_ZOO})")
-    ev.add_argument("--tasks", nargs="+", default=["pick_block", "close_jar"],
-                    help="tasks to evaluate (default: pick_block close_jar)")
-    ev.add_argument("--episodes", type=int_range(1, 10_000), default=5,
-                    help="seeded episodes per task and split (default 5)")
-    ev.add_argument("--workers", type=int_range(1, 256), default=2, help="parallel rollout processes (default 2)")
-    ev.add_argument("--max-steps", type=int_range(1, 100), default=8, help="keyframes per episode (default 8)")
-    ev.add_argument("--out", type=Path, default=Path("out/zoo"), help="output folder (default out/zoo)")
-    ev.set_defaults(func=_eval)

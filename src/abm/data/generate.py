@@ -17,6 +17,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from abm.configuration import CAMERA_RESOLUTION
+from abm.data.episode_store import check_episodes, find_episode_files, load_metadata, read_info, save_episode
+from abm.progress import Progress
+from abm.ray_pool import RayActorPool
+from abm.sim.tasks import TASKS, get_task
 from abm.workers import die_with_parent
 
 if TYPE_CHECKING:
@@ -32,16 +36,12 @@ class EvaluationOnlyTaskError(ValueError):
 
 def trainable_tasks() -> list[str]:
     """Names of the tasks demonstrations can be generated for (not the evaluation-only ones), sorted."""
-    from abm.sim.tasks import TASKS
-
     return sorted(name for name, cls in TASKS.items() if not cls.evaluation_only)
 
 
 def expand_tasks(spec: str) -> list[str]:
     """``"all"`` -> every trainable task; ``"a,b"`` -> ``["a", "b"]``. Raises ``KeyError`` for unknown
     names and :class:`EvaluationOnlyTaskError` for evaluation-only tasks."""
-    from abm.sim.tasks import TASKS
-
     if spec.strip() == ALL_TASKS:
         return trainable_tasks()
     names = [n.strip() for n in spec.split(",") if n.strip()]
@@ -56,8 +56,6 @@ def expand_tasks(spec: str) -> list[str]:
 
 def check_trainable(task: str) -> None:
     """Raise :class:`EvaluationOnlyTaskError` if ``task`` is evaluation-only."""
-    from abm.sim.tasks import TASKS
-
     if TASKS[task].evaluation_only:
         raise EvaluationOnlyTaskError(
             f"task {task!r} is evaluation-only (compositional: a trained skill on another task's objects); "
@@ -96,8 +94,7 @@ def _failed_marker(path: Path) -> Path:
 def generate_one(task: str, split: str, seed: int, out: str, resolution: int,
                  splits_path: str | None, dense_fps: float | None = None) -> tuple[int, bool, str]:
     """Run the expert for one seed and save it if successful. Returns ``(seed, success, note)``."""
-    from abm.data.episode_store import save_episode
-    from abm.sim.env import make_env, run_expert
+    from abm.sim.env import make_env, run_expert  # mujoco (optional `sim` extra)
 
     path = episode_path(Path(out), task, split, seed)
     with make_env(task, split, seed, resolution=resolution, splits_path=splits_path) as env:
@@ -145,8 +142,6 @@ def _remove_corrupt_episodes(out: Path, folder: Path) -> set[int]:
     import logging
     import re
 
-    from abm.data.episode_store import check_episodes, find_episode_files
-
     if not folder.is_dir():
         return set()
     for path, reason in check_episodes(find_episode_files(folder), out):
@@ -159,8 +154,6 @@ def _remove_corrupt_episodes(out: Path, folder: Path) -> set[int]:
 def _check_resume_settings(folder: Path, resolution: int, dense_fps: float | None = None) -> None:
     """Refuse to add episodes of another camera resolution (or dense rate) to a folder (they could not be
     trained or exported together)."""
-    from abm.data.episode_store import find_episode_files, load_metadata, read_info
-
     existing = find_episode_files(folder) if folder.is_dir() else []
     if not existing:
         return
@@ -185,9 +178,7 @@ def generate(task: str, split: str, episodes: int, out: str | Path, workers: int
 
     ``dense_fps`` also records the full trajectory at that control rate; ``backend`` ``"ray"`` runs the
     workers as Ray actors (:mod:`abm.ray_pool`) on the cluster at ``ray_address`` (or a local Ray)."""
-    from abm.progress import Progress
-    from abm.sim.env import make_env
-    from abm.sim.tasks import get_task
+    from abm.sim.env import make_env  # mujoco (optional `sim` extra): `abm data` commands run without it
 
     get_task(task)  # unknown task -> KeyError
     check_trainable(task)
@@ -259,8 +250,6 @@ def _pool(backend: str, workers: int, ctx: BaseContext, ray_address: str | None
           ) -> ProcessPoolExecutor | RayActorPool:
     """The executor of the generation workers: the local process pool or Ray actors."""
     if backend == "ray":
-        from abm.ray_pool import RayActorPool
-
         return RayActorPool(max(1, workers), address=ray_address)
     if backend != "local":
         raise ValueError(f"unknown backend {backend!r}; choose local or ray")

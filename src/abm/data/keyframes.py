@@ -50,6 +50,7 @@ from abm.grounding.conditioning import (
 )
 from abm.grounding.config import GrounderConfig, OracleGrounderConfig, as_grounder_config, build_grounder
 from abm.grounding.grounders import Grounder, resolved_spec
+from abm.progress import Progress
 from abm.samples import Sample, action_targets, collate, scene_sample
 from abm.types import Episode, KeyframeAction, Observation
 
@@ -338,8 +339,6 @@ class KeyframeDataset(Dataset[Sample]):
     def precompute(self, show_progress: bool = True) -> int:
         """Compute (in this process) and cache the missing grounding results and CLIP point features;
         returns how many keyframes were computed."""
-        from abm.progress import Progress
-
         todo = self.missing_cache_entries()
         if not todo:
             return 0

@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 from numpy.typing import DTypeLike, NDArray
 
+from abm.data.episode_store import EpisodeStore, load_episode, load_metadata, save_episode
+from abm.geometry.rotations import matrix_to_quat
 from abm.types import CameraFrame, Episode, KeyframeAction, Observation, Trajectory
 
 if TYPE_CHECKING:  # pyarrow is imported where datasets are written or read
@@ -211,8 +213,6 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
     import pyarrow.parquet as pq
     from tqdm import tqdm
 
-    from abm.data.episode_store import EpisodeStore, load_episode
-
     data, out = Path(data), Path(out)
     if not data.is_dir():
         raise FileNotFoundError(f"--data {data} is not a folder of abm episodes")
@@ -292,7 +292,6 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
                     containers[cam].mux(packet)
             stats[_image_key(cam)].add(rgb / 255.0, (0, 1, 2))
         poses = np.stack([o.gripper_pose for o in observations])
-        from abm.geometry.rotations import matrix_to_quat
 
         cols["observation.state"] = np.concatenate(
             [poses[:, :3, 3], matrix_to_quat(poses[:, :3, :3]),
@@ -374,8 +373,6 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
 
 
 def _metadata(path: Path) -> dict[str, Any]:
-    from abm.data.episode_store import load_metadata
-
     return load_metadata(path)
 
 
@@ -544,8 +541,6 @@ def import_lerobot(dataset: str | os.PathLike[str], out: str | os.PathLike[str],
 def _import_episodes(episodes: list[dict[str, Any]], table: _Rows, videos: dict[str, _VideoFrames], out: Path,
                      cameras: list[str], dense: bool, fps: float, ds: Path, progress: bool) -> list[Path]:
     from tqdm import tqdm
-
-    from abm.data.episode_store import save_episode
 
     written: list[Path] = []
     for row in tqdm(episodes, desc="import", unit="ep", disable=not progress):

@@ -15,12 +15,13 @@ import time
 import traceback
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
+from abm.evaluation.html_report import write_html_report
+from abm.evaluation.plots import loss_curves, read_log, success_chart
 from abm.evaluation.results import (
     EpisodeOutcome,
     OutcomeLog,
@@ -34,7 +35,17 @@ from abm.evaluation.results import (
     write_csv,
     write_json,
 )
+from abm.evaluation.settings import EvalSettings
 from abm.files import write_text_atomic
+from abm.geometry import project_to_camera
+from abm.grounding.conditioning import split_roles
+from abm.grounding.grounders import override_spec
+from abm.grounding.visualize import hstack, label, overlay_views, upscale, vstack
+from abm.policy import KeyframePolicy
+from abm.policy.checkpoint import load_checkpoint, resolve_checkpoint
+from abm.progress import Progress
+from abm.ray_pool import RayActorPool
+from abm.workers import die_with_parent
 
 
 @dataclass(frozen=True)
@@ -57,49 +68,10 @@ class EvalJob:
         return (self.method, self.task, self.split, self.repeat, self.episode, self.checkpoint, self.settings)
 
 
-@dataclass(frozen=True)
-class EvalSettings:
-    """Options shared by every rollout of an evaluation (the ``abm eval`` flags besides the run selection).
-
-    Attributes:
-        device: torch device of the policy (cpu, cuda).
-        grounder: override the grounder stored in the checkpoint (clip, oracle; tracking = ground once per
-            episode with the stored grounder, then track the target's points).
-        resolution: camera resolution in pixels.
-        max_steps: keyframes before an episode counts as failed.
-        splits_path: object split file replacing the built-in one.
-        clip_model: CLIP weights (hub name or folder) of the ``clip`` grounder or of ``tracking``'s first
-            step; needs ``grounder`` clip or tracking ('tiny' and 'random:ARCH' are random weights, for tests only).
-    """
-
-    device: str = "cpu"
-    grounder: str | None = field(default=None, metadata={"choices": ["clip", "oracle", "tracking"]})
-    resolution: int = CAMERA_RESOLUTION
-    max_steps: int = MAX_KEYFRAMES
-    splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
-    clip_model: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.grounder is None and self.clip_model is None:
-            return  # nothing to check (and no torch import for `abm --help`)
-        from abm.grounding.grounders import override_spec
-
-        override_spec(self.grounder, self.clip_model)  # a clear error for --clip-model without a CLIP grounder
-
-    def signature(self) -> str:
-        """Compact JSON of the settings that change outcomes (recorded with every outcome; ``clip_model``
-        only when set, so outcomes recorded before it existed still match)."""
-        fields = {k: v for k, v in asdict(self).items() if k != "device" and not (k == "clip_model" and v is None)}
-        return json.dumps(fields, sort_keys=True)
-
-
 _POLICIES: dict[tuple[str, str | None, str | None, str], Any] = {}  # per-process cache of loaded policies
 
 
 def _load_policy(run: str, settings: EvalSettings) -> Any:
-    from abm.grounding.grounders import override_spec
-    from abm.policy import KeyframePolicy
-
     key = (run, settings.grounder, settings.clip_model, settings.device)
     if key not in _POLICIES:
         grounder = override_spec(settings.grounder, settings.clip_model)
@@ -109,7 +81,7 @@ def _load_policy(run: str, settings: EvalSettings) -> Any:
 
 def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
     """Roll out one episode; never raises (a crash becomes a failed outcome with its error text)."""
-    from abm.sim.env import make_env, run_policy
+    from abm.sim.env import make_env, run_policy  # mujoco (optional `sim` extra)
 
     start = time.perf_counter()
     steps = 0
@@ -151,8 +123,6 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
 
 
 def _worker_init() -> None:
-    from abm.workers import die_with_parent
-
     die_with_parent()  # before the slow torch import, so there is no window to outlive the command
     import torch
 
@@ -161,8 +131,6 @@ def _worker_init() -> None:
 
 def method_labels(runs: Sequence[str | Path]) -> dict[str, str]:
     """Table labels of runs: the policy variant, or ``variant (run folder)`` when variants repeat."""
-    from abm.policy.checkpoint import load_checkpoint
-
     variants = {str(r): load_checkpoint(r, map_location="cpu")["policy_config"]["variant"] for r in runs}
     counts: dict[str, int] = {}
     for v in variants.values():
@@ -228,8 +196,6 @@ def evaluate(
         success rates of every (method, task) on ``split``, from the outcomes of exactly the planned
         rollouts (same checkpoints, same settings); older lines of the log are kept but not reported.
     """
-    from abm.progress import Progress
-
     settings = settings or EvalSettings()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -297,16 +263,12 @@ def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[Eva
 
 def write_training_figure(runs: dict[str, str], path: Path) -> Path | None:
     """Loss curves of the evaluated runs (label -> run folder) that have a ``log.csv``; ``None`` if none has."""
-    from abm.evaluation.plots import loss_curves, read_log
-
     logs = {label: rows for label, run in runs.items() if (rows := read_log(run))}
     return loss_curves(logs, path) if logs else None
 
 
 def _pool(backend: str, workers: int, ray_address: str | None) -> Any:
     if backend == "ray":
-        from abm.ray_pool import RayActorPool
-
         return RayActorPool(workers, address=ray_address)
     return ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init)
 
@@ -314,8 +276,6 @@ def _pool(backend: str, workers: int, ray_address: str | None) -> Any:
 def checkpoint_of(run: str | Path) -> str:
     """The checkpoint file a run folder (or checkpoint path) resolves to; ``str(run)`` if none exists."""
     try:
-        from abm.policy.checkpoint import resolve_checkpoint
-
         return str(resolve_checkpoint(run).resolve())
     except (FileNotFoundError, ValueError):
         return str(run)
@@ -324,9 +284,6 @@ def checkpoint_of(run: str | Path) -> str:
 def write_reports(outcomes: Sequence[EpisodeOutcome], out_dir: Path) -> list[SuccessRate]:
     """Aggregate outcomes into ``out_dir``/results.json, results.csv, results.md, success.png (bar chart) and
     report.html (the per-episode view: failure reasons and rollout GIFs from ``out_dir``/gifs)."""
-    from abm.evaluation.html_report import write_html_report
-    from abm.evaluation.plots import success_chart
-
     rates = aggregate(outcomes)
     write_tables(rates, out_dir)
     if rates:
@@ -361,8 +318,6 @@ def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seco
     """Write a GIF of one camera over the rollout, each frame marked with the keyframe predicted from it and
     captioned with the instruction, the step (``step 2/5``) and, on the last frame, ``result``."""
     from PIL import Image, ImageDraw
-
-    from abm.geometry import project_to_camera
 
     frames = []
     for k, (obs, action) in enumerate(episode.steps):
@@ -403,8 +358,6 @@ def _caption(img: Any, instruction: str, step: str, result: str) -> Any:
 
 def _roles(episode: Any) -> int:
     """How many sub-goals the episode's instruction has (1 when it cannot be split)."""
-    from abm.grounding.conditioning import split_roles
-
     try:
         return len(split_roles(episode.instruction, episode.object_names)[0])
     except ValueError:
@@ -424,8 +377,6 @@ def save_views_figure(explanations: Sequence[Any], path: str | Path, max_side: i
     ``explanations`` are :class:`abm.policy.PolicyExplanation` s; views are enlarged to about ``max_side`` px.
     """
     from PIL import Image
-
-    from abm.grounding.visualize import hstack, label, overlay_views, upscale, vstack
 
     rows = []
     for k, seen in enumerate(explanations):

@@ -33,6 +33,7 @@ import torch
 import torch.nn.functional as F
 
 from abm.configuration import GPU_CLIP_MODEL, TEST_ONLY_CLIP
+from abm.grounding.tokenizer import tiny_tokenizer
 
 DEFAULT_MODEL = GPU_CLIP_MODEL  # the paper's (abm.configuration holds the defaults shared by commands)
 TEXT_CONTEXT = 77
@@ -382,8 +383,6 @@ def random_clip(
     cost of the real models and are meant for speed measurements. Deterministic for a given seed.
     """
     from transformers import CLIPModel
-
-    from abm.grounding.tokenizer import tiny_tokenizer
 
     tokenizer = tiny_tokenizer()
     vocab_size = len(tokenizer)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from abm.geometry import PointCloud, Workspace, fuse_cameras
+from abm.grounding.instruction import MultiStepInstructionError, default_parser
 from abm.types import Observation
 
 PLACEHOLDER = "X"
@@ -64,8 +65,6 @@ def split_roles(instruction: str, object_names: Mapping[int, str] | None = None,
         ValueError: no target can be identified, or the instruction asks for several skills
             (:class:`abm.grounding.instruction.MultiStepInstructionError`).
     """
-    from abm.grounding.instruction import MultiStepInstructionError, default_parser
-
     try:
         parsed = default_parser().parse(instruction)
         return parsed.targets, parsed.skill
@@ -92,13 +91,6 @@ def active_role(gripper_open: float, roles: int) -> int:
     """Index of the active sub-goal: the first (grasp X) while the gripper is open (``>= 0.5``), the second
     (place in Y) once it has closed; always 0 for one-target instructions."""
     return 0 if roles < 2 or float(gripper_open) >= 0.5 else 1
-
-
-def make_grounder_from_spec(spec: Any) -> Any:
-    """Build a grounder from its typed configuration or its dict form (:func:`abm.grounding.config.build_grounder`)."""
-    from abm.grounding.config import build_grounder
-
-    return build_grounder(spec)
 
 
 def ground_points(grounder: Any, observation: Observation, cloud: PointCloud, target: str,

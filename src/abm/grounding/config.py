@@ -289,11 +289,11 @@ def build_grounder(config: GrounderConfig | Mapping[str, Any] | None, **runtime:
     if isinstance(config, OracleGrounderConfig):
         if runtime:
             raise ValueError(f"the oracle grounder takes no options, got {sorted(runtime)}")
-        from abm.grounding.grounders import OracleGrounder
+        from abm.grounding.grounders import OracleGrounder  # grounders.py imports its defaults from this module
 
         return OracleGrounder()
     if isinstance(config, ClipGrounderConfig):
-        from abm.grounding.grounders import ClipGrounder
+        from abm.grounding.grounders import ClipGrounder  # grounders.py imports its defaults from this module
 
         kwargs: dict[str, Any] = dict(
             model=config.model, device=config.device, config=config.mask_field_config(), cache=config.cache,
@@ -301,7 +301,7 @@ def build_grounder(config: GrounderConfig | Mapping[str, Any] | None, **runtime:
             allow_download=config.allow_download, dense_mode=config.dense_mode, mode=config.mode,
             proposals=config.proposals, scales=config.scales)
         return ClipGrounder(**{**kwargs, **runtime})
-    from abm.grounding.tracking import TrackingGrounder
+    from abm.grounding.tracking import TrackingGrounder  # tracking.py imports its defaults from this module
 
     return TrackingGrounder(build_grounder(config.inner, **runtime), radius=config.radius, min_kept=config.min_kept,
                             closed_below=config.closed_below, color_tol=config.color_tol,

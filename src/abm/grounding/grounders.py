@@ -27,6 +27,7 @@ import torch
 
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
+from abm.grounding.clip import DEFAULT_MODEL, DENSE_MODES, load_clip
 from abm.grounding.config import (  # noqa: F401 - the defaults live with the typed configurations
     CLIP_MODES,
     DEFAULT_CLIP_MODE,
@@ -40,6 +41,7 @@ from abm.grounding.config import (  # noqa: F401 - the defaults live with the ty
     build_grounder,
     grounder_config_from_dict,
 )
+from abm.grounding.feature_cloud import lift_patch_features
 from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import MaskField, MaskFieldConfig, mask_field_from_features, negative_prompts
 from abm.grounding.proposals import ProposalConfig, object_proposals, with_base_points
@@ -176,15 +178,11 @@ class ClipGrounder:
         proposals: ProposalConfig | Mapping[str, Any] | None = None,
         scales: Sequence[int] | None = None,
     ) -> None:
-        from abm.grounding.clip import DENSE_MODES
-
         if dense_mode not in DENSE_MODES:
             raise ValueError(f"dense_mode must be one of {DENSE_MODES}, got {dense_mode!r}")
         if mode not in CLIP_MODES:
             raise ValueError(f"mode must be one of {CLIP_MODES}, got {mode!r}")
         if backbone is None:
-            from abm.grounding.clip import DEFAULT_MODEL, load_clip
-
             backbone = load_clip(model or DEFAULT_MODEL, device=device, allow_download=allow_download)
         self.backbone = backbone
         self.config = config or MaskFieldConfig()
@@ -247,8 +245,6 @@ class ClipGrounder:
 
     def point_features(self, observation: Observation, cloud: PointCloud) -> np.ndarray:
         """``(N, D)`` float32 unit-length CLIP feature of every point of ``cloud`` (the Feature Cloud)."""
-        from abm.grounding.feature_cloud import lift_patch_features
-
         _check_cloud(observation, cloud)
         patch = self.camera_patch_features(observation, cloud.camera_names)
         sizes = {n: (observation.camera(n).height, observation.camera(n).width) for n in cloud.camera_names}

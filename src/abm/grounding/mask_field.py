@@ -27,6 +27,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from abm.grounding.instruction import clip_prompt
+from abm.render import binarize_mask, center_pixel_mask, soft_mask
+
 NORMALIZATIONS: tuple[str, ...] = ("raw", "minmax", "softmax")
 DEFAULT_NEGATIVES: tuple[str, ...] = ("object", "things", "stuff", "texture")
 DEFAULT_NORMALIZATION = "softmax"
@@ -230,8 +233,6 @@ def mask_views(renderer: object, cloud: object, mask: np.ndarray | torch.Tensor 
     Returns:
         :class:`MaskViews` of ``(V, H, W)`` tensors.
     """
-    from abm.render import binarize_mask, center_pixel_mask, soft_mask
-
     if isinstance(mask, MaskField):
         mask = mask.mask
     xyz = getattr(cloud, "xyz", cloud)
@@ -251,6 +252,4 @@ def mask_views(renderer: object, cloud: object, mask: np.ndarray | torch.Tensor 
 
 def negative_prompts(negatives: Sequence[str]) -> list[str]:
     """Prompts for the negative phrases (same template as the target)."""
-    from abm.grounding.instruction import clip_prompt
-
     return [clip_prompt(n) for n in negatives]

@@ -23,6 +23,8 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from abm.grounding.config import ClipGrounderConfig, build_grounder
+
 _WORD = re.compile(r"[a-z0-9]+")
 
 
@@ -103,8 +105,6 @@ def make_language_encoder(spec: dict[str, Any]) -> LanguageEncoder:
     if kind == "hash":
         return HashLanguageEncoder(int(spec.get("dim", 512)), int(spec.get("tokens", 77)), int(spec.get("seed", 0)))
     if kind == "clip":
-        from abm.grounding.config import ClipGrounderConfig, build_grounder
-
         # the spec is the language encoder's file form: the CLIP grounder's options (whose text tower encodes)
         grounder = build_grounder(ClipGrounderConfig.from_dict(spec))
         return ClipLanguageEncoder(grounder, spec)

@@ -91,7 +91,7 @@ def mask_channel(spec: VariantSpec, rendered: torch.Tensor, threshold: float = 0
     """
     import torch
 
-    from abm.render import binarize_mask, center_pixel_mask, soft_mask
+    from abm.render import binarize_mask, center_pixel_mask, soft_mask  # torch: policy.config builds parsers
 
     if rendered.dim() != 5 or rendered.shape[2] != 2:
         raise ValueError(f"rendered mask channels must be (B, V, 2, H, W), got {tuple(rendered.shape)}")

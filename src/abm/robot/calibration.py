@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from abm.files import write_text_atomic
+from abm.files import load_yaml, write_text_atomic
+from abm.robot.devices import ReplayCamera
 
 
 @dataclass(frozen=True)
@@ -134,8 +135,6 @@ def save_calibration(path: str | Path, cameras: Mapping[str, Mapping[str, np.nda
 
 def load_calibration(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
     """Read and check a calibration file; ``ValueError`` names the camera and the problem."""
-    from abm.files import load_yaml
-
     data = load_yaml(path, "calibration file") or {}
     cameras = data.get("cameras") if isinstance(data, dict) else None
     if not isinstance(cameras, dict) or not cameras:
@@ -186,8 +185,6 @@ def calibrate_from_recording(folder: str | Path, camera: str, spec: BoardSpec | 
     Returns:
         ``(intrinsics, camera-to-base, stats)``; stats: views used, mean reprojection error (pixels).
     """
-    from abm.robot.devices import ReplayCamera
-
     spec = spec or BoardSpec()
     replay = ReplayCamera(folder)
     if camera not in replay.names:

@@ -27,7 +27,11 @@ from pathlib import Path
 from typing import Any
 
 from abm.configuration import count
+from abm.data.episode_store import save_episode
 from abm.geometry.rotations import canonical_gripper_quat, matrix_to_quat
+from abm.grounding.conditioning import split_instruction
+from abm.robot.run import RobotConfig
+from abm.robot.ur import URArm
 from abm.types import Episode, KeyframeAction, Observation
 
 HELP = "Enter: capture keyframe | o: open gripper | c: close gripper | u: drop last keyframe | q: save and quit"
@@ -43,8 +47,6 @@ def capture(camera: Any, arm: Any, step: int = 0) -> Observation:
 def check_instruction(instruction: str, object_names: Mapping[int, str] | None = None) -> tuple[str, str]:
     """``(target X, skill text)`` of ``instruction``; ``ValueError`` that says how to fix an instruction no skill
     template matches."""
-    from abm.grounding.conditioning import split_instruction
-
     try:
         return split_instruction(instruction, object_names)
     except ValueError as err:
@@ -119,8 +121,6 @@ def record_demonstration(camera: Any, arm: Any, instruction: str, out_dir: str |
             gripper switched on ``o`` / ``c``), never moved.
         commands: the operator's inputs (default: prompts on the terminal); see :data:`HELP`.
     """
-    from abm.data.episode_store import save_episode
-
     object_names = dict(getattr(camera, "object_names", {}) or {})
     check_instruction(instruction, object_names)
     snapshots: list[Observation] = []
@@ -153,12 +153,9 @@ def record_demonstration(camera: Any, arm: Any, instruction: str, out_dir: str |
 def recording_devices(robot_yaml: str | Path) -> tuple[Any, Any]:
     """Camera and arm of a robot YAML for recording: a UR arm is opened read-only (no control script, so the
     pendant's freedrive works) with a live gripper; other arms as ``abm run`` builds them."""
-    from abm.robot.run import RobotConfig
-
     config = RobotConfig.load(robot_yaml)
     if config.arm.get("kind") != "ur":
         return config.build()
-    from abm.robot.ur import URArm
 
     return config.build_camera(), URArm.from_config(config.arm, read_only=True, gripper_dry_run=False)
 

@@ -103,7 +103,7 @@ class SimRobot:
     """The MuJoCo scene of one ABM-Bench episode as both camera and arm."""
 
     def __init__(self, task: str, split: str = "seen", seed: int = 0, resolution: int = 128) -> None:
-        from abm.sim.env import TaskEnv
+        from abm.sim.env import TaskEnv  # mujoco (optional `sim` extra): only the simulated robot needs it
 
         self.env = TaskEnv(task, split, seed, resolution)
         self._obs = self.env.reset()

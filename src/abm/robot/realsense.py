@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from abm.robot.calibration import load_calibration
 from abm.types import CameraFrame
 
 log = logging.getLogger(__name__)
@@ -91,8 +92,6 @@ class RealSenseCamera:
                         "recording calibration images, not for running a policy)")
             return {name: np.eye(4) for name in self.serials}
         if isinstance(calibration, (str, Path)):
-            from abm.robot.calibration import load_calibration
-
             calibration = load_calibration(calibration)
         out = {}
         for name, serial in self.serials.items():

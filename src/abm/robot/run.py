@@ -26,8 +26,12 @@ from typing import Any
 
 import numpy as np
 
+from abm.files import load_yaml
+from abm.grounding.instruction import InstructionError, decompose_instruction
 from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot
 from abm.robot.limits import LIMITS_SCHEMA, LimitError, MotionLimits
+from abm.robot.realsense import RealSenseCamera
+from abm.robot.ur import URArm
 from abm.schema import Field, SchemaError, any_mapping, check_mapping, integer, number, strings, text, vector
 from abm.types import SPLITS, Observation
 
@@ -82,8 +86,6 @@ class RobotConfig:
         Raises:
             ValueError: (:class:`abm.schema.SchemaError`) naming the file, the key and what is expected.
         """
-        from abm.files import load_yaml
-
         data = load_yaml(path, "robot file")
         if data is None:
             raise SchemaError(f"{path}: the robot file is empty; expected the sections {sorted(ROBOT_SCHEMA)} "
@@ -114,8 +116,6 @@ class RobotConfig:
         elif arm_kind == "sim":
             arm = sim
         elif arm_kind == "ur":
-            from abm.robot.ur import URArm
-
             arm = URArm.from_config(self.arm, limits=self.limits)
         else:
             raise ValueError(f"unknown arm kind {arm_kind!r}; use dry-run, sim or ur")
@@ -131,8 +131,6 @@ class RobotConfig:
                 raise ValueError("cameras: kind sim shares the arm's scene; use it with arm kind sim or dry-run")
             return sim
         if kind == "realsense":
-            from abm.robot.realsense import RealSenseCamera
-
             return RealSenseCamera.from_config(self.cameras)
         raise ValueError(f"unknown camera kind {kind!r}; use replay, sim or realsense")
 
@@ -143,8 +141,6 @@ class RobotConfig:
         if hasattr(camera, "state"):
             return camera.state()
         if self.arm.get("kind") == "ur":
-            from abm.robot.ur import URArm
-
             ur = URArm.from_config(self.arm, read_only=True)  # rtde_receive only: nothing can move
             try:
                 return ur.state()
@@ -168,8 +164,6 @@ def no_target_message(instruction: str, object_names: dict[int, str] | None) -> 
 
 def _target_note(instruction: str) -> str:
     """`` (target: X)`` for the log line of :func:`run_robot`, or ``""`` when the instruction does not split."""
-    from abm.grounding.instruction import InstructionError, decompose_instruction
-
     try:
         return f" (target: {decompose_instruction(instruction)[0]})"
     except (InstructionError, ValueError):

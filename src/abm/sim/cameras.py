@@ -65,7 +65,9 @@ def ensure_headless_gl() -> None:
         _use_backend("egl") or _use_backend("osmesa")
 
 
-def _make_renderer(model, height: int, width: int):
+def make_renderer(model, height: int, width: int):
+    """A ``mujoco.Renderer`` of ``model`` at ``height`` x ``width`` pixels, headless (EGL, else OSMesa) when
+    there is no display; the renderer :class:`CameraRig` and the benchmark-CLIP data renderer use."""
     import mujoco
 
     ensure_headless_gl()
@@ -107,7 +109,7 @@ class CameraRig:
                 raise KeyError(f"camera {name!r} not in the model")
             self.camera_ids.append(cid)
         self.geom_to_object = np.asarray(geom_to_object, np.int32)
-        self._renderer = _make_renderer(model, self.height, self.width)
+        self._renderer = make_renderer(model, self.height, self.width)
         self._geom_type = int(mujoco.mjtObj.mjOBJ_GEOM)
         self._zfar = float(model.vis.map.zfar * model.stat.extent)
 

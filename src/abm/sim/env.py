@@ -21,7 +21,8 @@ from typing import Any
 import mujoco
 
 from abm.geometry.rotations import canonical_gripper_quat, matrix_to_quat
-from abm.sim.robot import FLIP_Z
+from abm.sim.arm_control import FLIP_Z
+from abm.sim.recorder import DenseRecorder
 from abm.sim.scene import CAMERA_NAMES
 from abm.sim.simulation import Simulation
 from abm.sim.splits import load_splits
@@ -91,7 +92,7 @@ class TaskEnv:
 
         Returns:
             ``(observation, success, info)``; ``info`` holds ``"motion"`` (a
-            :class:`abm.sim.robot.MotionResult`), ``"done"`` (success, or the step budget is spent)
+            :class:`abm.sim.arm_control.MotionResult`), ``"done"`` (success, or the step budget is spent)
             and ``"step"``. ``observation`` is ``None`` when ``render`` is false.
         """
         sim = self._require_sim()
@@ -155,8 +156,6 @@ def run_expert(env: TaskEnv, record: bool = True, dense_fps: float | None = None
     With ``dense_fps`` the whole motion is also recorded at that control rate (``episode.trajectory``,
     see :mod:`abm.sim.recorder`).
     """
-    from abm.sim.recorder import DenseRecorder
-
     start = time.perf_counter()
     env.reset()
     sim = env._require_sim()

@@ -1,6 +1,6 @@
 """Dense recording of a simulated episode at a fixed control rate (``abm data generate --dense``).
 
-The keyframe controller steps physics itself (``mj_step`` inside :class:`abm.sim.robot.RobotController`).
+The keyframe controller steps physics itself (``mj_step`` inside :class:`abm.sim.arm_control.RobotController`).
 :class:`DenseRecorder` sits between the controller and MuJoCo: every ``1 / fps`` seconds of simulated
 time it renders the cameras and reads the joint state and the commanded servo targets. Before each
 keyframe observation, :meth:`DenseRecorder.keyframe` holds the arm still (current controls) until the

@@ -6,8 +6,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from abm.sim.arm_control import MotionResult, RobotController
 from abm.sim.cameras import CameraRig
-from abm.sim.robot import MotionResult, RobotController
 from abm.sim.scene import CAMERA_NAMES, OBJECT_PREFIX, SceneSpec, build_spec
 from abm.types import KeyframeAction, Observation
 

@@ -110,7 +110,7 @@ class TrainConfig:
     def grounder_config(self) -> GrounderConfig:
         """The typed grounder configuration of ``grounder`` + ``grounder_options`` (the two fields are its
         form in flags, recipes and ``config.json``); unknown options raise ``ValueError``."""
-        from abm.grounding.config import OracleGrounderConfig, grounder_config_from_dict
+        from abm.grounding.config import OracleGrounderConfig, grounder_config_from_dict  # torch: not at --help
 
         if self.grounder == "oracle":
             return OracleGrounderConfig()

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
+from abm.data.episode_store import EpisodeStore, check_episodes
 from abm.data.keyframes import (
     EpisodeSource,
     KeyframeDataset,
@@ -44,7 +45,7 @@ from abm.data.keyframes import (
     worker_init,
 )
 from abm.files import FolderLock, write_text_atomic
-from abm.grounding.config import build_grounder
+from abm.grounding.config import GrounderConfig, OracleGrounderConfig, build_grounder, grounder_config_from_dict
 from abm.policy.checkpoint import (
     checkpoint_path,
     list_checkpoints,
@@ -55,6 +56,7 @@ from abm.policy.checkpoint import (
 from abm.policy.config import PolicyConfig, check_compatible
 from abm.policy.keyframe_policy import LOSS_TERMS, KeyframePolicy
 from abm.policy.language import make_language_encoder
+from abm.progress import Progress
 from abm.train.config import TrainConfig
 from abm.types import Episode
 
@@ -172,7 +174,6 @@ def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None, data: 
     data, splits = (data, splits) if data is not None else (cfg.data, cfg.splits)
     if data is None:
         raise ValueError("no training data: give --data DIR (an episode store) or --synthetic N")
-    from abm.data.episode_store import EpisodeStore, check_episodes  # owned by the data package
 
     store = EpisodeStore(data)
     indices = store.select(tasks=cfg.tasks, splits=splits)
@@ -255,9 +256,7 @@ def changed_settings(saved: dict[str, Any], cfg: TrainConfig) -> dict[str, tuple
     return changed
 
 
-def _grounder_config(saved: dict[str, Any]) -> Any:
-    from abm.grounding.config import OracleGrounderConfig, grounder_config_from_dict
-
+def _grounder_config(saved: dict[str, Any]) -> GrounderConfig:
     if saved.get("grounder", "oracle") == "oracle":
         return OracleGrounderConfig()
     return grounder_config_from_dict({"kind": saved["grounder"], **(saved.get("grounder_options") or {})})
@@ -506,8 +505,6 @@ class Trainer:
 
     def fit(self, on_step: Callable[[int, dict[str, float]], None] | None = None) -> dict[str, Any]:
         """Train from the current step to ``cfg.steps``; returns the run summary (also ``summary.json``)."""
-        from abm.progress import Progress
-
         cfg, dinfo = self.cfg, self.dinfo
         world = dinfo.world_size
         logger = _Logger(self.run, self.start, dinfo.main)

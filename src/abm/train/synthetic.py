@@ -11,13 +11,12 @@ from __future__ import annotations
 import numpy as np
 
 from abm.geometry import Workspace, euler_to_quat, fuse_cameras
+from abm.render.synthetic import synthetic_scene
 from abm.types import Episode, KeyframeAction, Observation
 
 
 def synthetic_episode(seed: int, camera_resolution: int = 64) -> Episode:
     """One synthetic two-keyframe episode (deterministic in ``seed``)."""
-    from abm.render.synthetic import synthetic_scene
-
     obs, names = synthetic_scene(seed=seed, resolution=camera_resolution)
     rng = np.random.default_rng(seed)
     target_id = int(rng.choice(sorted(names)))

@@ -188,7 +188,7 @@ def rollout_scene(policy: Any, task: str, split: str = "seen", seed: int = 1_000
     ``seed`` is the scene seed (``abm eval`` writes it into its outcome log); the scene, the instruction
     and the objects are the same as in that evaluation episode.
     """
-    from abm.sim.env import make_env, run_policy
+    from abm.sim.env import make_env, run_policy  # mujoco (optional `sim` extra): episodes view without it
 
     explained: list[Any] = []
     with make_env(task, split, seed, resolution, max_steps=max_steps) as env:

@@ -35,6 +35,7 @@ import numpy as np
 from abm.geometry.rotations import GRIPPER_SYMMETRY, canonical_gripper_matrix, matrix_to_quat
 from abm.sim.catalog import catalog_entry, object_geometry
 from abm.sim.scene import PlacedObject, SceneSpec
+from abm.sim.split_file import read_splits
 from abm.types import KeyframeAction
 
 TASKS: dict[str, type[Task]] = {}
@@ -97,9 +98,7 @@ class Task(ABC):
     slots: ClassVar[dict[str, tuple[str, ...]]] = {}
 
     def __init__(self, splits=None) -> None:
-        from abm.sim.splits import load_splits
-
-        self.splits = splits if splits is not None else load_splits()
+        self.splits = splits if splits is not None else read_splits(None, TASKS)
 
     @classmethod
     def check_objects(cls, names: list[str]) -> str | None:

@@ -3,21 +3,13 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-
-def register(subparsers) -> None:
-    parser = subparsers.add_parser("tasks", help="list benchmark tasks, instruction templates and splits")
-    parser.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
-    parser.add_argument("--task", default=None, help="show only this task")
-    parser.set_defaults(func=_tasks)
+from abm.cli import CommandError
+from abm.sim.splits import SplitFileError, load_splits
+from abm.sim.tasks import TASKS
 
 
 def _tasks(args: argparse.Namespace) -> int:
-    from abm.cli import CommandError
-    from abm.sim.splits import SplitFileError, load_splits
-    from abm.sim.tasks import TASKS
-
     try:
         splits = load_splits(args.splits)
     except SplitFileError as err:

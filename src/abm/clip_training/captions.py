@@ -1,6 +1,6 @@
 """Class vocabulary and caption templates for training the benchmark CLIP (``abm clip train``).
 
-Every image the renderer (:mod:`abm.grounding.clip_data`) produces is labelled with *classes*: one per
+Every image the renderer (:mod:`abm.clip_training.data`) produces is labelled with *classes*: one per
 catalog object (:data:`abm.sim.catalog.CATALOG`, seen, unseen and compositional objects alike — an
 internet-scale CLIP would have seen all of them) plus three background classes (the table, the floor /
 everything behind it, the robot arm). Captions are drawn from templates over the name, its colour and
@@ -9,7 +9,7 @@ its category ("a photo of a red block", "a ketchup", "a photo of a ketchup, a ty
 The generic phrases the mask field contrasts against (:data:`abm.grounding.mask_field.DEFAULT_NEGATIVES`:
 "object", "things", "stuff", "texture") get a meaning the way web captions would give it: the table is
 also captioned "a photo of a texture", the floor "a photo of stuff", the robot "a photo of things", and
-the dense (per-patch) loss of :mod:`abm.grounding.clip_train` makes "an object" the second-best phrase of
+the dense (per-patch) loss of :mod:`abm.clip_training.train` makes "an object" the second-best phrase of
 every object patch (see :data:`GENERIC_PARENT`).
 """
 
@@ -20,6 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from abm.grounding.instruction import clip_prompt
+from abm.sim.catalog import BLOCK_COLOURS, CATALOG
 
 TABLE, FLOOR, ROBOT = "table", "floor", "robot arm"
 BACKGROUND_CLASSES: tuple[str, ...] = (TABLE, FLOOR, ROBOT)
@@ -56,8 +57,6 @@ def article(word: str) -> str:
 def class_names(object_names: Sequence[str] | None = None) -> tuple[str, ...]:
     """The class list: object names (default: the whole catalog, in catalog order), then the background."""
     if object_names is None:
-        from abm.sim.catalog import CATALOG
-
         object_names = list(CATALOG)
     return (*object_names, *BACKGROUND_CLASSES)
 
@@ -69,8 +68,6 @@ def class_prompts(classes: Sequence[str]) -> list[str]:
 
 def _colour_and_category(name: str) -> tuple[str | None, str]:
     """(colour word of a coloured primitive or None, category word) of an object name."""
-    from abm.sim.catalog import BLOCK_COLOURS, CATALOG
-
     entry = CATALOG.get(name)
     category = entry.category if entry is not None else "object"
     first = name.split()[0]

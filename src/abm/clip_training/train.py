@@ -15,7 +15,7 @@ Loss = contrastive + ``dense_weight`` x dense:
   negatives ("a photo of an object", "... things", "... stuff", "... texture"). A patch's label is the
   object covering at least ``object_fraction`` of it (the largest one), else the background class covering
   most of it; the target puts ``1 - parent_weight`` on the label and ``parent_weight`` on its generic
-  phrase (:data:`abm.grounding.clip_captions.GENERIC_PARENT`), so "an object" is the best match after
+  phrase (:data:`abm.clip_training.captions.GENERIC_PARENT`), so "an object" is the best match after
   the object's own name and the softmax-vs-negatives normalisation means something.
 
 The run is resumable (``checkpoint.pt`` every ``checkpoint_every`` steps: weights, optimiser, data order,
@@ -40,12 +40,14 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from abm.clip_training.captions import GENERIC_PARENT, OBJECT_PARENT, class_prompts
+from abm.clip_training.data import OBJECT_CROP, SCENE, ClipDataset
 from abm.files import atomic_path, load_torch_data, write_text_atomic
-from abm.grounding.clip import maskclip_head, run_encoder_layer
-from abm.grounding.clip_captions import GENERIC_PARENT, OBJECT_PARENT, class_prompts
-from abm.grounding.clip_data import SCENE, ClipDataset
+from abm.grounding.clip import TEXT_CONTEXT, maskclip_head, run_encoder_layer
 from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import DEFAULT_NEGATIVES
+from abm.grounding.tokenizer import char_vocab, tiny_tokenizer
+from abm.progress import Progress
 
 log = logging.getLogger("abm")
 
@@ -63,7 +65,7 @@ BENCH_ARCH: dict[str, Any] = dict(
 
 
 @dataclass
-class TrainConfig:
+class ClipTrainConfig:
     """Recipe of one training run.
 
     Attributes:
@@ -111,8 +113,6 @@ def bench_clip_config(arch: dict[str, Any], vocab_size: int) -> Any:
     (the text model pools at the first EOS).
     """
     from transformers import CLIPConfig
-
-    from abm.grounding.clip import TEXT_CONTEXT
 
     proj = int(arch["projection_dim"])
     text = dict(arch["text"], max_position_embeddings=TEXT_CONTEXT, projection_dim=proj, vocab_size=vocab_size,
@@ -264,7 +264,7 @@ class BatchOrder:
         return {"epoch": self.epoch, "position": self.position}
 
 
-def run_fraction(step: int, elapsed_s: float, config: TrainConfig) -> float:
+def run_fraction(step: int, elapsed_s: float, config: ClipTrainConfig) -> float:
     """Fraction of the run done: steps, or time when ``max_minutes`` is set and runs out first."""
     done = step / config.steps
     if config.max_minutes:
@@ -272,7 +272,7 @@ def run_fraction(step: int, elapsed_s: float, config: TrainConfig) -> float:
     return min(1.0, done)
 
 
-def lr_at(step: int, config: TrainConfig, elapsed_s: float = 0.0) -> float:
+def lr_at(step: int, config: ClipTrainConfig, elapsed_s: float = 0.0) -> float:
     """Learning rate at ``step``: linear warm-up over ``warmup_steps``, then cosine decay to 0 at the end
     of the run (:func:`run_fraction`)."""
     if step < config.warmup_steps:
@@ -285,11 +285,9 @@ def lr_at(step: int, config: TrainConfig, elapsed_s: float = 0.0) -> float:
 # --------------------------------------------------------------------------------------------------
 # The trainer
 # --------------------------------------------------------------------------------------------------
-def new_model(config: TrainConfig) -> tuple[Any, Any]:
+def new_model(config: ClipTrainConfig) -> tuple[Any, Any]:
     """A freshly initialised ``(CLIPModel, tokenizer)`` (seeded)."""
     from transformers import CLIPModel
-
-    from abm.grounding.tokenizer import tiny_tokenizer
 
     tokenizer = tiny_tokenizer()
     with torch.random.fork_rng(devices=[]):
@@ -298,7 +296,7 @@ def new_model(config: TrainConfig) -> tuple[Any, Any]:
     return model, tokenizer
 
 
-def _optimizer(model: Any, config: TrainConfig) -> torch.optim.Optimizer:
+def _optimizer(model: Any, config: ClipTrainConfig) -> torch.optim.Optimizer:
     decay = [p for n, p in model.named_parameters() if p.ndim >= 2 and "embedding" not in n]
     other = [p for n, p in model.named_parameters() if not (p.ndim >= 2 and "embedding" not in n)]
     return torch.optim.AdamW([{"params": decay, "weight_decay": config.weight_decay},
@@ -306,7 +304,7 @@ def _optimizer(model: Any, config: TrainConfig) -> torch.optim.Optimizer:
 
 
 def train_step(model: Any, tokenizer: Any, batch: dict[str, Any], vocab_prompts: Sequence[str],
-               parents: torch.Tensor, num_objects: int, config: TrainConfig) -> dict[str, torch.Tensor]:
+               parents: torch.Tensor, num_objects: int, config: ClipTrainConfig) -> dict[str, torch.Tensor]:
     """Losses of one batch (``loss`` = contrastive + dense_weight x dense), with the graph for backward."""
     patch = int(model.config.vision_config.patch_size)
     scale = model.logit_scale.exp().clamp(max=100.0)
@@ -325,8 +323,6 @@ def train_step(model: Any, tokenizer: Any, batch: dict[str, Any], vocab_prompts:
 
 def save_model(model: Any, tokenizer: Any, out: Path, mean: Sequence[float], std: Sequence[float]) -> None:
     """Write the transformers folder :func:`abm.grounding.clip.load_clip` reads."""
-    from abm.grounding.tokenizer import char_vocab
-
     out.mkdir(parents=True, exist_ok=True)
     model.save_pretrained(out)
     tokenizer.save_pretrained(out)
@@ -357,16 +353,14 @@ def load_training_state(path: str | Path) -> dict[str, Any]:
     return state
 
 
-def train(data: ClipDataset, out: str | Path, config: TrainConfig | None = None, resume: bool = False,
+def train(data: ClipDataset, out: str | Path, config: ClipTrainConfig | None = None, resume: bool = False,
           progress: bool = True, extra_summary: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train on ``data`` and write the model folder ``out``; returns the summary written to ``abm_clip.json``.
 
     Raises:
         FileExistsError: ``out`` holds a checkpoint and ``resume`` is False.
     """
-    from abm.progress import Progress
-
-    config = config or TrainConfig()
+    config = config or ClipTrainConfig()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(config.threads)
@@ -477,8 +471,6 @@ def zero_shot_accuracy(backbone: Any, data: ClipDataset, classes: Sequence[str] 
     feature over the object's pixels (the dense features the grounder uses). Returns overall and
     per-class accuracies.
     """
-    from abm.grounding.clip_data import OBJECT_CROP
-
     names = list(classes or data.class_names[:len(data.class_names) - 3])
     text = backbone.text_features(class_prompts(names)).cpu()
     lookup = {n: i for i, n in enumerate(names)}

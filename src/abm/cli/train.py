@@ -13,18 +13,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-from pathlib import Path
 from typing import Any
 
 from abm.configuration import (
     add_config_arguments,
-    check_overrides,
     clip_model_help,
-    config_from_args,
     count,
     int_range,
-    overrides_from_args,
 )
 from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
@@ -65,7 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="override a policy config field, e.g. --set resolution=64 (repeatable)")
     p.add_argument("--camera-resolution", type=int_range(16, 1024), default=64,
                    help="camera side for --synthetic episodes")
-    p.set_defaults(func=run, config_sections={"policy": POLICY_DEST})
+    p.set_defaults(func="abm.cli.commands.train:run", config_sections={"policy": POLICY_DEST})
 
     e = subparsers.add_parser(
         "export",
@@ -79,65 +74,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), default="float32",
                    help="storage dtype of the floating-point weights (default: float32, unchanged)")
     e.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
-    e.set_defaults(func=run_export)
-
-
-def run_export(args: argparse.Namespace) -> int:
-    import logging
-
-    import torch
-
-    from abm.files import FolderLock
-    from abm.policy.checkpoint import check_export_target, export_checkpoint, resolve_checkpoint
-
-    src = resolve_checkpoint(args.run)
-    dtype = None if args.dtype == "float32" else getattr(torch, args.dtype)
-    check_export_target(src, args.out, args.overwrite)
-    with FolderLock(Path(args.out).parent, "abm export"):  # not while another command writes that folder
-        out = export_checkpoint(src, args.out, dtype)
-    logging.getLogger("abm").info("exported %s (%.1f MiB) -> %s (%.1f MiB)", src, src.stat().st_size / 2**20,
-                                  out, out.stat().st_size / 2**20)
-    return 0
-
-
-def run(args: argparse.Namespace) -> int:
-    from abm.cli import CommandError
-
-    if args.optimizer == "lamb":
-        try:
-            import torch_optimizer  # noqa: F401
-        except ImportError as err:
-            raise CommandError("--optimizer lamb needs torch-optimizer: pip install 'abm[train]'") from err
-    from abm.train.loop import train
-
-    if args.steps < 1 or args.batch < 1:
-        raise CommandError("--steps and --batch must be positive")
-    if args.data is None and args.synthetic <= 0:
-        raise CommandError("give --data DIR (an episode store) or --synthetic N")
-    if args.data is not None and not Path(args.data).is_dir():
-        raise CommandError(f"--data {args.data} is not a folder")
-    try:
-        overrides = check_overrides(PolicyConfig, dict(args.overrides))
-    except ValueError as err:
-        raise CommandError(str(err)) from None
-    cfg = config_from_args(
-        TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
-        grounder_options={k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v})
-    if cfg.grounder == "oracle" and cfg.grounder_options:
-        if cfg.language != "clip":
-            raise CommandError("--clip-model/--clip-device need --grounder clip or --language clip")
-    episodes = None
-    if args.data is None:
-        from abm.train.synthetic import synthetic_episodes
-
-        episodes = synthetic_episodes(args.synthetic, args.camera_resolution)
-    summary = train(cfg, episodes=episodes)
-    if int(os.environ.get("RANK", "0")) == 0:
-        loss = summary["final_loss"].get("total", float("nan"))
-        print(f"abm train: {summary['steps']} steps, final loss {loss:.4f}, checkpoint {summary['checkpoint']}")
-        if (Path(cfg.out) / "log.csv").is_file():
-            from abm.evaluation.report import plot_training_curves
-
-            curve = plot_training_curves({cfg.method: cfg.out}, Path(cfg.out) / "training_curve.png")
-            print(f"abm train: training curve {curve}")
-    return 0
+    e.set_defaults(func="abm.cli.commands.train:run_export")

@@ -18,71 +18,31 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from abm.cli import CommandError
+from abm.data.episode_store import load_episode
+from abm.files import write_text_atomic
+from abm.geometry import Workspace, fuse_cameras
+from abm.grounding.grounders import make_grounder
+from abm.grounding.instruction import decompose_instruction
+from abm.grounding.mask_field import mask_views
+from abm.grounding.visualize import blend, colormap, gray, hstack, label, mark_pixels, to_uint8, upscale, vstack
+from abm.render import OrthographicRenderer
+from abm.render.synthetic import synthetic_scene
 
 if TYPE_CHECKING:  # numpy is imported by the command itself, so `abm --help` stays fast
     import numpy as np
-
-from abm.configuration import count, float_range, int_range, seed_int
-from abm.files import write_text_atomic
-
-
-def register(subparsers: argparse._SubParsersAction) -> None:
-    from abm.configuration import clip_model_help
-
-    p = subparsers.add_parser(
-        "ground",
-        help="ground an instruction's target object and write heatmap / mask / virtual-view PNGs",
-        description="Split the instruction into the target X and the skill, compute the Object Mask Field "
-        "of X over the fused point cloud (CLIP or oracle grounder), render it into the five virtual views "
-        "and write PNGs. Without --episode the built-in synthetic scene is used.",
-    )
-    p.add_argument("--episode", type=Path, help="episode file (abm.data.episode_store format)")
-    p.add_argument("--step", type=count, default=0, help="keyframe index within the episode (default 0)")
-    p.add_argument("--seed", type=seed_int, default=0, help="seed of the synthetic scene (without --episode)")
-    p.add_argument("--instruction", help="instruction (default: the episode's, or one naming a scene object)")
-    p.add_argument("--grounder", choices=("oracle", "clip"), default="oracle", help="grounder (default oracle)")
-    p.add_argument("--clip-model", default=None,
-                   help=clip_model_help("of --grounder clip (needs them locally unless --allow-download)"))
-    p.add_argument("--allow-download", action="store_true", help="let transformers download CLIP weights")
-    p.add_argument("--normalization", choices=("raw", "minmax", "softmax"), default=None,
-                   help="heatmap normalisation (default softmax)")
-    p.add_argument("--threshold", type=float_range(0.0, 1.0), default=None,
-                   help="mask threshold on the heatmap (default 0.7)")
-    p.add_argument("--mode", choices=("field", "proposals"), default=None,
-                   help="clip: threshold the per-point field, or score 3-D object proposals and mark the best one")
-    p.add_argument("--dense-mode", choices=("maskclip", "clearclip", "sclip", "naclip"), default=None,
-                   help="clip: last block of the dense CLIP features")
-    p.add_argument("--input-size", type=int_range(32, 2048), default=None,
-                   help="clip: side the camera images are resized to")
-    p.add_argument("--scales", type=int_range(32, 2048), nargs="+", default=None,
-                   help="clip: extra input sides whose features are averaged in (multi-scale), e.g. --scales 256")
-    p.add_argument("--scoring", choices=("dense", "crop", "combined"), default=None,
-                   help="clip --mode proposals: score candidates by dense features, image crops or both")
-    p.add_argument("--cache", type=Path, default=None, help="grounding cache folder (default: none)")
-    p.add_argument("--resolution", type=int_range(16, 2048), default=220, help="virtual view side in pixels")
-    p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
-    p.add_argument("--out", type=Path, default=Path("out/ground"), help="output folder (default out/ground)")
-    p.add_argument("--strict", action="store_true",
-                   help="exit non-zero (after writing the images) when the target is not found in the scene")
-    p.set_defaults(func=run)
-    from abm.grounding import clip_commands
-
-    clip_commands.register(subparsers)  # `abm clip train`
 
 
 def _load_scene(args: argparse.Namespace) -> tuple[Any, dict[int, str], str | None, str]:
     """(observation, object names, episode instruction or None, description)."""
     if args.episode is not None:
-        from abm.data.episode_store import load_episode  # written in parallel; imported only when used
-
         episode = load_episode(args.episode)
         if not 0 <= args.step < len(episode.steps):
             raise ValueError(f"--step {args.step} is out of range: the episode has {len(episode.steps)} keyframes")
         obs = episode.steps[args.step][0]
         return obs, dict(episode.object_names), episode.instruction, f"{args.episode} step {args.step}"
-    from abm.render.synthetic import synthetic_scene
 
     obs, names = synthetic_scene(seed=args.seed)
     return obs, names, None, f"synthetic scene (seed {args.seed})"
@@ -91,7 +51,6 @@ def _load_scene(args: argparse.Namespace) -> tuple[Any, dict[int, str], str | No
 def _camera_panels(obs: Any, cloud: Any, field: Any) -> dict[str, np.ndarray]:
     import numpy as np
 
-    from abm.grounding.visualize import blend, colormap, hstack, label, upscale
 
     panels = {}
     for ci, name in enumerate(cloud.camera_names):
@@ -118,8 +77,6 @@ def _topdown(cloud: Any, field: Any, workspace: Any, resolution: int = 256) -> n
     import numpy as np
     import torch
 
-    from abm.grounding.visualize import blend, colormap, hstack, label, to_uint8
-    from abm.render import OrthographicRenderer
 
     renderer = OrthographicRenderer(workspace, resolution, views=("top",), splat_radius=1)
     extra = torch.from_numpy(np.stack([field.heatmap, field.mask], axis=1))
@@ -138,13 +95,6 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from PIL import Image
 
-    from abm.cli import CommandError
-    from abm.geometry import Workspace, fuse_cameras
-    from abm.grounding.grounders import make_grounder
-    from abm.grounding.instruction import decompose_instruction
-    from abm.grounding.mask_field import mask_views
-    from abm.grounding.visualize import gray, hstack, label, mark_pixels, to_uint8, upscale, vstack
-    from abm.render import OrthographicRenderer
 
     if args.instruction is not None and not args.instruction.strip():
         raise CommandError("--instruction is empty; give the instruction to ground, or leave the option out")

@@ -5,48 +5,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from abm.configuration import count, int_range
-
-SPLITS = ("seen", "unseen", "compositional")
-
-
-def register(subparsers: argparse._SubParsersAction) -> None:
-    from abm.configuration import WORKERS, add_config_arguments
-    from abm.evaluation.runner import EvalSettings
-    from abm.ray_pool import add_backend_arguments
-
-    p = subparsers.add_parser(
-        "eval",
-        help="evaluate trained policies on seeded benchmark episodes (success tables)",
-        description="Roll out one or more trained policies on the same seeded scenes and write per-episode "
-        "outcomes (resumable), results.json/csv and a markdown table in the paper's layout.",
-    )
-    p.add_argument("--run", action="append", required=True, type=Path,
-                   help="training run folder or checkpoint; repeat for several methods")
-    p.add_argument("--tasks", nargs="+", default=None,
-                   help="tasks to evaluate (default: the tasks the runs were trained on, each on the splits that "
-                   "define objects for it; every task of the split for runs whose training data is unknown)")
-    p.add_argument("--split", nargs="+", default=["seen", "unseen"], choices=SPLITS, metavar="SPLIT",
-                   help=f"object splits to evaluate ({', '.join(SPLITS)}), one outcome folder each and one "
-                   "combined table (default: seen unseen)")
-    p.add_argument("--episodes", type=int_range(1, 10**6), default=25, help="episodes per task and repeat (paper: 25)")
-    p.add_argument("--repeats", type=int_range(1, 1000), default=5, help="repeats with different scenes (paper: 5)")
-    p.add_argument("--workers", type=int_range(1, 256), default=WORKERS, help="parallel rollout processes")
-    add_backend_arguments(p)  # --backend local|ray, --ray-address
-    add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
-    p.add_argument("--gifs", type=count, default=0, help="save front-camera GIFs of this many episodes per task")
-    p.add_argument("--out", type=Path, default=None,
-                   help="with one --split: the folder of its outcomes and tables (default: FIRST_RUN/eval_SPLIT); "
-                   "with several: the parent of one eval_SPLIT folder per split and of the combined table "
-                   "eval_summary.md/.json (default: the first run's folder)")
-    p.set_defaults(func=run)
+from abm.cli import CommandError
+from abm.configuration import config_from_args
+from abm.data.episode_store import EpisodeStore
+from abm.evaluation.results import OutcomeLog, combined_table, markdown_table, write_json
+from abm.evaluation.runner import EvalJob, EvalSettings, check_same_evaluation, evaluate
+from abm.files import FolderLock
+from abm.policy.checkpoint import load_checkpoint
+from abm.ray_pool import RayBackendError
+from abm.sim.splits import load_splits
+from abm.sim.tasks import TASKS
 
 
 def default_tasks(split: str, splits_path: Path | None) -> list[str]:
     """Tasks whose objects the split file defines for ``split``."""
-    from abm.sim.splits import load_splits
-    from abm.sim.tasks import TASKS
-
     splits = load_splits(splits_path)
     return [name for name in sorted(TASKS) if split in splits.tasks.get(name, {})]
 
@@ -56,7 +28,6 @@ def trained_tasks(runs: list[Path]) -> list[str] | None:
     ``--tasks``, else the tasks of its episode store); ``None`` when a run's training data is unknown."""
     import json
 
-    from abm.policy.checkpoint import load_checkpoint
 
     tasks: list[str] = []
     for run in runs:
@@ -65,8 +36,6 @@ def trained_tasks(runs: list[Path]) -> list[str] | None:
                  else load_checkpoint(run).get("train_config") or {})
         names = train.get("tasks")
         if not names and train.get("data") and Path(train["data"]).is_dir():
-            from abm.data.episode_store import EpisodeStore
-
             store = EpisodeStore(train["data"])
             names = sorted({store.episodes[i].task for i in store.select(splits=train.get("splits"))})
         if not names:
@@ -80,8 +49,6 @@ def plan_tasks(args: argparse.Namespace) -> dict[str, list[str]]:
     that define objects for them (see :func:`trained_tasks`)."""
     import logging
 
-    from abm.cli import CommandError
-    from abm.sim.tasks import TASKS
 
     splits = list(dict.fromkeys(args.split))
     if args.tasks:
@@ -108,12 +75,6 @@ def plan_tasks(args: argparse.Namespace) -> dict[str, list[str]]:
 def run(args: argparse.Namespace) -> int:
     import logging
 
-    from abm.cli import CommandError
-    from abm.configuration import config_from_args
-    from abm.evaluation.results import OutcomeLog, combined_table, markdown_table, write_json
-    from abm.evaluation.runner import EvalJob, EvalSettings, check_same_evaluation, evaluate
-    from abm.files import FolderLock
-    from abm.ray_pool import RayBackendError
 
     for r in args.run:
         if not r.exists():
@@ -166,8 +127,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"{errors} episode(s) crashed and count as failures; see outcomes.jsonl in "
               + ", ".join(map(str, outs.values())))
         if errors == sum(r.episodes for r in rates):
-            from abm.evaluation.results import OutcomeLog
-
             latest = [o.error for out in outs.values() for o in OutcomeLog(out / "outcomes.jsonl").read()
                       if o.error][-1:]
             raise CommandError(f"every episode crashed, so the table measures nothing; last error: "
@@ -179,9 +138,6 @@ def _check_setup(args: argparse.Namespace, plan: dict[str, list[str]]) -> None:
     """Fail before the first rollout on what would make every episode crash."""
     import torch
 
-    from abm.cli import CommandError
-    from abm.policy.checkpoint import load_checkpoint
-    from abm.sim.splits import load_splits
 
     splits = load_splits(args.splits_path)
     for split, tasks in plan.items():

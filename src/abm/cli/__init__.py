@@ -1,8 +1,10 @@
 """The ``abm`` command.
 
-Each command group lives next to the code it drives, in a module that exposes
-``register(subparsers)``; this file only collects them. Heavy imports (torch, mujoco,
-transformers) happen inside the command functions so ``abm --help`` stays fast.
+Each command group has two modules here: ``abm.cli.<group>`` builds its parsers (``register(subparsers)``;
+light: configuration dataclasses and argparse only) and ``abm.cli.commands.<group>`` holds the command
+functions, which import the library (torch, mujoco, transformers) at module level. A parser names its command
+as ``func="abm.cli.commands.<group>:<function>"``; :func:`main` imports that one module when the command runs,
+so ``abm --help`` imports no command module and stays fast. No library module imports this package.
 """
 
 from __future__ import annotations
@@ -12,22 +14,25 @@ import importlib
 import logging
 import sys
 import typing
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import abm
+from abm.configuration import apply_config_file
+from abm.files import USER_ERRNOS, write_error
 
 # Modules that add sub-commands, in the order they appear in ``abm --help``.
 COMMAND_MODULES: tuple[str, ...] = (
-    "abm.render.commands",
-    "abm.data.commands",
-    "abm.sim.commands",
-    "abm.grounding.commands",
-    "abm.train.commands",
-    "abm.evaluation.commands",
-    "abm.robot.commands",
-    "abm.viewer.commands",
-    "abm.quickstart",
-    "abm.zoo",
+    "abm.cli.render",
+    "abm.cli.data",
+    "abm.cli.sim",
+    "abm.cli.ground",
+    "abm.cli.clip",
+    "abm.cli.train",
+    "abm.cli.evaluate",
+    "abm.cli.robot",
+    "abm.cli.viewer",
+    "abm.cli.quickstart",
+    "abm.cli.zoo",
 )
 
 
@@ -102,9 +107,16 @@ def configure_logging(level: int = logging.INFO) -> None:
     logger.setLevel(level)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    from abm.configuration import apply_config_file
+def command_function(func: str | Callable[[argparse.Namespace], int | None]
+                     ) -> Callable[[argparse.Namespace], int | None]:
+    """The function a parser's ``func`` default names (``"module:function"``, imported now), or ``func`` itself."""
+    if not isinstance(func, str):
+        return func
+    module, name = func.split(":")
+    return getattr(importlib.import_module(module), name)
 
+
+def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     apply_config_file(parser, argv)  # a command's --config FILE: its values become that command's defaults
@@ -114,14 +126,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 1
     try:
-        return int(args.func(args) or 0)
+        return int(command_function(args.func)(args) or 0)
     except (CommandError, FileNotFoundError, ValueError, KeyError) as err:
         message = err.args[0] if isinstance(err, KeyError) and err.args else err
         print(f"abm: error: {message}", file=sys.stderr)
         return 2
     except OSError as err:  # a path or the disk: the user's to fix (other OS errors are bugs: traceback)
-        from abm.files import USER_ERRNOS, write_error
-
         if err.errno not in USER_ERRNOS:
             raise
         print(f"abm: error: {write_error(err.filename or '?', err, verb='use')}", file=sys.stderr)
@@ -129,11 +139,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("abm: interrupted", file=sys.stderr)
         return 130
-
-
-if __name__ == "__main__":
-    # `python -m abm.cli` (and torchrun): run the imported module's main, so the command modules' CommandError
-    # (from abm.cli) is the class main catches, not a second copy defined in __main__
-    from abm.cli import main as _main
-
-    sys.exit(_main())

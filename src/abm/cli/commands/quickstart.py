@@ -1,96 +1,33 @@
-"""``abm quickstart``: the whole method end to end on a laptop CPU, with no arguments.
-
-1. generate a small set of expert demonstrations (seen objects) for the trainable tasks;
-2. train the ``small`` ``abm`` policy and the ``rvt`` baseline on them;
-3. evaluate both on the same seeded scenes with seen and with unseen objects;
-4. write a report folder: the success table, training curves, the virtual views with the mask,
-   and rollout GIFs.
-
-Every stage resumes: re-running the command skips finished episodes, continues training from the
-last checkpoint and skips finished evaluation episodes.
-"""
+"""The ``abm quickstart`` command (its parser and :class:`QuickstartConfig`: :mod:`abm.cli.quickstart`)."""
 
 from __future__ import annotations
 
 import argparse
-import functools
 import os
 import shutil
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
 
-from abm.configuration import CAMERA_RESOLUTION, CPU_CLIP_MODEL, GPU_CLIP_MODEL, MAX_KEYFRAMES, WORKERS
+from abm.cli import configure_logging
+from abm.cli.quickstart import QuickstartConfig, recipe
+from abm.cli.train import POLICY_DEST
+from abm.configuration import CPU_CLIP_MODEL, GPU_CLIP_MODEL, config_from_args, overrides_from_args
+from abm.data.episode_store import EpisodeStore
+from abm.data.generate import generate
+from abm.evaluation.html_report import write_html_report
+from abm.evaluation.plots import success_chart
+from abm.evaluation.report import plot_training_curves, views_figure
+from abm.evaluation.results import OutcomeLog, aggregate, combined_table
+from abm.evaluation.runner import EvalSettings, evaluate, write_tables
+from abm.grounding.clip import ClipWeightsNotFoundError, load_clip
+from abm.policy import KeyframePolicy
+from abm.policy.config import PolicyConfig
+from abm.train.config import TrainConfig
+from abm.train.loop import train
 from abm.workers import die_with_parent
-
-#: The quickstart's training recipe (``configs/quickstart.yaml``; also ``abm train --config quickstart``): steps,
-#: batch, optimiser, lr, warm-up, checkpoint interval, and under ``policy`` the small preset's changes: 48-pixel
-#: views with 6-pixel patches over a 0.6 m workspace cube fitted to the table. Measured in docs/evaluation.md.
-RECIPE = "quickstart"
-
-
-@functools.cache
-def recipe() -> dict[str, Any]:
-    """The quickstart recipe's values (:data:`RECIPE`)."""
-    from abm.configuration import load_recipe
-
-    return load_recipe(RECIPE)
-
-
-@dataclass
-class QuickstartConfig:
-    """Sizes of the quickstart run (the ``abm quickstart`` flags; defaults fit about 20 minutes on a 2-core CPU).
-
-    The training defaults come from the quickstart recipe (``configs/quickstart.yaml``, :data:`RECIPE`): the CPU
-    recipe of ``scripts/seen_unseen.sh`` cut to one task, with smaller views over a tighter workspace cube,
-    AdamW at 1e-3 and enough steps for the ~2 cm a grasp needs.
-
-    Attributes:
-        out: output folder (data, runs, eval and report inside).
-        tasks: trainable tasks to use.
-        methods: policy variants to train and compare.
-        episodes: demonstrations per task (seen objects).
-        steps: training steps per method.
-        batch: training batch size.
-        optimizer: adamw (learns fastest in a short CPU run) or lamb (the paper's).
-        lr: peak learning rate.
-        warmup: linear warm-up steps.
-        policy_overrides: PolicyConfig fields changed from the small preset (``--set KEY=VALUE``).
-        eval_episodes: evaluation episodes per task and split.
-        max_steps: keyframes per evaluation episode.
-        workers: parallel processes for data generation and evaluation.
-        resolution: camera image side (pixels) of demonstrations and evaluation.
-        device: torch device (cpu, cuda).
-        clip_model: CLIP weights (hub name or local folder) for the grounder (default: the best found, see
-            ``choose_grounder``: pretrained CLIP, else the benchmark CLIP, else the oracle; 'tiny' and
-            'random:ARCH' are random weights, for tests only).
-        offline: never try to download CLIP weights from the model hub.
-        seed: seed of the demonstrations.
-    """
-
-    out: Path = Path("out/quickstart")
-    tasks: list[str] = field(default_factory=lambda: ["pick_block"])
-    methods: list[str] = field(default_factory=lambda: ["abm", "rvt"])
-    episodes: int = 20
-    steps: int = field(default_factory=lambda: recipe()["steps"])
-    batch: int = field(default_factory=lambda: recipe()["batch"])
-    optimizer: str = field(default_factory=lambda: recipe()["optimizer"], metadata={"choices": ["adamw", "lamb"]})
-    lr: float = field(default_factory=lambda: recipe()["lr"])
-    warmup: int = field(default_factory=lambda: recipe()["warmup"])
-    policy_overrides: dict[str, Any] = field(default_factory=lambda: dict(recipe()["policy"]), metadata={"cli": False})
-    eval_episodes: int = 10
-    max_steps: int = MAX_KEYFRAMES
-    workers: int = WORKERS
-    resolution: int = field(default=CAMERA_RESOLUTION, metadata={"flag": "--camera-resolution"})
-    device: str = "cpu"
-    clip_model: str | None = None
-    offline: bool = False
-    seed: int = 0
-
 
 BENCHMARK_CLIP_ENV = "ABM_BENCHMARK_CLIP"
 DEFAULT_BENCHMARK_CLIP = "~/.cache/abm/benchmark-clip"
@@ -129,8 +66,6 @@ def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict, str]:
     benchmark CLIP trained on ABM-Bench renders (:func:`benchmark_clip_dir`); else the oracle grounder,
     with a loud warning.
     """
-    from abm.grounding.clip import ClipWeightsNotFoundError, load_clip
-
     online = not cfg.offline and hub_reachable()
     tried = []
     pretrained = GPU_CLIP_MODEL if cfg.device.startswith("cuda") else CPU_CLIP_MODEL
@@ -161,12 +96,6 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     """Run all stages; returns the report folder."""
     import torch
 
-    from abm.data.generate import generate
-    from abm.evaluation.results import combined_table
-    from abm.evaluation.runner import EvalSettings, evaluate, write_tables
-    from abm.policy.config import PolicyConfig
-    from abm.train.config import TrainConfig
-    from abm.train.loop import train
 
     PolicyConfig.from_preset("small", "abm", **cfg.policy_overrides)  # bad policy settings fail before any work
     start = time.perf_counter()
@@ -225,8 +154,6 @@ def _train_with_threads(config, threads: int) -> dict:
     """Train one run in a worker process with ``threads`` torch threads (see :func:`run_quickstart`)."""
     import torch
 
-    from abm.cli import configure_logging
-    from abm.train.loop import train
 
     configure_logging()
     torch.set_num_threads(threads)
@@ -237,13 +164,6 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
                  grounder: str, rates: list | None = None) -> None:
     """Table, curves, example views and GIFs in one folder with a README that links them (``rates``: the
     success rates, for the combined seen / unseen table)."""
-    from abm.data.episode_store import EpisodeStore
-    from abm.evaluation.html_report import write_html_report
-    from abm.evaluation.plots import success_chart
-    from abm.evaluation.report import plot_training_curves, views_figure
-    from abm.evaluation.results import OutcomeLog, aggregate, combined_table
-    from abm.policy import KeyframePolicy
-
     report.mkdir(parents=True, exist_ok=True)
     plot_training_curves({m: r for m, r in runs.items()}, report / "training_curves.png")
     figures = []
@@ -283,26 +203,7 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
     (report / "README.md").write_text("\n".join(lines))
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    from abm.configuration import add_config_arguments, config_from_args, overrides_from_args
-    from abm.policy.config import PolicyConfig
-    from abm.train.commands import POLICY_DEST, parse_override
-
-    p = subparsers.add_parser(
-        "quickstart",
-        help="generate data, train abm and rvt, evaluate on seen/unseen objects, write a report (~20 min CPU)",
-        description=__doc__.split("\n\n")[0],
-    )
-    add_config_arguments(p, QuickstartConfig)
-    p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
-                   help="change a policy config field (repeatable; same as the policy flags below)")
-    add_config_arguments(p, PolicyConfig, overrides_only=True, exclude=("variant", "preset", "extra"),
-                         dest_prefix=POLICY_DEST, title="policy (overrides of the small preset; quickstart "
-                         "defaults: the 'policy' of configs/quickstart.yaml)")
-
-    def run(args: argparse.Namespace) -> int:
-        overrides = {**recipe()["policy"], **overrides_from_args(args, POLICY_DEST), **dict(args.overrides)}
-        run_quickstart(config_from_args(QuickstartConfig, args, policy_overrides=overrides))
-        return 0
-
-    p.set_defaults(func=run)
+def run(args: argparse.Namespace) -> int:
+    overrides = {**recipe()["policy"], **overrides_from_args(args, POLICY_DEST), **dict(args.overrides)}
+    run_quickstart(config_from_args(QuickstartConfig, args, policy_overrides=overrides))
+    return 0

@@ -19,7 +19,7 @@ Each view yields:
 Nothing comes from policy demonstrations. Samples are written to ``.npz`` shards (one shard = a fixed
 list of world seeds, so rendering resumes shard by shard and gives the same data again):
 ``images (N, S, S, 3) uint8``, ``classes (N, S, S) uint8`` (class index per pixel, see
-:func:`abm.grounding.clip_captions.class_names`), ``kind (N,) uint8`` (:data:`KINDS`), ``label (N,) int16``
+:func:`abm.clip_training.captions.class_names`), ``kind (N,) uint8`` (:data:`KINDS`), ``label (N,) int16``
 (the caption's class, -1 for scenes) and ``caption (N,) str``.
 """
 
@@ -35,8 +35,12 @@ from typing import Any
 
 import numpy as np
 
+from abm.clip_training.captions import BACKGROUND_CLASSES, FLOOR, ROBOT, TABLE, caption, class_names
 from abm.files import atomic_path, write_text_atomic
-from abm.grounding.clip_captions import BACKGROUND_CLASSES, FLOOR, ROBOT, TABLE, caption, class_names
+from abm.progress import Progress
+from abm.sim.cameras import ensure_headless_gl, make_renderer
+from abm.sim.catalog import CATALOG, object_geometry, object_spec
+from abm.sim.scene import HOME_QPOS, OBJECT_PREFIX, TABLE_CENTER_X, TABLE_HALF, robot_spec
 
 log = logging.getLogger("abm")
 
@@ -90,7 +94,6 @@ class RenderConfig:
     def object_names(self) -> tuple[str, ...]:
         if self.objects:
             return tuple(self.objects)
-        from abm.sim.catalog import CATALOG
 
         return tuple(CATALOG)
 
@@ -182,9 +185,6 @@ class World:
                  sizes: Sequence[int]) -> None:
         import mujoco
 
-        from abm.sim.catalog import object_geometry, object_spec
-        from abm.sim.scene import OBJECT_PREFIX, TABLE_CENTER_X, TABLE_HALF, robot_spec
-
         self.names = list(names)
         self.index = {c: i for i, c in enumerate(classes)}
         spec = robot_spec(with_actuators=False) if robot else mujoco.MjSpec()
@@ -268,9 +268,7 @@ class World:
 
     def renderer(self, size: int) -> Any:
         if size not in self._renderers:
-            from abm.sim.cameras import _make_renderer
-
-            self._renderers[size] = _make_renderer(self.model, size, size)
+            self._renderers[size] = make_renderer(self.model, size, size)
         return self._renderers[size]
 
     def close(self) -> None:
@@ -310,8 +308,6 @@ class World:
             qpos[self.qpos_adr[i]:self.qpos_adr[i] + 7] = [x, y, z, np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
             shown.append(int(i))
         if self.arm_adr:
-            from abm.sim.scene import HOME_QPOS
-
             home = np.asarray(HOME_QPOS)
             qpos[self.arm_adr] = home + rng.normal(0, 0.25, 7) * np.array([1.5, 1, 1, 1, 1, 1, 1.5])
             qpos[self.finger_adr] = rng.uniform(0.0, 0.04)
@@ -469,8 +465,6 @@ def shard_path(folder: Path, shard: int) -> Path:
 
 def _write_shard(folder: Path, shard: int, base_seed: int, config: RenderConfig, classes: Sequence[str]) -> int:
     """Render one shard and write it atomically; returns its sample count."""
-    from abm.sim.cameras import ensure_headless_gl
-
     ensure_headless_gl()
     arrays = render_shard(shard, base_seed, config, classes)
     path = shard_path(folder, shard)
@@ -495,8 +489,6 @@ def build_dataset(folder: str | Path, shards: int, config: RenderConfig | None =
     ``folder/dataset.json`` records the configuration, class list and seed; a folder rendered with other
     settings is refused rather than mixed. Returns ``folder``.
     """
-    from abm.progress import Progress
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     config = config or RenderConfig()

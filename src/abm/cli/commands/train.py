@@ -1,0 +1,83 @@
+"""``abm train``: behaviour cloning of one policy variant on an episode store.
+
+Single process::
+
+    abm train --method abm --preset small --data data/ --tasks pick_block --steps 2000 --batch 8 --out runs/abm
+
+Several processes / GPUs / nodes (DistributedDataParallel; gloo on CPU, nccl on CUDA)::
+
+    torchrun --nproc_per_node 4 -m abm.cli train --device cuda ... --out runs/abm
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+from abm.cli import CommandError
+from abm.cli.train import POLICY_DEST
+from abm.configuration import (
+    check_overrides,
+    config_from_args,
+    overrides_from_args,
+)
+from abm.evaluation.report import plot_training_curves
+from abm.files import FolderLock
+from abm.policy.checkpoint import check_export_target, export_checkpoint, resolve_checkpoint
+from abm.policy.config import PolicyConfig
+from abm.train.config import TrainConfig
+from abm.train.loop import train
+from abm.train.synthetic import synthetic_episodes
+
+
+def run_export(args: argparse.Namespace) -> int:
+    import logging
+
+    import torch
+
+
+    src = resolve_checkpoint(args.run)
+    dtype = None if args.dtype == "float32" else getattr(torch, args.dtype)
+    check_export_target(src, args.out, args.overwrite)
+    with FolderLock(Path(args.out).parent, "abm export"):  # not while another command writes that folder
+        out = export_checkpoint(src, args.out, dtype)
+    logging.getLogger("abm").info("exported %s (%.1f MiB) -> %s (%.1f MiB)", src, src.stat().st_size / 2**20,
+                                  out, out.stat().st_size / 2**20)
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.optimizer == "lamb":
+        try:
+            import torch_optimizer  # noqa: F401
+        except ImportError as err:
+            raise CommandError("--optimizer lamb needs torch-optimizer: pip install 'abm[train]'") from err
+
+    if args.steps < 1 or args.batch < 1:
+        raise CommandError("--steps and --batch must be positive")
+    if args.data is None and args.synthetic <= 0:
+        raise CommandError("give --data DIR (an episode store) or --synthetic N")
+    if args.data is not None and not Path(args.data).is_dir():
+        raise CommandError(f"--data {args.data} is not a folder")
+    try:
+        overrides = check_overrides(PolicyConfig, dict(args.overrides))
+    except ValueError as err:
+        raise CommandError(str(err)) from None
+    cfg = config_from_args(
+        TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
+        grounder_options={k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v})
+    if cfg.grounder == "oracle" and cfg.grounder_options:
+        if cfg.language != "clip":
+            raise CommandError("--clip-model/--clip-device need --grounder clip or --language clip")
+    episodes = None
+    if args.data is None:
+        episodes = synthetic_episodes(args.synthetic, args.camera_resolution)
+    summary = train(cfg, episodes=episodes)
+    if int(os.environ.get("RANK", "0")) == 0:
+        loss = summary["final_loss"].get("total", float("nan"))
+        print(f"abm train: {summary['steps']} steps, final loss {loss:.4f}, checkpoint {summary['checkpoint']}")
+        if (Path(cfg.out) / "log.csv").is_file():
+            curve = plot_training_curves({cfg.method: cfg.out}, Path(cfg.out) / "training_curve.png")
+            print(f"abm train: training curve {curve}")
+    return 0

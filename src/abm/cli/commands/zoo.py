@@ -1,0 +1,51 @@
+"""``abm zoo list`` and ``abm zoo eval`` (the parser: :mod:`abm.cli.zoo`; the zoo itself: :mod:`abm.zoo`)."""
+
+from __future__ import annotations
+
+import argparse
+
+from abm.evaluation.results import markdown_table
+from abm.evaluation.runner import EvalSettings, evaluate
+from abm.zoo import ABM_ENTRIES, RVT_ENTRIES, ZooError, pick, read_index, verify
+
+
+def list_zoo(args: argparse.Namespace) -> int:
+    entries = read_index(args.zoo)
+    print(f"{'name':20s} {'method':18s} {'grounder':18s} {'steps':>6s} {'MB':>6s}  check")
+    bad = 0
+    for e in entries:
+        try:
+            verify(args.zoo, e)
+            status = "ok"
+        except ZooError as err:
+            status, bad = f"FAILED: {err}", bad + 1
+        print(f"{e['name']:20s} {e.get('method', '?'):18s} {str(e.get('grounder', '–')):18s} "
+              f"{str(e.get('steps', '–')):>6s} {e.get('size_bytes', 0) / 1e6:6.1f}  {status}")
+    if bad:
+        raise ZooError(f"{bad} zoo file(s) failed verification")
+    return 0
+
+
+def evaluate_zoo(args: argparse.Namespace) -> int:
+    entries = read_index(args.zoo)
+    chosen = [e for e in (pick(entries, ABM_ENTRIES), pick(entries, RVT_ENTRIES)) if e]
+    if not chosen:
+        raise ZooError(f"{args.zoo} holds neither an abm ({', '.join(ABM_ENTRIES)}) nor an rvt model "
+                       f"({', '.join(RVT_ENTRIES)})")
+    runs = [verify(args.zoo, e) for e in chosen]
+    clip = next((e for e in entries if e["name"] == "benchmark-clip"), None)
+    if clip is not None:
+        verify(args.zoo, clip)
+    labels = {str(r): e["name"] for r, e in zip(runs, chosen, strict=True)}
+    settings = EvalSettings(max_steps=args.max_steps)
+    rates = []
+    for split in ("seen", "unseen"):
+        print(f"abm zoo eval: {', '.join(labels.values())} on {split} objects of {', '.join(args.tasks)} "
+              f"({args.episodes} episodes each)")
+        rates += evaluate(runs, args.tasks, split, args.out / split, args.episodes, 1, args.workers, settings,
+                          labels=labels)
+    table = markdown_table(rates)
+    (args.out / "results.md").write_text(table + "\n")
+    print(table)
+    print(f"results: {args.out / 'results.md'}; the full tables: docs/results/paper_tables.md")
+    return 0
