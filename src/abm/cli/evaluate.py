@@ -8,8 +8,7 @@ from pathlib import Path
 from abm.configuration import WORKERS, add_config_arguments, count, int_range
 from abm.evaluation.settings import EvalSettings
 from abm.ray_pool import add_backend_arguments
-
-SPLITS = ("seen", "unseen", "compositional")
+from abm.types import SPLITS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -102,7 +102,7 @@ class RenderConfig:
 
 
 @dataclass
-class Sample:
+class RenderSample:
     """One image-text sample: ``image (S, S, 3) uint8``, ``classes (S, S) uint8``, kind, label, caption."""
 
     image: np.ndarray
@@ -374,7 +374,7 @@ class World:
 # Samples
 # --------------------------------------------------------------------------------------------------
 def object_crops(rgb: np.ndarray, classes: np.ndarray, objects: Sequence[int], config: RenderConfig,
-                 names: Sequence[str], rng: np.random.Generator) -> Iterator[Sample]:
+                 names: Sequence[str], rng: np.random.Generator) -> Iterator[RenderSample]:
     """Crops around the visible objects (class indices ``objects``) of a ``crop_render`` image."""
     counts = {c: int((classes == c).sum()) for c in objects}
     visible = [c for c in objects if counts[c] >= config.min_crop_pixels]
@@ -385,11 +385,11 @@ def object_crops(rgb: np.ndarray, classes: np.ndarray, objects: Sequence[int], c
                                config.image_size)
         if (cls == c).mean() < 0.04:  # the object must be clearly in the crop
             continue
-        yield Sample(img, cls, OBJECT_CROP, int(c), caption(names[c], rng))
+        yield RenderSample(img, cls, OBJECT_CROP, int(c), caption(names[c], rng))
 
 
 def background_crop(rgb: np.ndarray, classes: np.ndarray, config: RenderConfig, names: Sequence[str],
-                    background: Sequence[int], rng: np.random.Generator) -> Sample | None:
+                    background: Sequence[int], rng: np.random.Generator) -> RenderSample | None:
     """A crop showing (almost) only one background class, or None when none was found in a few tries."""
     size = classes.shape[0]
     for _ in range(6):
@@ -400,11 +400,11 @@ def background_crop(rgb: np.ndarray, classes: np.ndarray, config: RenderConfig, 
         best = values[np.argmax(counts)]
         if best in background and counts.max() >= 0.8 * cls.size and np.isin(cls, background).mean() > 0.98:
             img, cls = resize_pair(rgb[top:top + side, left:left + side], cls, config.image_size)
-            return Sample(img, cls, BACKGROUND_CROP, int(best), caption(names[int(best)], rng))
+            return RenderSample(img, cls, BACKGROUND_CROP, int(best), caption(names[int(best)], rng))
     return None
 
 
-def render_world(seed: Sequence[int], config: RenderConfig, classes: Sequence[str]) -> list[Sample]:
+def render_world(seed: Sequence[int], config: RenderConfig, classes: Sequence[str]) -> list[RenderSample]:
     """All samples of one world (see the module docstring); deterministic for a given seed."""
     rng = np.random.default_rng(list(seed))
     names = list(config.object_names())
@@ -414,7 +414,7 @@ def render_world(seed: Sequence[int], config: RenderConfig, classes: Sequence[st
                   sizes=(config.image_size, config.crop_render))
     index = {c: i for i, c in enumerate(classes)}
     background = [index[b] for b in BACKGROUND_CLASSES]
-    samples: list[Sample] = []
+    samples: list[RenderSample] = []
     try:
         for _ in range(config.layouts_per_world):
             shown = world.layout(rng, config.max_on_table)
@@ -422,7 +422,7 @@ def render_world(seed: Sequence[int], config: RenderConfig, classes: Sequence[st
             for _ in range(config.views_per_layout):
                 world.view(rng, shown)
                 rgb, cls = world.render(config.image_size)
-                samples.append(Sample(rgb, cls, SCENE, -1, ""))
+                samples.append(RenderSample(rgb, cls, SCENE, -1, ""))
                 big_rgb, big_cls = world.render(config.crop_render)
                 samples.extend(object_crops(big_rgb, big_cls, objects, config, classes, rng))
                 if rng.random() < config.background_crop_prob:
@@ -434,7 +434,7 @@ def render_world(seed: Sequence[int], config: RenderConfig, classes: Sequence[st
     return samples
 
 
-def stack_samples(samples: Sequence[Sample]) -> dict[str, np.ndarray]:
+def stack_samples(samples: Sequence[RenderSample]) -> dict[str, np.ndarray]:
     """Samples -> the arrays of one shard (see the module docstring)."""
     return {
         "images": np.stack([s.image for s in samples]).astype(np.uint8),
@@ -447,7 +447,7 @@ def stack_samples(samples: Sequence[Sample]) -> dict[str, np.ndarray]:
 
 def render_shard(shard: int, base_seed: int, config: RenderConfig, classes: Sequence[str]) -> dict[str, np.ndarray]:
     """The arrays of shard ``shard``: worlds with seeds ``(base_seed, shard, w)``, ``w < worlds_per_shard``."""
-    samples: list[Sample] = []
+    samples: list[RenderSample] = []
     for w in range(config.worlds_per_shard):
         samples += render_world((base_seed, shard, w), config, classes)
     return stack_samples(samples)

@@ -36,7 +36,7 @@ GRASP_TOLERANCE_CM = 2.0
 
 
 @dataclass(frozen=True)
-class KeyframeError:
+class KeyframeDeviation:
     """One prediction against one expert keyframe."""
 
     method: str
@@ -63,13 +63,13 @@ def keyframe_errors(
     split: str,
     episodes: int,
     resolution: int = 128,
-) -> list[KeyframeError]:
+) -> list[KeyframeDeviation]:
     """Score every policy at every expert keyframe of ``episodes`` evaluation scenes.
 
     Scenes use the evaluation seeds of ``abm eval`` (repeat 0), so numbers line up with rollouts.
     Scenes whose expert fails are skipped.
     """
-    out: list[KeyframeError] = []
+    out: list[KeyframeDeviation] = []
     for ep in range(episodes):
         seed = eval_seed(0, ep)
         with make_env(task, split, seed, resolution) as env:
@@ -79,13 +79,13 @@ def keyframe_errors(
             for index, (obs, label) in enumerate(episode.steps):
                 for name, act in policies.items():
                     pos, rot, grip = score_keyframe(act(obs, env.instruction, env.object_names), label)
-                    out.append(KeyframeError(name, task, split, seed, index, label.kind, pos, rot, grip))
+                    out.append(KeyframeDeviation(name, task, split, seed, index, label.kind, pos, rot, grip))
     return out
 
 
-def summarise(errors: Iterable[KeyframeError]) -> list[dict[str, object]]:
+def summarise(errors: Iterable[KeyframeDeviation]) -> list[dict[str, object]]:
     """One row per (method, task, split, kind): medians, fraction within the grasp tolerance, counts."""
-    groups: dict[tuple[str, str, str, str], list[KeyframeError]] = {}
+    groups: dict[tuple[str, str, str, str], list[KeyframeDeviation]] = {}
     for e in errors:
         groups.setdefault((e.method, e.task, e.split, e.kind), []).append(e)
     rows = []
@@ -115,6 +115,6 @@ def markdown(rows: Sequence[Mapping[str, object]], kinds: Sequence[str] | None =
     return "\n".join(lines)
 
 
-def as_records(errors: Iterable[KeyframeError]) -> list[dict[str, object]]:
+def as_records(errors: Iterable[KeyframeDeviation]) -> list[dict[str, object]]:
     """Plain dicts (for JSON)."""
     return [asdict(e) for e in errors]

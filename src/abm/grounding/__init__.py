@@ -19,7 +19,7 @@ from abm.lazy import lazy_exports
 __getattr__, __dir__ = lazy_exports(__name__, {
     "abm.grounding.cache": ("GroundingCache", "cloud_key", "content_key", "frame_key", "image_key",),
     "abm.grounding.clip": (
-        "DEFAULT_MODEL", "PRESETS", "ClipBackbone", "ClipWeightsNotFoundError", "load_clip", "random_clip",
+        "DEFAULT_MODEL", "CLIP_PRESETS", "ClipBackbone", "ClipWeightsNotFoundError", "load_clip", "random_clip",
         "tiny_clip",
     ),
     "abm.grounding.feature_cloud": (
@@ -42,7 +42,7 @@ __getattr__, __dir__ = lazy_exports(__name__, {
 
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_NEGATIVES", "DEFAULT_NORMALIZATION", "DEFAULT_THRESHOLD", "GROUNDERS",
-    "NORMALIZATIONS", "PRESETS", "ClipBackbone", "ClipGrounder", "ClipWeightsNotFoundError", "FeatureCloud",
+    "NORMALIZATIONS", "CLIP_PRESETS", "ClipBackbone", "ClipGrounder", "ClipWeightsNotFoundError", "FeatureCloud",
     "Grounder", "GroundingCache", "InstructionError", "InstructionParser", "MaskField", "MaskFieldConfig",
     "MaskViews", "OracleGrounder", "ParsedInstruction", "RewritingParser", "TemplateParser", "TemplateSet",
     "build_feature_cloud", "clip_prompt", "cloud_key", "content_key", "decompose_instruction", "frame_key",

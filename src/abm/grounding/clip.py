@@ -41,7 +41,7 @@ CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 
 # Architectures of the public OpenAI checkpoints, for random-weight speed measurements.
-PRESETS: dict[str, dict[str, Any]] = {
+CLIP_PRESETS: dict[str, dict[str, Any]] = {
     "vit-b16": dict(
         projection_dim=512,
         vision=dict(hidden_size=768, intermediate_size=3072, num_hidden_layers=12, num_attention_heads=12,
@@ -356,12 +356,12 @@ def _finish(model: Any, device: torch.device, dtype: torch.dtype) -> Any:
 
 
 def build_config(preset: str = "tiny", vocab_size: int | None = None) -> Any:
-    """A :class:`transformers.CLIPConfig` for one of :data:`PRESETS`."""
+    """A :class:`transformers.CLIPConfig` for one of :data:`CLIP_PRESETS`."""
     from transformers import CLIPConfig
 
-    if preset not in PRESETS:
-        raise ValueError(f"unknown CLIP preset {preset!r}; choose from {sorted(PRESETS)}")
-    spec = PRESETS[preset]
+    if preset not in CLIP_PRESETS:
+        raise ValueError(f"unknown CLIP preset {preset!r}; choose from {sorted(CLIP_PRESETS)}")
+    spec = CLIP_PRESETS[preset]
     text = dict(spec["text"], max_position_embeddings=TEXT_CONTEXT, projection_dim=spec["projection_dim"])
     if vocab_size is not None:
         # The offline tokenizer's ids: BOS = vocab_size - 2, EOS = PAD = vocab_size - 1.

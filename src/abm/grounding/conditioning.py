@@ -24,10 +24,8 @@ from typing import Any
 import numpy as np
 
 from abm.geometry import PointCloud, Workspace, fuse_cameras
-from abm.grounding.instruction import MultiStepInstructionError, default_parser
+from abm.grounding.instruction import PLACEHOLDER, MultiStepInstructionError, default_parser
 from abm.types import Observation
-
-PLACEHOLDER = "X"
 
 
 @dataclass

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from abm.types import CameraFrame, Observation
 
 TABLE_HALF_EXTENT = (0.45, 0.6)  # table top: x in [0.05, 0.95], y in [-0.6, 0.6], z = 0
-TABLE_CENTER_X = 0.5
+SYNTHETIC_TABLE_CENTER_X = 0.5
 TABLE_COLOR = np.array([0.62, 0.55, 0.45])
 BLOCK_COLORS: dict[str, tuple[float, float, float]] = {
     "red": (0.85, 0.15, 0.12),
@@ -102,7 +102,7 @@ def raycast(
         t = -o[2] / d[..., 2]
         hit = t > 0
         px, py = o[0] + t * d[..., 0], o[1] + t * d[..., 1]
-        hit &= (np.abs(px - TABLE_CENTER_X) <= TABLE_HALF_EXTENT[0]) & (np.abs(py) <= TABLE_HALF_EXTENT[1])
+        hit &= (np.abs(px - SYNTHETIC_TABLE_CENTER_X) <= TABLE_HALF_EXTENT[0]) & (np.abs(py) <= TABLE_HALF_EXTENT[1])
         t_best = np.where(hit, t, t_best)
         checker = ((np.floor(px / 0.1) + np.floor(py / 0.1)) % 2)[..., None]
         color = np.where(hit[..., None], TABLE_COLOR * (0.9 + 0.1 * checker), color)
