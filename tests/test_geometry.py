@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from abm.geometry import (
     Workspace,
-    augment_scene,
+    augment_cloud,
     bins_to_quat,
     canonical_gripper_matrix,
     canonical_gripper_quat,
@@ -128,7 +128,7 @@ def test_augmentation_moves_points_and_action_together():
     offset = np.array([0.0, 0.0, 0.1])  # a point fixed in the gripper frame, 10 cm along its z axis
     tip = action.matrix @ np.append(offset, 1)
     for _ in range(20):
-        new_points, new_action, transform = augment_scene(points, action, ws, rng)
+        new_points, new_action, transform = augment_cloud(points, action, ws, rng)
         assert not np.allclose(transform, np.eye(4))
         np.testing.assert_allclose(new_action.position, new_points[7], atol=1e-5)
         np.testing.assert_allclose(new_action.matrix @ np.append(offset, 1), transform @ tip, atol=1e-5)

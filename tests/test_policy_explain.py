@@ -1,4 +1,4 @@
-"""``KeyframePolicy.explain`` / ``explain_scene`` are the one place that computes what a policy saw; the
+"""``KeyframePolicy.explain`` / ``explain_grounding`` are the one place that computes what a policy saw; the
 pictures drawn from them equal those the viewer, the quickstart report and the robot log drew before they
 used it (each re-rendered the views itself)."""
 
@@ -12,11 +12,11 @@ import torch
 
 from abm.grounding.config import OracleGrounderConfig, build_grounder
 from abm.grounding.visualize import overlay_views
-from abm.policy import KeyframePolicy, PolicyExplanation, SceneExplanation, explain_scene
+from abm.policy import GroundingExplanation, KeyframePolicy, PolicyExplanation, explain_grounding
 from abm.render import OrthographicRenderer
 from abm.samples import collate
 from abm.train.synthetic import synthetic_episodes
-from abm.viewer.scene import scene_from_episode
+from abm.viewer.record import record_from_episode
 
 RUN = Path(__file__).parent / "data" / "checkpoints_v1" / "run_oracle"
 
@@ -30,7 +30,7 @@ def test_explain_returns_the_network_input_and_the_scene(episode) -> None:
     policy = KeyframePolicy.from_checkpoint(RUN)
     obs, _ = episode.steps[0]
     seen = policy.explain(obs, episode.instruction, episode.object_names)
-    assert isinstance(seen, PolicyExplanation) and isinstance(seen, SceneExplanation)
+    assert isinstance(seen, PolicyExplanation) and isinstance(seen, GroundingExplanation)
     # the old route of the quickstart figure and the robot log: observe + model_inputs
     inputs = policy.model_inputs(collate([policy.observe(obs, episode.instruction, episode.object_names)]))
     np.testing.assert_array_equal(seen.view_images, inputs["images"][0].numpy())
@@ -46,11 +46,11 @@ def test_explain_scene_equals_the_viewers_former_rendering(episode) -> None:
     obs, _ = episode.steps[1]
     renderer = OrthographicRenderer(policy_ws := KeyframePolicy.from_checkpoint(RUN).workspace, 40)
     grounder = build_grounder(OracleGrounderConfig())
-    seen = explain_scene(obs, episode.instruction, renderer, grounder, episode.object_names)
-    # what abm/viewer/scene.py computed itself before
-    from abm.grounding.conditioning import condition_scene
+    seen = explain_grounding(obs, episode.instruction, renderer, grounder, episode.object_names)
+    # what abm/viewer/record.py computed itself before
+    from abm.grounding.conditioning import condition_cloud
 
-    cond = condition_scene(obs, episode.instruction, policy_ws, grounder=grounder, object_names=episode.object_names,
+    cond = condition_cloud(obs, episode.instruction, policy_ws, grounder=grounder, object_names=episode.object_names,
                            mask=True)
     rendered = renderer.render(torch.from_numpy(cond.cloud.xyz)[None], torch.from_numpy(cond.cloud.rgb)[None],
                                extra=torch.from_numpy(cond.point_mask.mask[:, None])[None])
@@ -65,7 +65,7 @@ def test_explain_scene_equals_the_viewers_former_rendering(episode) -> None:
 
 def test_viewer_scene_draws_from_explain(episode) -> None:
     policy = KeyframePolicy.from_checkpoint(RUN)
-    scene = scene_from_episode(episode, policy, steps=[0])
+    scene = record_from_episode(episode, policy, steps=[0])
     obs, _ = episode.steps[0]
     seen = policy.explain(obs, episode.instruction, episode.object_names)
     want = overlay_views(seen.view_rgb, seen.view_target, seen.heatmaps, seen.view_mask)

@@ -10,7 +10,7 @@ import pytest
 
 from abm.geometry import Workspace
 from abm.grounding import make_grounder
-from abm.grounding.conditioning import active_role, condition_scene
+from abm.grounding.conditioning import active_role, condition_cloud
 from abm.grounding.instruction import InstructionError, SkillTemplate, TemplateParser
 from abm.render.synthetic import synthetic_scene
 
@@ -72,7 +72,7 @@ def test_condition_scene_grounds_x_then_y() -> None:
 
     def mask_of(gripper_open: float, target) -> tuple[np.ndarray, int, str]:
         o = dataclasses.replace(obs, gripper_open=gripper_open)
-        scene = condition_scene(o, f"put the {x} in the {y}", ws, grounder=oracle, object_names=names, split=False,
+        scene = condition_cloud(o, f"put the {x} in the {y}", ws, grounder=oracle, object_names=names, split=False,
                                 target=target, skill="put X in Y", mask=True)
         return scene.point_mask.mask, scene.role, scene.target
 
@@ -120,7 +120,7 @@ def test_an_expert_episode_grounds_the_object_then_the_container() -> None:
     oracle = make_grounder("oracle")
     chosen = []
     for obs, _ in episode.steps:
-        scene = condition_scene(obs, episode.instruction, Workspace(), grounder=oracle,
+        scene = condition_cloud(obs, episode.instruction, Workspace(), grounder=oracle,
                                 object_names=episode.object_names, mask=True)
         chosen.append(scene.role)
         seg = scene.cloud.gather({n: f.segmentation for n, f in obs.cameras.items()})

@@ -14,7 +14,7 @@ from abm.geometry import Workspace
 from abm.render.orthographic import VIEW_AXES, VIEW_NAMES
 from abm.train.synthetic import synthetic_episodes
 from abm.types import KeyframeAction
-from abm.viewer import ViewerScene, ViewerStep, overlay_views, scene_from_episode, view_camera_pose
+from abm.viewer import ViewerRecord, ViewerStep, overlay_views, record_from_episode, view_camera_pose
 from abm.viewer.browser import find_chromium
 
 TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
@@ -57,7 +57,7 @@ def test_overlay_marks_the_mask_and_the_heatmap_peak() -> None:
 
 
 def test_oracle_scene_of_an_episode_finds_the_target(episode) -> None:
-    scene = scene_from_episode(episode, view_resolution=32)
+    scene = record_from_episode(episode, view_resolution=32)
     assert scene.target_name == episode.target_names[0]
     assert [s.index for s in scene.steps] == [0, 1] and len(scene.view_names) == 5
     step = scene.steps[0]
@@ -68,7 +68,7 @@ def test_oracle_scene_of_an_episode_finds_the_target(episode) -> None:
     np.testing.assert_allclose(step.expert.position[:2], target_xy, atol=0.02)
     assert step.predicted is None and all(v.shape == (32, 32, 3) for v in step.views)
     with pytest.raises(ValueError, match="steps 0..1"):
-        scene_from_episode(episode, steps=[5])
+        record_from_episode(episode, steps=[5])
 
 
 def test_policy_scene_shows_what_the_policy_saw(episode, tmp_path) -> None:
@@ -78,7 +78,7 @@ def test_policy_scene_shows_what_the_policy_saw(episode, tmp_path) -> None:
     train(TrainConfig(method="abm", preset="small", out=tmp_path, steps=1, batch=1, policy_overrides=dict(TINY),
                       progress=False), [episode])
     policy = KeyframePolicy.from_checkpoint(tmp_path)
-    scene = scene_from_episode(episode, policy=policy, steps=[1])
+    scene = record_from_episode(episode, policy=policy, steps=[1])
     [step] = scene.steps
     assert step.index == 1 and step.predicted is not None and step.expert is not None
     assert scene.workspace == policy.workspace and step.views[0].shape == (32, 32, 3)
@@ -86,7 +86,7 @@ def test_policy_scene_shows_what_the_policy_saw(episode, tmp_path) -> None:
     np.testing.assert_allclose(step.predicted.position, same.position, atol=1e-6)
 
 
-def _vivid_scene() -> ViewerScene:
+def _vivid_scene() -> ViewerRecord:
     """A scene whose points are pure magenta and whose views are half pure green: both are easy to find in a
     screenshot and absent from viser's own interface."""
     rng = np.random.default_rng(0)
@@ -97,7 +97,7 @@ def _vivid_scene() -> ViewerScene:
     action = KeyframeAction(np.array([0.5, 0.0, 0.2]), np.array([1.0, 0, 0, 0]), gripper_open=True)
     step = ViewerStep(0, points, colors, np.linspace(0, 1, len(points)).astype(np.float32),
                       np.arange(len(points)) % 7 == 0, [view] * 5, action, action, np.eye(4))
-    return ViewerScene("test", "pick up the cube", "cube", Workspace(), list(VIEW_NAMES), [step, step])
+    return ViewerRecord("test", "pick up the cube", "cube", Workspace(), list(VIEW_NAMES), [step, step])
 
 
 @pytest.mark.skipif(find_chromium() is None, reason="needs Chromium (apt-get install chromium)")
@@ -150,7 +150,7 @@ def test_cli_errors(capsys) -> None:
 
 def test_torch_is_not_needed_to_draw(episode) -> None:
     """The scene is plain numpy: nothing the server draws is a tensor."""
-    scene = scene_from_episode(episode, steps=[0], view_resolution=16)
+    scene = record_from_episode(episode, steps=[0], view_resolution=16)
     step = scene.steps[0]
     assert not any(torch.is_tensor(v) for v in (step.points, step.colors, step.scores, step.target, *step.views))
 
@@ -167,7 +167,7 @@ def test_centre_marks_are_drawn_but_a_full_mask_is_left_to_the_tint() -> None:
 
 def test_clip_grounder_scene_has_soft_scores(episode) -> None:
     pytest.importorskip("transformers")
-    scene = scene_from_episode(episode, grounder={"kind": "clip", "model": "tiny", "device": "cpu"}, steps=[0],
+    scene = record_from_episode(episode, grounder={"kind": "clip", "model": "tiny", "device": "cpu"}, steps=[0],
                                view_resolution=16)
     step = scene.steps[0]
     assert step.scores is not None and step.scores.shape == (len(step.points),)

@@ -17,7 +17,7 @@ from abm.geometry import Workspace
 from abm.grounding.conditioning import active_role
 from abm.grounding.visualize import hstack, label, vstack
 from abm.sim.env import make_env, run_expert
-from abm.viewer import scene_from_episode
+from abm.viewer import record_from_episode
 
 
 def main() -> None:
@@ -28,7 +28,7 @@ def main() -> None:
     with make_env("put_in_container", "seen", args.seed, resolution=128) as env:
         episode = run_expert(env)
     x, y = episode.target_names
-    scene = scene_from_episode(episode, workspace=Workspace(center=(0.5, 0.0, 0.15), size=0.6), view_resolution=96)
+    scene = record_from_episode(episode, workspace=Workspace(center=(0.5, 0.0, 0.15), size=0.6), view_resolution=96)
     rows = []
     for step, (obs, action) in zip(scene.steps, episode.steps, strict=True):
         target = (x, y)[active_role(obs.gripper_open, 2)]  # the policy's rule: Y while the gripper holds X

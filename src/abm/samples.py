@@ -27,7 +27,7 @@ from typing import Any, NotRequired, TypedDict, cast
 import numpy as np
 import torch
 
-from abm.grounding.conditioning import ConditionedScene
+from abm.grounding.conditioning import ConditionedCloud
 from abm.types import KeyframeAction
 
 POINT_KEYS = ("points", "colors", "point_mask", "point_heatmap", "point_features")
@@ -80,30 +80,30 @@ class Batch(TypedDict):
     action_collision: NotRequired[torch.Tensor]
 
 
-def scene_sample(scene: ConditionedScene, gripper_open: float, gripper_position: np.ndarray,
+def cloud_sample(conditioned: ConditionedCloud, gripper_open: float, gripper_position: np.ndarray,
                  points: np.ndarray | None = None) -> Sample:
-    """The scene entries of a sample.
+    """The point-cloud entries of a sample.
 
     Args:
-        scene: the conditioned observation.
+        conditioned: the conditioned observation.
         gripper_open: gripper opening in ``[0, 1]``.
         gripper_position: ``(3,)`` world metres (after augmentation in training).
-        points: ``(N, 3)`` replacement point positions (the augmented cloud); default the scene's.
+        points: ``(N, 3)`` replacement point positions (the augmented cloud); default the conditioned cloud's.
     """
-    xyz = scene.cloud.xyz if points is None else points
+    xyz = conditioned.cloud.xyz if points is None else points
     sample: Sample = {
         "points": torch.from_numpy(np.ascontiguousarray(xyz, np.float32)),
-        "colors": torch.from_numpy(np.ascontiguousarray(scene.cloud.rgb, np.float32)),
+        "colors": torch.from_numpy(np.ascontiguousarray(conditioned.cloud.rgb, np.float32)),
         "gripper_open": torch.tensor(float(gripper_open), dtype=torch.float32),
         "gripper_position": torch.from_numpy(np.asarray(gripper_position, np.float32).reshape(3)),
-        "instruction": scene.instruction,
-        "skill": scene.skill or "",
+        "instruction": conditioned.instruction,
+        "skill": conditioned.skill or "",
     }
-    if scene.point_mask is not None:
-        sample["point_mask"] = torch.from_numpy(np.asarray(scene.point_mask.mask, np.float32))
-        sample["point_heatmap"] = torch.from_numpy(np.asarray(scene.point_mask.heatmap, np.float32))
-    if scene.features is not None:
-        sample["point_features"] = torch.from_numpy(np.asarray(scene.features, np.float16))
+    if conditioned.point_mask is not None:
+        sample["point_mask"] = torch.from_numpy(np.asarray(conditioned.point_mask.mask, np.float32))
+        sample["point_heatmap"] = torch.from_numpy(np.asarray(conditioned.point_mask.heatmap, np.float32))
+    if conditioned.features is not None:
+        sample["point_features"] = torch.from_numpy(np.asarray(conditioned.features, np.float16))
     return sample
 
 

@@ -5,7 +5,7 @@ Per sample (episode ``e``, keyframe ``k``):
 1. fuse the cameras into a point cloud, cropped to the workspace cube grown by what augmentation can
    bring into view (so shifted / rotated samples have no empty bands; the policy's renderer does the
    final crop to the cube), and condition it on the instruction
-   (:func:`abm.grounding.conditioning.condition_scene`): the target X and skill text (split once per
+   (:func:`abm.grounding.conditioning.condition_cloud`): the target X and skill text (split once per
    episode), the per-point mask field of X (oracle: computed here; other grounders: read from the cache
    that the explicit grounding step :func:`ground_keyframes` / ``abm data ground`` fills) and per-point
    CLIP features (cached the same way);
@@ -41,17 +41,17 @@ from numpy.typing import NDArray
 from torch.utils.data import Dataset, Sampler
 
 from abm.files import atomic_path
-from abm.geometry import Workspace, augment_scene, transform_points
+from abm.geometry import Workspace, augment_cloud, transform_points
 from abm.grounding.conditioning import (
-    ConditionedScene,
+    ConditionedCloud,
     PointMask,
-    condition_scene,
+    condition_cloud,
     split_roles,
 )
 from abm.grounding.config import GrounderConfig, OracleGrounderConfig, as_grounder_config, build_grounder
 from abm.grounding.grounders import Grounder, resolved_spec
 from abm.progress import Progress
-from abm.samples import Sample, action_targets, collate, scene_sample
+from abm.samples import Sample, action_targets, cloud_sample, collate
 from abm.types import Episode, KeyframeAction, Observation
 
 __all__ = ["EpisodeMeta", "EpisodeSource", "KeyframeDataset", "StepSampler", "augmentation_margin_cube",
@@ -324,9 +324,9 @@ class KeyframeDataset(Dataset[Sample]):
         return self.cache_dir / f"{digest}_k{k:03d}.npz"
 
     def _scene(self, j: int, obs: Observation, grounder: Grounder | None, mask: bool, features: bool
-               ) -> ConditionedScene:
+               ) -> ConditionedCloud:
         meta = self.source.meta[j]
-        return condition_scene(obs, meta.instruction, self.fuse_workspace, grounder=grounder,
+        return condition_cloud(obs, meta.instruction, self.fuse_workspace, grounder=grounder,
                                object_names=meta.object_names, split=False, target=self.targets[j],
                                skill=self.skills[j], mask=mask, features=features, camera_names=self.camera_names)
 
@@ -366,7 +366,7 @@ class KeyframeDataset(Dataset[Sample]):
     def __len__(self) -> int:
         return len(self.items)
 
-    def _conditioned(self, j: int, k: int, obs: Observation) -> ConditionedScene:
+    def _conditioned(self, j: int, k: int, obs: Observation) -> ConditionedCloud:
         if not self.cached:
             if self.mask and self._oracle is None:
                 self._oracle = build_grounder(OracleGrounderConfig())
@@ -392,10 +392,10 @@ class KeyframeDataset(Dataset[Sample]):
         grip_pos = np.asarray(obs.gripper_pose[:3, 3], np.float64)
         if self.augment:
             rng = np.random.default_rng([self.seed, sample_seed])
-            points, action, transform = augment_scene(points, action, self.workspace, rng,
+            points, action, transform = augment_cloud(points, action, self.workspace, rng,
                                                       self.max_translation, self.max_yaw_deg)
             grip_pos = transform_points(transform, grip_pos[None])[0]
-        sample: Sample = {**scene_sample(scene, obs.gripper_open, grip_pos, points), **action_targets(action)}
+        sample: Sample = {**cloud_sample(scene, obs.gripper_open, grip_pos, points), **action_targets(action)}
         return sample
 
 

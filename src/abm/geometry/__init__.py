@@ -4,7 +4,7 @@ from abm.lazy import lazy_exports
 
 # imported on first use (abm.lazy), so importing the package (every `abm` command does) stays light
 __getattr__, __dir__ = lazy_exports(__name__, {
-    "abm.geometry.augmentation": ("augment_scene", "random_se3", "transform_action", "transform_points",),
+    "abm.geometry.augmentation": ("augment_cloud", "random_se3", "transform_action", "transform_points",),
     "abm.geometry.pointcloud": (
         "PointCloud", "depth_to_points", "fuse_cameras", "project_to_camera", "valid_depth_mask",
     ),
@@ -20,7 +20,7 @@ __getattr__, __dir__ = lazy_exports(__name__, {
 __all__ = [
     "DEFAULT_ROTATION_BINS", "GRIPPER_REFERENCE_YAW_DEG", "GRIPPER_SYMMETRY", "ROUND_SYMMETRY",
     "canonical_gripper_matrix", "canonical_gripper_quat", "symmetric_angle_deg", "PointCloud", "Workspace",
-    "augment_scene", "bins_to_euler", "bins_to_quat",
+    "augment_cloud", "bins_to_euler", "bins_to_quat",
     "depth_to_points", "euler_to_bins", "euler_to_quat", "fuse_cameras", "matrix_to_quat",
     "normalize_quaternion", "pose_matrix", "project_to_camera", "quat_angle_deg", "quat_to_bins",
     "quat_to_euler", "quat_to_matrix", "random_se3", "transform_action", "transform_points",

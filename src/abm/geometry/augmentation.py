@@ -1,7 +1,7 @@
 """SE(3) augmentation applied consistently to a point cloud and a keyframe action.
 
 A random rigid transform — a yaw about the vertical axis through the workspace centre followed by a
-translation — moves the whole scene and the action with it, so the action still points at the
+translation — moves the whole cloud and the action with it, so the action still points at the
 same object point. Defaults follow RVT/PerAct: translation uniform in ±0.125 m per axis, yaw uniform
 in ±45 degrees.
 """
@@ -53,7 +53,7 @@ def transform_action(transform: np.ndarray, action: KeyframeAction) -> KeyframeA
                           action.kind, action.symmetry)
 
 
-def augment_scene(
+def augment_cloud(
     points: np.ndarray,
     action: KeyframeAction,
     workspace: Workspace,
@@ -62,7 +62,7 @@ def augment_scene(
     max_yaw_deg: float = 45.0,
     max_tries: int = 20,
 ) -> tuple[np.ndarray, KeyframeAction, np.ndarray]:
-    """Randomly move a scene and its action together.
+    """Randomly move a point cloud and its action together.
 
     A transform is resampled (up to ``max_tries`` times) until the augmented action stays inside the
     workspace; if none does, the identity is used so the sample is never lost.

@@ -1,7 +1,7 @@
-"""Conditioning of one scene on an instruction: the target X, the skill text and the per-point mask field.
+"""Conditioning of an observation's fused cloud on an instruction: target X, skill text, per-point mask field.
 
 The training data (:mod:`abm.data.keyframes`) and the policy at run time (:mod:`abm.policy`) both go
-through :func:`condition_scene`, so the two see the same points, mask and texts. Grounding results are
+through :func:`condition_cloud`, so the two see the same points, mask and texts. Grounding results are
 normalised to :class:`PointMask`.
 
 **Sub-goals.** A two-target instruction ("put the ketchup in the bowl" -> X = ketchup, Y = bowl) is one
@@ -105,7 +105,7 @@ def ground_points(grounder: Any, observation: Observation, cloud: PointCloud, ta
 
 
 @dataclass
-class ConditionedScene:
+class ConditionedCloud:
     """One observation fused into a point cloud and conditioned on an instruction.
 
     Attributes:
@@ -128,7 +128,7 @@ class ConditionedScene:
     role: int = 0
 
 
-def condition_scene(
+def condition_cloud(
     observation: Observation,
     instruction: str,
     workspace: Workspace,
@@ -141,7 +141,7 @@ def condition_scene(
     mask: bool = False,
     features: bool = False,
     camera_names: list[str] | None = None,
-) -> ConditionedScene:
+) -> ConditionedCloud:
     """Fuse the cameras inside ``workspace`` and condition the cloud on ``instruction``.
 
     Args:
@@ -173,4 +173,4 @@ def condition_scene(
         raise ValueError("a grounder is needed for the mask field and CLIP point features")
     point_mask = ground_points(grounder, observation, cloud, target, object_names or {}) if mask else None
     feats = np.asarray(grounder.point_features(observation, cloud), np.float32) if features else None
-    return ConditionedScene(cloud, instruction, target, skill, point_mask, feats, role)
+    return ConditionedCloud(cloud, instruction, target, skill, point_mask, feats, role)

@@ -18,14 +18,14 @@ __getattr__, __dir__ = lazy_exports(__name__, {
     "abm.policy.action_coding": ("EncodedAction", "decode_action", "encode_action",),
     "abm.policy.config": ("PRESETS", "PolicyConfig", "check_compatible",),
     "abm.policy.heads": ("LossTerms", "decode_output", "decode_translation", "policy_loss", "translation_targets",),
-    "abm.policy.keyframe_policy": ("KeyframePolicy", "PolicyExplanation", "SceneExplanation", "explain_scene",),
+    "abm.policy.keyframe_policy": ("KeyframePolicy", "PolicyExplanation", "GroundingExplanation", "explain_grounding",),
     "abm.policy.mvt": ("MultiViewTransformer", "PolicyOutput",),
     "abm.policy.variants": ("VARIANTS", "VariantSpec", "get_variant", "mask_channel",),
 })
 
 __all__ = [
     "PRESETS", "VARIANTS", "EncodedAction", "KeyframePolicy", "LossTerms", "MultiViewTransformer", "PolicyConfig",
-    "PolicyExplanation", "PolicyOutput", "SceneExplanation", "VariantSpec", "check_compatible", "decode_action",
-    "decode_output", "decode_translation", "encode_action", "explain_scene", "get_variant", "mask_channel",
+    "PolicyExplanation", "PolicyOutput", "GroundingExplanation", "VariantSpec", "check_compatible", "decode_action",
+    "decode_output", "decode_translation", "encode_action", "explain_grounding", "get_variant", "mask_channel",
     "policy_loss", "translation_targets",
 ]

@@ -8,7 +8,7 @@ the action coding and the network, for training and for acting.
 * :meth:`KeyframePolicy.act` runs the whole per-step pipeline on one observation, and
   :meth:`KeyframePolicy.explain` also returns what it saw (:class:`PolicyExplanation`: the fused cloud,
   target mask, virtual views, network input and heatmaps) - the one place that computes it; viewers, reports
-  and logs draw from it (and :func:`explain_scene` for the same without a network);
+  and logs draw from it (and :func:`explain_grounding` for the same without a network);
 * :meth:`KeyframePolicy.save` / :meth:`KeyframePolicy.from_checkpoint` write and read checkpoints.
 
 Example::
@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from torch import nn
 
 from abm.geometry import Workspace, quat_to_bins
-from abm.grounding.conditioning import condition_scene
+from abm.grounding.conditioning import condition_cloud
 from abm.grounding.config import (
     GROUNDER_CONFIGS,
     GrounderConfig,
@@ -52,7 +52,7 @@ from abm.policy.language import LanguageEncoder, make_language_encoder
 from abm.policy.mvt import MultiViewTransformer, PolicyOutput
 from abm.policy.variants import mask_channel
 from abm.render import OrthographicRenderer
-from abm.samples import Batch, Sample, collate, scene_sample
+from abm.samples import Batch, Sample, cloud_sample, collate
 from abm.types import KeyframeAction, Observation
 
 if TYPE_CHECKING:
@@ -62,7 +62,7 @@ LOSS_TERMS = ("total", "translation", "rotation", "gripper", "collision")
 
 
 @dataclass
-class SceneExplanation:
+class GroundingExplanation:
     """What a policy sees of one observation: the fused cloud, the target's mask over it and the ``V``
     virtual views (``H x W`` pixels each) it is rendered into. Positions are world coordinates in metres.
 
@@ -87,8 +87,8 @@ class SceneExplanation:
 
 
 @dataclass
-class PolicyExplanation(SceneExplanation):
-    """One :meth:`KeyframePolicy.explain` step: :class:`SceneExplanation` (``view_rgb`` is the colour the
+class PolicyExplanation(GroundingExplanation):
+    """One :meth:`KeyframePolicy.explain` step: :class:`GroundingExplanation` (``view_rgb`` is the colour the
     network saw) plus the network's input and output.
 
     Attributes:
@@ -123,17 +123,17 @@ def _target_views(renderer: OrthographicRenderer, sample: Sample) -> tuple[torch
     return views.rvt_channels()[0].float().cpu(), target
 
 
-def explain_scene(observation: Observation, instruction: str, renderer: OrthographicRenderer, grounder: Grounder,
+def explain_grounding(observation: Observation, instruction: str, renderer: OrthographicRenderer, grounder: Grounder,
                   object_names: Mapping[int, str] | None = None,
-                  camera_names: Sequence[str] | None = None) -> SceneExplanation:
+                  camera_names: Sequence[str] | None = None) -> GroundingExplanation:
     """What a mask policy with ``renderer``'s views would see of ``observation``, without a network: fuse the
     cameras in the renderer's workspace, ground the target with ``grounder`` and render the views (the viewer's
     grounding-only scenes). :meth:`KeyframePolicy.explain` is the same with a policy."""
-    scene = condition_scene(observation, instruction, renderer.workspace, grounder=grounder, object_names=object_names,
+    scene = condition_cloud(observation, instruction, renderer.workspace, grounder=grounder, object_names=object_names,
                             mask=True, camera_names=list(camera_names) if camera_names else None)
-    sample = scene_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
+    sample = cloud_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
     images, target = _target_views(renderer, sample)
-    return SceneExplanation(sample=sample, target=scene.target, view_names=list(renderer.views),
+    return GroundingExplanation(sample=sample, target=scene.target, view_names=list(renderer.views),
                             view_rgb=images[:, :3].permute(0, 2, 3, 1).clamp(0, 1).numpy(),
                             view_occupied=_occupied(images, renderer), view_target=target)
 
@@ -363,12 +363,12 @@ class KeyframePolicy(nn.Module):
         if opts["mask"] and isinstance(self.grounder_config, OracleGrounderConfig) and object_names is None:
             raise ValueError("the oracle grounder needs object_names (segmentation id -> name)")
         needs_grounder = opts["mask"] or opts["features"]
-        scene = condition_scene(observation, instruction, self.workspace,
+        scene = condition_cloud(observation, instruction, self.workspace,
                                 grounder=self.grounder if needs_grounder else None, object_names=object_names,
                                 split=opts["split"], mask=opts["mask"], features=opts["features"],
                                 camera_names=self.camera_names)
         self._last_target = scene.target  # for explain()
-        return scene_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
+        return cloud_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
 
     def act(self, observation: Observation, instruction: str,
             object_names: Mapping[int, str] | None = None) -> KeyframeAction:

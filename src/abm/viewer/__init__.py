@@ -1,6 +1,6 @@
 """See what the policy sees: a local 3-D web viewer (``abm view``) of episodes and rollouts.
 
-:mod:`abm.viewer.scene` turns an episode, a policy's explanations or a rollout into plain arrays;
+:mod:`abm.viewer.record` turns an episode, a policy's explanations or a rollout into plain arrays;
 :mod:`abm.viewer.server` draws them with viser; :mod:`abm.viewer.browser` takes headless-Chromium
 screenshots of the page (docs, browser tests).
 """
@@ -9,9 +9,9 @@ from abm.lazy import lazy_exports
 
 # imported on first use (abm.lazy), so importing the package (every `abm` command does) stays light
 __getattr__, __dir__ = lazy_exports(__name__, {
-    "abm.viewer.scene": (
-        "ViewerScene", "ViewerStep", "overlay_views", "rollout_scene", "scene_from_episode", "view_camera_pose",
+    "abm.viewer.record": (
+        "ViewerRecord", "ViewerStep", "overlay_views", "record_rollout", "record_from_episode", "view_camera_pose",
     ),
 })
 
-__all__ = ["ViewerScene", "ViewerStep", "overlay_views", "rollout_scene", "scene_from_episode", "view_camera_pose"]
+__all__ = ["ViewerRecord", "ViewerStep", "overlay_views", "record_rollout", "record_from_episode", "view_camera_pose"]

@@ -1,4 +1,4 @@
-"""Draw a :class:`~abm.viewer.scene.ViewerScene` in the browser with viser (served locally, works offline).
+"""Draw a :class:`~abm.viewer.record.ViewerRecord` in the browser with viser (served locally, works offline).
 
 The page shows the fused point cloud (coloured by RGB or by mask-field score, with a threshold slider),
 the target's points, the workspace cube, the five virtual cameras with their rendered views, the
@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from abm.grounding.visualize import colormap, upscale
-from abm.viewer.scene import EXPERT_COLOR, PREDICTED_COLOR, ViewerScene, ViewerStep, view_camera_pose
+from abm.viewer.record import EXPERT_COLOR, PREDICTED_COLOR, ViewerRecord, ViewerStep, view_camera_pose
 
 COLOR_MODES = ("rgb", "mask score")
 VIEW_PIXELS = 200  # views are enlarged (nearest neighbour) to at least this side for display
@@ -48,20 +48,20 @@ def _wxyz(matrix: np.ndarray) -> np.ndarray:
     return np.array([w, x, y, z])
 
 
-class SceneViewer:
-    """A viser server showing one :class:`ViewerScene`; :meth:`show` switches the step."""
+class ViewerServer:
+    """A viser server showing one :class:`ViewerRecord`; :meth:`show` switches the step."""
 
-    def __init__(self, scene: ViewerScene, host: str = "127.0.0.1", port: int = 8080) -> None:
+    def __init__(self, record: ViewerRecord, host: str = "127.0.0.1", port: int = 8080) -> None:
         try:
             import viser
         except ImportError as err:  # pragma: no cover - viser is a core dependency
             raise ImportError("abm view needs viser: pip install viser") from err
-        if not scene.steps:
-            raise ValueError("the scene has no steps to show")
-        self.scene = scene
+        if not record.steps:
+            raise ValueError("the record has no steps to show")
+        self.record = record
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.url = f"http://{host}:{self.server.get_port()}"
-        ws = scene.workspace
+        ws = record.workspace
         center = np.asarray(ws.center, np.float64)
         server = self.server
         server.scene.set_up_direction("+z")
@@ -71,22 +71,22 @@ class SceneViewer:
                                        thickness=0.003)
 
         gui = server.gui
-        gui.add_markdown(f"**{scene.instruction}**  \n{scene.title}"
-                         + (f"  \ntarget: *{scene.target_name}*" if scene.target_name else ""))
-        self.step_slider = gui.add_slider("step", 0, len(scene.steps) - 1, 1, 0, disabled=len(scene.steps) == 1)
+        gui.add_markdown(f"**{record.instruction}**  \n{record.title}"
+                         + (f"  \ntarget: *{record.target_name}*" if record.target_name else ""))
+        self.step_slider = gui.add_slider("step", 0, len(record.steps) - 1, 1, 0, disabled=len(record.steps) == 1)
         self.color_mode = gui.add_dropdown("colour", COLOR_MODES, initial_value="rgb")
         self.threshold = gui.add_slider("score threshold", 0.0, 1.0, 0.01, 0.5)
         self.point_size = gui.add_slider("point size (mm)", 1.0, 12.0, 0.5, 4.0)
         self.show_target = gui.add_checkbox("highlight target points", True)
         self.view_images: list[Any] = []
         with gui.add_folder("virtual views (mask cyan, heatmap jet)"):
-            for name, image in zip(scene.view_names, scene.steps[0].views, strict=True):
+            for name, image in zip(record.view_names, record.steps[0].views, strict=True):
                 self.view_images.append(gui.add_image(_enlarge(image), label=name))
         self.frustums: list[Any] = []
         # Each virtual camera is drawn half a cube outside the face it looks through, its picture a quarter
         # cube outside that face (viser draws the image at depth scale / tan(fov / 2) from the apex).
         half_height, depth = 0.175 * ws.size, 0.25 * ws.size
-        for name, image in zip(scene.view_names, scene.steps[0].views, strict=True):
+        for name, image in zip(record.view_names, record.steps[0].views, strict=True):
             position, wxyz = view_camera_pose(ws, name, distance=0.5 * ws.size)
             self.frustums.append(server.scene.add_camera_frustum(
                 f"/views/{name}", fov=2.0 * float(np.arctan(half_height / depth)), aspect=1.0, scale=half_height,
@@ -97,8 +97,8 @@ class SceneViewer:
         self.show(0)
 
     def show(self, index: int) -> None:
-        """Draw step ``index`` (an index into ``scene.steps``)."""
-        step = self.scene.steps[index]
+        """Draw step ``index`` (an index into ``record.steps``)."""
+        step = self.record.steps[index]
         scene = self.server.scene
         size = float(self.point_size.value) / 1000.0
         scene.add_point_cloud("/cloud", points=step.points,
@@ -141,11 +141,11 @@ def check_port(host: str, port: int) -> None:
                          "or --host, or stop the program that uses it") from None
 
 
-def serve(scene: ViewerScene, host: str = "127.0.0.1", port: int = 8080) -> SceneViewer:
-    """Start serving ``scene`` (returns at once; the server runs in background threads).
+def serve(record: ViewerRecord, host: str = "127.0.0.1", port: int = 8080) -> ViewerServer:
+    """Start serving ``record`` (returns at once; the server runs in background threads).
 
     Raises:
         ValueError: the address is busy or invalid (checked before any thread starts).
     """
     check_port(host, port)
-    return SceneViewer(scene, host, port)
+    return ViewerServer(record, host, port)

@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # numpy is imported by the command itself, so `abm --help` st
     import numpy as np
 
 
-def _load_scene(args: argparse.Namespace) -> tuple[Any, dict[int, str], str | None, str]:
+def _load_observation(args: argparse.Namespace) -> tuple[Any, dict[int, str], str | None, str]:
     """(observation, object names, episode instruction or None, description)."""
     if args.episode is not None:
         episode = load_episode(args.episode)
@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--out {args.out} is a file; give a folder")
     if str(args.device).startswith("cuda") and not torch.cuda.is_available():
         raise CommandError(f"--device {args.device}: CUDA is not available on this machine (use --device cpu)")
-    obs, names, episode_instruction, where = _load_scene(args)
+    obs, names, episode_instruction, where = _load_observation(args)
     instruction = args.instruction or episode_instruction or f"put the {next(iter(names.values()))} in the plate"
     target, skill = decompose_instruction(instruction)
     workspace = Workspace()

@@ -11,7 +11,7 @@ from abm.data.episode_store import load_episode
 from abm.grounding.config import grounder_config_from_dict
 from abm.policy import KeyframePolicy
 from abm.viewer.browser import find_chromium, screenshot
-from abm.viewer.scene import rollout_scene, scene_from_episode
+from abm.viewer.record import record_from_episode, record_rollout
 from abm.viewer.server import check_port, serve
 
 
@@ -22,7 +22,7 @@ def run(args: argparse.Namespace) -> int:
     if args.task is not None and args.run is None:
         raise CommandError("--task rolls a policy out: give its --run too")
 
-    check_port(args.host, args.port)  # a busy or bad address fails now, not after preparing the scene
+    check_port(args.host, args.port)  # a busy or bad address fails now, not after preparing the record
     if args.screenshot is not None:
         if find_chromium() is None:
             raise CommandError("--screenshot needs Chromium, and none is on PATH: install it (Debian: apt-get "
@@ -38,18 +38,18 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     if args.task is not None:
         log.info("rolling out %s on %s/%s seed %d ...", args.run, args.task, args.split, args.seed)
-        scene = rollout_scene(policy, args.task, args.split, args.seed)
+        record = record_rollout(policy, args.task, args.split, args.seed)
     else:
         if not args.episode.is_file():
             raise CommandError(f"--episode {args.episode} is not a file")
 
         episode = load_episode(args.episode)
-        scene = scene_from_episode(episode, policy=policy, grounder=grounder, steps=args.steps,
+        record = record_from_episode(episode, policy=policy, grounder=grounder, steps=args.steps,
                                    progress=lambda done, total: log.info("step %d/%d ready", done, total))
-    log.info("%d steps prepared in %.1f s", len(scene.steps), time.perf_counter() - start)
+    log.info("%d steps prepared in %.1f s", len(record.steps), time.perf_counter() - start)
 
 
-    viewer = serve(scene, args.host, args.port)
+    viewer = serve(record, args.host, args.port)
     try:
         if args.screenshot is not None:
             screenshot(viewer.url, args.screenshot)

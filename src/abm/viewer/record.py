@@ -1,15 +1,15 @@
 """What the viewer shows, as plain arrays: built from an episode or a rollout, independent of the browser.
 
-A :class:`ViewerScene` holds, for each keyframe step, the fused point cloud with its colours and its
+A :class:`ViewerRecord` holds, for each keyframe step, the fused point cloud with its colours and its
 Object Mask Field scores, the target's points, the five virtual views (rendered colour with the mask
 tinted and the predicted translation heatmap on top) and the expert's and the predicted keyframes.
 :mod:`abm.viewer.server` draws it with viser; tests check it without a browser.
 
 Three sources:
 
-* :func:`scene_from_episode` with a grounder only: grounding as the policy would see it, no predictions;
-* :func:`scene_from_episode` with a policy: what the policy saw and predicted at each demonstration step;
-* :func:`rollout_scene`: the policy rolled out in the simulator (``abm eval``'s scenes), step by step.
+* :func:`record_from_episode` with a grounder only: grounding as the policy would see it, no predictions;
+* :func:`record_from_episode` with a policy: what the policy saw and predicted at each demonstration step;
+* :func:`record_rollout`: the policy rolled out in the simulator (``abm eval``'s scenes), step by step.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from abm.geometry import Workspace
 from abm.grounding.conditioning import split_instruction
 from abm.grounding.config import build_grounder
 from abm.grounding.visualize import overlay_views
-from abm.policy.keyframe_policy import explain_scene
+from abm.policy.keyframe_policy import explain_grounding
 from abm.render import OrthographicRenderer
 from abm.render.orthographic import VIEW_AXES
 from abm.types import Episode, KeyframeAction, Observation
@@ -64,11 +64,11 @@ class ViewerStep:
 
 
 @dataclass
-class ViewerScene:
+class ViewerRecord:
     """Everything :func:`abm.viewer.server.serve` draws.
 
     Attributes:
-        title: one line saying where the scene comes from.
+        title: one line saying where the record comes from.
         instruction: the episode's instruction.
         target_name: the object the instruction names (``None`` if unknown).
         workspace: the policy's workspace cube (drawn as a wire box; the virtual cameras sit on its faces).
@@ -129,7 +129,7 @@ def _select(steps: Sequence[int] | None, count: int) -> list[int]:
     return chosen
 
 
-def scene_from_episode(
+def record_from_episode(
     episode: Episode,
     policy: Any | None = None,
     grounder: Mapping[str, Any] | Any | None = None,
@@ -137,8 +137,8 @@ def scene_from_episode(
     view_resolution: int = 128,
     steps: Sequence[int] | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> ViewerScene:
-    """The viewer scene of a demonstration (or any stored episode).
+) -> ViewerRecord:
+    """The viewer record of a demonstration (or any stored episode).
 
     Args:
         episode: the episode; its actions are shown as the expert's keyframes.
@@ -154,35 +154,35 @@ def scene_from_episode(
     chosen = _select(steps, len(episode.steps))
     if policy is not None:
         names = list(policy.renderer.views)
-        scene = ViewerScene(f"{episode.task}/{episode.split} seed {episode.seed}, policy {policy.config.variant}",
+        record = ViewerRecord(f"{episode.task}/{episode.split} seed {episode.seed}, policy {policy.config.variant}",
                             episode.instruction, None, policy.workspace, names, success=episode.success)
     else:
         ws = workspace or Workspace()
         renderer = OrthographicRenderer(ws, view_resolution)
         names = list(renderer.views)
         g = grounder if hasattr(grounder, "ground") else build_grounder(grounder)  # a config, its dict or None
-        scene = ViewerScene(f"{episode.task}/{episode.split} seed {episode.seed}, grounding only",
+        record = ViewerRecord(f"{episode.task}/{episode.split} seed {episode.seed}, grounding only",
                             episode.instruction, None, ws, names, success=episode.success)
     for done, k in enumerate(chosen, 1):
         obs, expert = episode.steps[k]
         if policy is not None:
             seen = policy.explain(obs, episode.instruction, episode.object_names)
             views = overlay_views(seen.view_rgb, seen.view_target, seen.heatmaps, seen.view_mask)
-            scene.steps.append(_step_from_sample(k, seen.sample, views, obs, expert, seen.action))
+            record.steps.append(_step_from_sample(k, seen.sample, views, obs, expert, seen.action))
         else:  # what a mask policy with these views would see (the policy module's one way of computing it)
-            seen = explain_scene(obs, episode.instruction, renderer, g, episode.object_names)
-            scene.target_name = seen.target
+            seen = explain_grounding(obs, episode.instruction, renderer, g, episode.object_names)
+            record.target_name = seen.target
             views = overlay_views(seen.view_rgb, seen.view_target)
-            scene.steps.append(_step_from_sample(k, seen.sample, views, obs, expert, None))
+            record.steps.append(_step_from_sample(k, seen.sample, views, obs, expert, None))
         if progress is not None:
             progress(done, len(chosen))
-    if policy is not None and scene.target_name is None:
-        scene.target_name = _target_name(episode)
-    return scene
+    if policy is not None and record.target_name is None:
+        record.target_name = _target_name(episode)
+    return record
 
 
-def rollout_scene(policy: Any, task: str, split: str = "seen", seed: int = 1_000_000,
-                  resolution: int = CAMERA_RESOLUTION, max_steps: int = MAX_KEYFRAMES) -> ViewerScene:
+def record_rollout(policy: Any, task: str, split: str = "seen", seed: int = 1_000_000,
+                  resolution: int = CAMERA_RESOLUTION, max_steps: int = MAX_KEYFRAMES) -> ViewerRecord:
     """Roll ``policy`` out on one seeded ABM-Bench scene (as ``abm eval`` does) and keep every step's view.
 
     ``seed`` is the scene seed (``abm eval`` writes it into its outcome log); the scene, the instruction
@@ -199,11 +199,11 @@ def rollout_scene(policy: Any, task: str, split: str = "seen", seed: int = 1_000
             return explained[-1].action
 
         episode = run_policy(env, act)
-    scene = ViewerScene(f"rollout of {policy.config.variant} on {task}/{split} seed {seed}: "
+    record = ViewerRecord(f"rollout of {policy.config.variant} on {task}/{split} seed {seed}: "
                         f"{'success' if episode.success else 'failure'}", episode.instruction, None,
                         policy.workspace, list(policy.renderer.views), success=episode.success)
     for k, ((obs, _), seen) in enumerate(zip(episode.steps, explained, strict=True)):
         views = overlay_views(seen.view_rgb, seen.view_target, seen.heatmaps, seen.view_mask)
-        scene.steps.append(_step_from_sample(k, seen.sample, views, obs, None, seen.action))
-    scene.target_name = _target_name(episode)
-    return scene
+        record.steps.append(_step_from_sample(k, seen.sample, views, obs, None, seen.action))
+    record.target_name = _target_name(episode)
+    return record
