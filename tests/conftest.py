@@ -15,7 +15,7 @@
 from __future__ import annotations
 
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -62,33 +62,61 @@ def tiny_run(shared_tiny_run: Path, tmp_path_factory: pytest.TempPathFactory) ->
 class ExpertEpisodes:
     """``expert(task, split, seed, resolution)``: the scripted expert's episode (cameras recorded at
     ``resolution``), rolled out once per session and arguments; ``expert.final_tcp_pose(...)`` (same
-    arguments): the gripper's 4x4 pose when that rollout ended."""
+    arguments): the gripper's 4x4 pose when that rollout ended.
+
+    Building a scene costs about as much as the expert's rollout, so ``keep_env=True`` keeps the rollout's
+    environment open for :meth:`replay_env`, which hands it over (reset to the first state) instead of
+    building the scene again.
+    """
 
     def __init__(self) -> None:
         self._episodes: dict[tuple[str, str, int, int], Any] = {}
         self._final: dict[tuple[str, str, int, int], Any] = {}
+        self._envs: dict[tuple[str, str, int, int], Any] = {}
 
-    def _rollout(self, task: str, split: str, seed: int, resolution: int) -> tuple[str, str, int, int]:
+    def _rollout(self, task: str, split: str, seed: int, resolution: int, keep_env: bool) -> tuple[str, str, int, int]:
         key = (task, split, int(seed), int(resolution))
         if key not in self._episodes:
             from abm.sim.env import TaskEnv, run_expert
 
-            with TaskEnv(task, split, int(seed), resolution=int(resolution)) as env:
+            env = TaskEnv(task, split, int(seed), resolution=int(resolution))
+            try:
                 self._episodes[key] = run_expert(env)
                 self._final[key] = env._require_sim().robot.tcp_pose().copy()
+            finally:
+                if keep_env:
+                    self._envs[key] = env
+                else:
+                    env.close()
         return key
 
-    def __call__(self, task: str, split: str, seed: int, resolution: int) -> Any:
-        return self._episodes[self._rollout(task, split, seed, resolution)]
+    def __call__(self, task: str, split: str, seed: int, resolution: int, keep_env: bool = False) -> Any:
+        return self._episodes[self._rollout(task, split, seed, resolution, keep_env)]
 
     def final_tcp_pose(self, task: str, split: str, seed: int, resolution: int) -> Any:
-        return self._final[self._rollout(task, split, seed, resolution)]
+        return self._final[self._rollout(task, split, seed, resolution, False)]
+
+    def replay_env(self, task: str, split: str, seed: int, resolution: int) -> Any:
+        """A fresh-state environment of that scene for the caller to use and close: the rollout's own one
+        when it was kept, else a new one."""
+        from abm.sim.env import TaskEnv
+
+        key = self._rollout(task, split, seed, resolution, True)
+        env = self._envs.pop(key, None) or TaskEnv(task, split, int(seed), resolution=int(resolution))
+        env.reset()
+        return env
+
+    def close(self) -> None:
+        while self._envs:
+            self._envs.popitem()[1].close()
 
 
 @pytest.fixture(scope="session")
-def expert_episode() -> ExpertEpisodes:
+def expert_episode() -> Iterator[ExpertEpisodes]:
     """The session's expert rollouts (:class:`ExpertEpisodes`; shared: read them, do not change them)."""
-    return ExpertEpisodes()
+    episodes = ExpertEpisodes()
+    yield episodes
+    episodes.close()
 
 
 @pytest.fixture

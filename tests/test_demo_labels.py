@@ -13,7 +13,6 @@ from abm.geometry import GRIPPER_REFERENCE_YAW_DEG, Workspace, canonical_gripper
 from abm.policy import decode_output, encode_action
 from abm.policy.heads import logits_from_targets
 from abm.render import OrthographicRenderer
-from abm.sim.env import TaskEnv
 from abm.sim.tasks import get_task
 from abm.types import KeyframeAction
 
@@ -33,7 +32,8 @@ def _wrap_deg(angle: float) -> float:
 
 @pytest.mark.parametrize("task", trainable_tasks())
 def test_labels_are_reached_poses_in_canonical_form(task: str, expert_episode) -> None:
-    episode = expert_episode(task, "seen", LABEL_SEED, RESOLUTION)  # shared with test_oracle_replay_succeeds
+    # shared with test_oracle_replay_succeeds, which also reuses the environment (building it costs a rollout)
+    episode = expert_episode(task, "seen", LABEL_SEED, RESOLUTION, keep_env=True)
     final_pose = expert_episode.final_tcp_pose(task, "seen", LABEL_SEED, RESOLUTION)
     assert episode.success, f"{task}: expert failed"
     kinds = [a.kind for _, a in episode.steps]
@@ -56,7 +56,7 @@ def test_labels_are_reached_poses_in_canonical_form(task: str, expert_episode) -
 def test_label_symmetry_follows_the_grasped_object(expert_episode) -> None:
     symmetries = {}
     for task in ("pick_block", "place_wine", "place_food"):
-        episode = expert_episode(task, "seen", 0, RESOLUTION)  # shared with test_oracle_replay_succeeds
+        episode = expert_episode(task, "seen", 0, RESOLUTION, keep_env=True)  # test_oracle_replay_succeeds too
         symmetries[task] = next(a.symmetry for _, a in episode.steps if a.kind == "grasp")
     # a cube turns by 90 degrees onto itself, a bottle by any angle, food boxes only by 180
     assert symmetries == {"pick_block": 4, "place_wine": 0, "place_food": 2}
@@ -77,9 +77,8 @@ def test_oracle_replay_succeeds(task: str, expert_episode) -> None:
     split = "compositional" if get_task(task).evaluation_only else "seen"
     renderer = OrthographicRenderer(Workspace(), resolution=64)
     for seed in REPLAY_SEEDS:
-        keyframes = [a for _, a in expert_episode(task, split, seed, RESOLUTION).steps]
-        with TaskEnv(task, split=split, seed=seed, resolution=RESOLUTION) as env:
-            env.reset()
+        keyframes = [a for _, a in expert_episode(task, split, seed, RESOLUTION, keep_env=True).steps]
+        with expert_episode.replay_env(task, split, seed, RESOLUTION) as env:  # the rollout's scene, reset
             success = False
             for action in keyframes:
                 _, success, info = env.step(_through_action_coding(action, renderer), render=False)
