@@ -13,12 +13,13 @@ from abm.geometry import GRIPPER_REFERENCE_YAW_DEG, Workspace, canonical_gripper
 from abm.policy import decode_output, encode_action
 from abm.policy.heads import logits_from_targets
 from abm.render import OrthographicRenderer
-from abm.sim.env import TaskEnv, run_expert
 from abm.sim.tasks import get_task
 from abm.types import KeyframeAction
 
 RESOLUTION = 16  # camera pixels: these tests never look at the images
 ALL_TASKS = trainable_tasks() + ["place_block_in_plate", "pick_food_to_target"]
+LABEL_SEED = 3
+REPLAY_SEEDS = (0, LABEL_SEED)  # the expert rollouts are shared (the ``expert_episode`` fixture)
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -30,10 +31,10 @@ def _wrap_deg(angle: float) -> float:
 
 
 @pytest.mark.parametrize("task", trainable_tasks())
-def test_labels_are_reached_poses_in_canonical_form(task: str) -> None:
-    with TaskEnv(task, split="seen", seed=3, resolution=RESOLUTION) as env:
-        episode = run_expert(env)
-        final_pose = env._require_sim().robot.tcp_pose()
+def test_labels_are_reached_poses_in_canonical_form(task: str, expert_episode) -> None:
+    # shared with test_oracle_replay_succeeds, which also reuses the environment (building it costs a rollout)
+    episode = expert_episode(task, "seen", LABEL_SEED, RESOLUTION, keep_env=True)
+    final_pose = expert_episode.final_tcp_pose(task, "seen", LABEL_SEED, RESOLUTION)
     assert episode.success, f"{task}: expert failed"
     kinds = [a.kind for _, a in episode.steps]
     assert "grasp" in kinds and all(kinds), kinds
@@ -52,11 +53,10 @@ def test_labels_are_reached_poses_in_canonical_form(task: str) -> None:
             assert offset <= limit, (task, act.kind, act.symmetry, yaw)
 
 
-def test_label_symmetry_follows_the_grasped_object() -> None:
+def test_label_symmetry_follows_the_grasped_object(expert_episode) -> None:
     symmetries = {}
     for task in ("pick_block", "place_wine", "place_food"):
-        with TaskEnv(task, split="seen", seed=0, resolution=RESOLUTION) as env:
-            episode = run_expert(env)
+        episode = expert_episode(task, "seen", 0, RESOLUTION, keep_env=True)  # test_oracle_replay_succeeds too
         symmetries[task] = next(a.symmetry for _, a in episode.steps if a.kind == "grasp")
     # a cube turns by 90 degrees onto itself, a bottle by any angle, food boxes only by 180
     assert symmetries == {"pick_block": 4, "place_wine": 0, "place_food": 2}
@@ -71,15 +71,14 @@ def _through_action_coding(action: KeyframeAction, renderer: OrthographicRendere
 
 
 @pytest.mark.parametrize("task", ALL_TASKS)
-def test_oracle_replay_succeeds(task: str) -> None:
+def test_oracle_replay_succeeds(task: str, expert_episode) -> None:
     """Every task's expert keyframes, passed through the training preset's action coding (64-pixel
     views), still complete the task in the evaluation executor."""
     split = "compositional" if get_task(task).evaluation_only else "seen"
     renderer = OrthographicRenderer(Workspace(), resolution=64)
-    for seed in (0, 1):
-        with TaskEnv(task, split=split, seed=seed, resolution=RESOLUTION) as env:
-            keyframes = [a for _, a in run_expert(env).steps]
-            env.reset()
+    for seed in REPLAY_SEEDS:
+        keyframes = [a for _, a in expert_episode(task, split, seed, RESOLUTION, keep_env=True).steps]
+        with expert_episode.replay_env(task, split, seed, RESOLUTION) as env:  # the rollout's scene, reset
             success = False
             for action in keyframes:
                 _, success, info = env.step(_through_action_coding(action, renderer), render=False)

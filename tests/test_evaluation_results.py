@@ -152,7 +152,7 @@ def test_crashed_episode_is_a_recorded_failure(tmp_path, monkeypatch):
     assert outcome.success is False and "RuntimeError: no checkpoint here" in outcome.error
 
 
-def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch):
+def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch, tiny_policy):
     """Setup mistakes are one clear error and a non-zero exit, never a table of zeros."""
     import torch
 
@@ -160,11 +160,9 @@ def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch
     from abm.train import TrainConfig, train
     from abm.train.synthetic import synthetic_episodes
 
-    tiny = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1,
-            "stem_channels": 8, "decoder_channels": 4, "lang_dim": 16}
     run = tmp_path / "run"
     train(TrainConfig(method="abm", out=run, steps=1, batch=1, checkpoint_every=1, progress=False,
-                      policy_overrides=tiny), synthetic_episodes(1, camera_resolution=32))
+                      policy_overrides=tiny_policy), synthetic_episodes(1, camera_resolution=32))
     base = ["eval", "--run", str(run), "--episodes", "1", "--repeats", "1", "--workers", "1",
             "--out", str(tmp_path / "ev")]
     assert cli_main(base + ["--split", "compositional", "--tasks", "pick_block"]) == 2
@@ -256,7 +254,8 @@ def test_rollout_gif_frames_carry_instruction_step_and_result(tmp_path) -> None:
         assert max(other.convert("L").crop((0, other.size[1] - 14, other.size[0], other.size[1])).tobytes()) < 128
 
 
-def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, capsys, caplog, monkeypatch):
+def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, capsys, caplog, monkeypatch,
+                                                                   tiny_policy):
     """`abm eval --run RUN` evaluates the run's trained tasks on both splits into one combined table, refuses
     to append other tasks to those folders, and `--split seen --out DIR` keeps the single-folder layout."""
     import functools
@@ -268,11 +267,9 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
     from abm.train import TrainConfig, train
     from abm.train.synthetic import synthetic_episodes
 
-    tiny = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1,
-            "stem_channels": 8, "decoder_channels": 4, "lang_dim": 16}
     run = tmp_path / "run"
     train(TrainConfig(method="abm", out=run, tasks=["pick_block"], steps=1, batch=1, checkpoint_every=1,
-                      progress=False, policy_overrides=tiny), synthetic_episodes(1, camera_resolution=32))
+                      progress=False, policy_overrides=tiny_policy), synthetic_episodes(1, camera_resolution=32))
 
     def fake(job, settings):
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,

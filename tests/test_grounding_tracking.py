@@ -141,17 +141,13 @@ def test_tracking_reacquires_when_the_tracked_score_falls(rollout) -> None:
         TrackingGrounder(OracleGrounder(), reacquire_ratio=0.0)
 
 
-def test_policy_and_evaluation_select_tracking(tmp_path) -> None:
+def test_policy_and_evaluation_select_tracking(tiny_run) -> None:
     from abm.evaluation.runner import EvalSettings, _load_policy
     from abm.policy import KeyframePolicy
-    from abm.train import TrainConfig, train
     from abm.train.synthetic import synthetic_episodes
 
-    episodes = synthetic_episodes(2, camera_resolution=32)
-    tiny = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-            "decoder_channels": 4, "lang_dim": 16}
-    train(TrainConfig(out=tmp_path, steps=1, batch=2, policy_overrides=tiny, progress=False), episodes)
-    policy = KeyframePolicy.from_checkpoint(tmp_path, grounder={"kind": "tracking"})
+    episodes = synthetic_episodes(2, camera_resolution=32)  # observations to act on (tiny_run: oracle-trained abm)
+    policy = KeyframePolicy.from_checkpoint(tiny_run, grounder={"kind": "tracking"})
     assert policy.grounder_spec == {"kind": "tracking", "inner": {"kind": "oracle"}}
     obs, _ = episodes[0].steps[0]
     for _ in range(2):
@@ -160,19 +156,19 @@ def test_policy_and_evaluation_select_tracking(tmp_path) -> None:
     policy.reset()  # a new episode grounds again
     policy.act(obs, episodes[0].instruction, episodes[0].object_names)
     assert policy.grounder.inner_calls == 2
-    loaded = _load_policy(str(tmp_path), EvalSettings(grounder="tracking"))
+    loaded = _load_policy(str(tiny_run), EvalSettings(grounder="tracking"))
     assert isinstance(loaded.grounder, TrackingGrounder)
     # --grounder clip --clip-model M: an oracle-trained policy grounds with that CLIP; tracking's first step too
-    clip = _load_policy(str(tmp_path), EvalSettings(grounder="clip", clip_model="tiny"))
+    clip = _load_policy(str(tiny_run), EvalSettings(grounder="clip", clip_model="tiny"))
     assert clip.grounder_spec == {"kind": "clip", "model": "tiny"}
-    tracked = _load_policy(str(tmp_path), EvalSettings(grounder="tracking", clip_model="tiny"))
+    tracked = _load_policy(str(tiny_run), EvalSettings(grounder="tracking", clip_model="tiny"))
     assert tracked.grounder_spec == {"kind": "tracking", "inner": {"kind": "clip", "model": "tiny"}}
     with pytest.raises(ValueError, match="--clip-model applies to --grounder clip or tracking"):
         EvalSettings(grounder="oracle", clip_model="tiny")
     assert "clip_model" not in EvalSettings().signature()  # outcomes recorded before the flag still match
 
 
-def test_clip_model_override_keeps_the_trained_clip_options(tmp_path) -> None:
+def test_clip_model_override_keeps_the_trained_clip_options(tmp_path, tiny_policy) -> None:
     from abm.grounding.config import ClipGrounderConfig, OracleGrounderConfig
     from abm.grounding.grounders import override_spec
     from abm.policy import KeyframePolicy
@@ -180,8 +176,7 @@ def test_clip_model_override_keeps_the_trained_clip_options(tmp_path) -> None:
     from abm.train.synthetic import synthetic_episodes
 
     episodes = synthetic_episodes(2, camera_resolution=32)
-    tiny = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-            "decoder_channels": 4}
+    tiny = {k: v for k, v in tiny_policy.items() if k != "lang_dim"}  # the CLIP text width
     train(TrainConfig(out=tmp_path, steps=1, batch=2, policy_overrides=tiny, progress=False, grounder="clip",
                       grounder_options={"model": "tiny", "threshold": 0.4}), episodes)
     other = str(tmp_path / "elsewhere")  # a CLIP folder that was moved: only the model changes

@@ -14,19 +14,14 @@ from abm.cli import main as cli_main
 from abm.data.episode_store import VERIFIED_RECORD, check_episodes, read_info, save_episode, verify_episode
 from abm.train.synthetic import synthetic_episodes
 
-TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-        "decoder_channels": 4, "lang_dim": 16}
 
+@pytest.fixture
+def train_args(tiny_sets):
+    def args(out: Path, *extra: str) -> list[str]:
+        return ["train", "--method", "abm", "--steps", "2", "--batch", "2", "--optimizer", "adamw", "--no-progress",
+                "--out", str(out), *tiny_sets, *extra]
 
-def _train_args(out: Path, *extra: str) -> list[str]:
-    return ["train", "--method", "abm", "--steps", "2", "--batch", "2", "--optimizer", "adamw", "--no-progress",
-            "--out", str(out), *[f"--set={k}={v}" for k, v in TINY.items()], *extra]
-
-
-def _errors(capsys) -> list[str]:
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    return [line for line in err.splitlines() if line.startswith("abm: error: ")]
+    return args
 
 
 def _damage(path: Path) -> None:
@@ -36,7 +31,7 @@ def _damage(path: Path) -> None:
     path.write_bytes(bytes(data))
 
 
-def test_training_refuses_episodes_that_fail_their_checksums(tmp_path, capsys) -> None:
+def test_training_refuses_episodes_that_fail_their_checksums(tmp_path, capsys, train_args, cli_errors) -> None:
     data = tmp_path / "data"
     for i, ep in enumerate(synthetic_episodes(2, 40)):
         save_episode(ep, data / f"ep{i}.h5")
@@ -44,9 +39,9 @@ def test_training_refuses_episodes_that_fail_their_checksums(tmp_path, capsys) -
     record = json.loads((data / VERIFIED_RECORD).read_text())
     assert sorted(record) == ["ep0.h5", "ep1.h5"]  # verified once: later checks only compare size and time
     _damage(data / "ep1.h5")
-    args = _train_args(tmp_path / "run", "--data", str(data))
+    args = train_args(tmp_path / "run", "--data", str(data))
     assert cli_main(args) == 2
-    errors = _errors(capsys)
+    errors = cli_errors()
     assert len(errors) == 1 and "1 episode file(s) in" in errors[0] and "ep1.h5" in errors[0]
     assert "--no-verify" in errors[0] and not (tmp_path / "run").exists()  # refused before anything is written
     # the explicit flag trains on the files as they are (the damaged bytes may or may not be read)
@@ -67,17 +62,17 @@ def test_generation_recreates_a_truncated_episode(tmp_path, capsys) -> None:
     assert verify_episode(path) and read_info(path).seed == 0  # the same seed, regenerated
 
 
-def test_resume_refuses_changed_hyper_parameters_unless_accepted(tmp_path, capsys) -> None:
+def test_resume_refuses_changed_hyper_parameters_unless_accepted(tmp_path, capsys, train_args, cli_errors) -> None:
     run = tmp_path / "run"
-    assert cli_main(_train_args(run, "--synthetic", "2", "--camera-resolution", "32", "--lr", "0.001")) == 0
-    more = _train_args(run, "--synthetic", "2", "--camera-resolution", "32", "--resume", "--steps", "4")
+    assert cli_main(train_args(run, "--synthetic", "2", "--camera-resolution", "32", "--lr", "0.001")) == 0
+    more = train_args(run, "--synthetic", "2", "--camera-resolution", "32", "--resume", "--steps", "4")
     assert cli_main([*more, "--lr", "0.01", "--seed", "3"]) == 2
-    errors = _errors(capsys)
+    errors = cli_errors()
     assert len(errors) == 1 and "trained with other settings (--lr 0.001 -> 0.01, --seed 0 -> 3)" in errors[0]
     assert "--accept-changed-config" in errors[0]
     assert json.loads((run / "config.json").read_text())["train"]["lr"] == 0.001  # left as it was
     assert cli_main([*more, "--lr", "0.01", "--seed", "3", "--optimizer", "lamb"]) == 2
-    assert "cannot continue under another optimizer" in _errors(capsys)[0]
+    assert "cannot continue under another optimizer" in cli_errors()[0]
     # accepted: the new rate is the one the optimiser uses, and config.json says what changed
     assert cli_main([*more, "--lr", "0.01", "--seed", "3", "--accept-changed-config"]) == 0
     config = json.loads((run / "config.json").read_text())
@@ -85,7 +80,7 @@ def test_resume_refuses_changed_hyper_parameters_unless_accepted(tmp_path, capsy
     ckpt = torch.load(run / "checkpoints/step_00000004.pt", weights_only=True)
     assert ckpt["scheduler"]["base_lrs"] == [0.01] and ckpt["optimizer"]["param_groups"][0]["initial_lr"] == 0.01
     # the same settings resume without a word; --steps may grow
-    assert cli_main([*_train_args(run, "--synthetic", "2", "--camera-resolution", "32", "--resume", "--steps", "5"),
+    assert cli_main([*train_args(run, "--synthetic", "2", "--camera-resolution", "32", "--resume", "--steps", "5"),
                      "--lr", "0.01", "--seed", "3"]) == 0
 
 

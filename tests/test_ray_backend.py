@@ -22,9 +22,6 @@ ray = pytest.importorskip("ray")
 from abm.cli import main  # noqa: E402
 from abm.data.episode_store import find_episode_files, load_episode  # noqa: E402
 
-TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-        "decoder_channels": 4, "lang_dim": 16}
-
 
 @pytest.fixture(scope="module")
 def cluster():
@@ -72,13 +69,8 @@ def test_killed_ray_generation_resumes_and_equals_the_local_pool(cluster, tmp_pa
     _same_episodes(out, tmp_path / "local")
 
 
-def test_eval_on_ray_gives_the_same_results_json(cluster, tmp_path):
-    run = tmp_path / "run"
-    train = ["train", "--method", "abm", "--synthetic", "2", "--camera-resolution", "32", "--steps", "2", "--batch",
-             "2", "--lr", "3e-3", "--warmup", "1", "--out", str(run), "--no-progress"]
-    for key, value in TINY.items():
-        train += ["--set", f"{key}={value}"]
-    assert main(train) == 0
+def test_eval_on_ray_gives_the_same_results_json(cluster, tiny_run, tmp_path):
+    run = tiny_run  # a trained tiny abm run
     results = {}
     for backend in ("ray", "local"):
         out = tmp_path / f"eval_{backend}"

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
 
 from abm.cli import main as cli_main
 from abm.robot import DryRunArm, LimitError, MotionLimits, NoTargetError, ReplayCamera, record_observations, run_robot
-from abm.sim.env import TaskEnv, run_expert
 from abm.types import KeyframeAction
 
 # an untrained policy points anywhere in its 1 m workspace cube: limits that allow all of it
@@ -17,27 +17,22 @@ OPEN = MotionLimits(workspace_lower=(0.0, -0.5, -0.15), workspace_upper=(1.0, 0.
                     max_tilt_deg=180.0)
 OPEN_YAML = ("limits: {workspace_lower: [0, -0.5, -0.15], workspace_upper: [1, 0.5, 0.85], max_step_m: 2.0, "
              "max_tilt_deg: 180}\n")
-TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-        "decoder_channels": 4, "lang_dim": 16}
 
 
 @pytest.fixture(scope="module")
-def recording(tmp_path_factory):
+def recording(tmp_path_factory, expert_episode):
     """A pick_block expert episode recorded from the simulator (48-pixel cameras)."""
-    with TaskEnv("pick_block", "seen", 0, resolution=48) as env:
-        episode = run_expert(env)
+    episode = expert_episode("pick_block", "seen", 0, 48)
     folder = tmp_path_factory.mktemp("rec")
     record_observations([obs for obs, _ in episode.steps], folder, episode.object_names, episode.instruction)
     return folder, episode
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    from abm.train import TrainConfig, train
-    from abm.train.synthetic import synthetic_episodes
-
-    run = tmp_path_factory.mktemp("run")
-    train(TrainConfig(out=run, steps=1, batch=2, policy_overrides=TINY, progress=False), synthetic_episodes(2, 32))
+def checkpoint(tmp_path_factory, shared_tiny_run):
+    """A trained tiny abm run (the session's one, copied for this module)."""
+    run = tmp_path_factory.mktemp("run") / "run"
+    shutil.copytree(shared_tiny_run, run)
     return run
 
 

@@ -18,11 +18,10 @@ from abm.robot.calibration import save_calibration
 from abm.robot.realsense import RealSenseCamera
 from abm.robot.ur import DryRunGripper, URArm, URDigitalOutputGripper, pose_to_ur
 from abm.types import KeyframeAction
+from conftest import TINY_POLICY
 
 OPEN = MotionLimits(workspace_lower=(-2.0, -2.0, -2.0), workspace_upper=(2.0, 2.0, 2.0), max_step_m=5.0,
                     max_tilt_deg=180.0)
-TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-        "decoder_channels": 4, "lang_dim": 16}
 DOWN_YAW_90 = Rotation.from_euler("xyz", [180.0, 0.0, 90.0], degrees=True)  # gripper down, turned 90 deg
 
 
@@ -345,8 +344,8 @@ def test_abm_run_on_realsense_and_ur(robot_yaml, tmp_path, capsys) -> None:
     from abm.train.synthetic import synthetic_episodes
 
     path, ur, _ = robot_yaml
-    train(TrainConfig(method="rvt", out=tmp_path / "run", steps=1, batch=2, policy_overrides=TINY, progress=False),
-          synthetic_episodes(2, 32))  # rvt: no grounding, so no segmentation needed
+    train(TrainConfig(method="rvt", out=tmp_path / "run", steps=1, batch=2, policy_overrides=TINY_POLICY,
+                      progress=False), synthetic_episodes(2, 32))  # rvt: no grounding, so no segmentation needed
     common = ["run", "--robot", str(path), "--run", str(tmp_path / "run"), "--instruction",
               "put the red block on the target", "--steps", "2"]
     assert cli_main([*common, "--dry-run", "--log", str(tmp_path / "dry")]) == 0
@@ -376,13 +375,10 @@ class HandGuided:
 
 
 @pytest.fixture(scope="module")
-def real_demo(tmp_path_factory):
+def real_demo(tmp_path_factory, expert_episode):
     """A pick_block expert episode replayed as if demonstrated by hand, stored with record_demonstration."""
     from abm.robot.demonstrations import record_demonstration
-    from abm.sim.env import TaskEnv, run_expert
-
-    with TaskEnv("pick_block", "seen", 0, resolution=48) as env:
-        episode = run_expert(env)
+    episode = expert_episode("pick_block", "seen", 0, 48)
     folder = tmp_path_factory.mktemp("demo")
     observations = [obs for obs, _ in episode.steps]
     record_observations(observations, folder / "rec", episode.object_names, episode.instruction)
@@ -428,11 +424,11 @@ def test_real_demonstrations_train_and_the_oracle_refuses_them(real_demo, tmp_pa
     out = real_demo[1] / "data"
     # abm with the CLIP grounder (a random tiny CLIP here): grounding cache filled, then two steps
     summary = train(TrainConfig(method="abm", data=out, out=tmp_path / "clip", steps=2, batch=2, grounder="clip",
-                                grounder_options={"model": "tiny"}, language="hash", policy_overrides=TINY,
+                                grounder_options={"model": "tiny"}, language="hash", policy_overrides=TINY_POLICY,
                                 progress=False))
     assert summary["steps"] == 2 and np.isfinite(summary["final_loss"]["total"])
     with pytest.raises(ValueError, match="oracle grounder needs"):  # no segmentation, no object names
-        train(TrainConfig(method="abm", data=out, out=tmp_path / "abm", steps=1, batch=2, policy_overrides=TINY,
+        train(TrainConfig(method="abm", data=out, out=tmp_path / "abm", steps=1, batch=2, policy_overrides=TINY_POLICY,
                           progress=False))
     with pytest.raises(ValueError, match="matches no skill template"):
         check_instruction("dance a little")

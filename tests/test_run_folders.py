@@ -20,29 +20,20 @@ import abm
 from abm.cli import main as cli_main
 from abm.files import FolderBusyError, FolderLock, WriteError, atomic_path, write_text_atomic
 from abm.policy.checkpoint import list_checkpoints, save_checkpoint
+from conftest import TINY_POLICY
 
-TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-        "decoder_channels": 4, "lang_dim": 16}
 SRC = str(Path(abm.__file__).parents[1])
 
 
 def _train_args(out: Path, *extra: str) -> list[str]:
-    sets = [f"--set={k}={v}" for k, v in TINY.items()]
+    sets = [f"--set={k}={v}" for k, v in TINY_POLICY.items()]
     return ["train", "--method", "abm", "--synthetic", "2", "--camera-resolution", "32", "--steps", "2", "--batch",
             "2", "--optimizer", "adamw", "--no-progress", "--out", str(out), *sets, *extra]
 
 
-@pytest.fixture(scope="module")
-def run(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("run") / "run"
-    assert cli_main(_train_args(out)) == 0
-    return out
-
-
-def _errors(capsys) -> list[str]:
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    return [line for line in err.splitlines() if line.startswith("abm: error: ")]
+@pytest.fixture
+def run(tiny_run) -> Path:
+    return tiny_run
 
 
 @contextmanager
@@ -87,21 +78,21 @@ def test_a_folder_has_one_writer_and_a_stale_lock_is_taken_over(tmp_path, caplog
     assert not (folder / ".abm.lock").exists()
 
 
-def test_train_eval_and_export_refuse_a_folder_in_use(run, tmp_path, capsys) -> None:
+def test_train_eval_and_export_refuse_a_folder_in_use(run, tmp_path, capsys, cli_errors) -> None:
     before = [s for s, _ in list_checkpoints(run)]
     with _holder(run, "abm train"):
         assert cli_main(_train_args(run, "--resume", "--steps", "4")) == 2
-        errors = _errors(capsys)
+        errors = cli_errors()
         assert len(errors) == 1 and f"{run} is in use by abm train (pid" in errors[0]
         assert [s for s, _ in list_checkpoints(run)] == before
         assert cli_main(["export", "--run", str(run), "--out", str(run / "policy.pt")]) == 2
-        assert "in use by abm train" in _errors(capsys)[0] and not (run / "policy.pt").exists()
+        assert "in use by abm train" in cli_errors()[0] and not (run / "policy.pt").exists()
         assert cli_main(["eval", "--run", str(run), "--tasks", "pick_block", "--split", "seen", "--episodes", "1",
                          "--repeats", "1", "--out", str(run)]) == 2
-        assert "in use by abm train" in _errors(capsys)[0] and not (run / "outcomes.jsonl").exists()
+        assert "in use by abm train" in cli_errors()[0] and not (run / "outcomes.jsonl").exists()
 
 
-def test_export_never_overwrites_a_checkpoint_or_a_file(run, tmp_path, capsys) -> None:
+def test_export_never_overwrites_a_checkpoint_or_a_file(run, tmp_path, capsys, cli_errors) -> None:
     newest = list_checkpoints(run)[-1][1]
     data = newest.read_bytes()
     cases = {
@@ -112,14 +103,14 @@ def test_export_never_overwrites_a_checkpoint_or_a_file(run, tmp_path, capsys) -
     }
     for out, message in cases.items():
         assert cli_main(["export", "--run", str(run), "--out", out]) == 2, out
-        errors = _errors(capsys)
+        errors = cli_errors()
         assert len(errors) == 1 and message in errors[0], errors
     assert newest.read_bytes() == data
     target = tmp_path / "policy.pt"
     assert cli_main(["export", "--run", str(run), "--out", str(target)]) == 0
     first = target.stat().st_mtime_ns
     assert cli_main(["export", "--run", str(run), "--out", str(target)]) == 2
-    assert "already exists; pass --overwrite" in _errors(capsys)[0] and target.stat().st_mtime_ns == first
+    assert "already exists; pass --overwrite" in cli_errors()[0] and target.stat().st_mtime_ns == first
     assert cli_main(["export", "--run", str(run), "--out", str(target), "--overwrite", "--dtype", "bfloat16"]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["policy.pt"]  # no lock or temporary file left
 
@@ -139,11 +130,11 @@ def test_a_full_disk_leaves_the_old_file_and_no_temporary_file(tmp_path) -> None
             tmp.write_text("{}")
 
 
-def test_a_full_disk_during_training_and_generation_is_one_error_line(tmp_path, capsys) -> None:
+def test_a_full_disk_during_training_and_generation_is_one_error_line(tmp_path, capsys, cli_errors) -> None:
     out = tmp_path / "run"
     with _disk_limit(96 * 1024):
         rc = cli_main(_train_args(out))
-    errors = _errors(capsys)
+    errors = cli_errors()
     assert rc == 2 and len(errors) == 1 and "cannot write" in errors[0] and "File too large" in errors[0]
     leftovers = [p.name for p in out.rglob("*") if ".tmp" in p.name or p.name == ".abm.lock"]
     assert leftovers == []

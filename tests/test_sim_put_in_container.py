@@ -150,12 +150,13 @@ def test_expert_succeeds_and_labels_subgoals(split, seed):
     assert episode.metadata["subgoals"] == SUBGOALS
 
 
-def test_subgoal_labels_follow_the_keyframe_kinds_and_survive_the_episode_file(tmp_path):
+def test_subgoal_labels_follow_the_keyframe_kinds_and_survive_the_episode_file(tmp_path, expert_episode):
     from abm.data.episode_store import load_episode, save_episode
 
-    with make_env(TASK, "seen", 1, resolution=16) as env:
-        episode = run_expert(env)
-    assert episode.success and episode.target_names == [env.instance.target_names[0], env.instance.target_names[1]]
+    episode = expert_episode(TASK, "seen", 1, 16)  # the session's rollout (read only)
+    with make_env(TASK, "seen", 1, resolution=16) as env:  # the sampled instance only: no simulation is built
+        targets = [env.instance.target_names[0], env.instance.target_names[1]]
+    assert episode.success and episode.target_names == targets
     kinds = [a.kind for _, a in episode.steps]
     assert kinds == ["approach", "grasp", "lift", "move", "place", "retreat"]
     assert episode.metadata["subgoals"] == SUBGOALS

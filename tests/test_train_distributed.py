@@ -12,8 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-        "decoder_channels": 4, "lang_dim": 16}
+from conftest import TINY_POLICY as TINY
 
 
 def _torchrun() -> list[str]:

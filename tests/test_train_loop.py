@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,9 +19,7 @@ from abm.policy.language import HashLanguageEncoder
 from abm.train import TrainConfig, train
 from abm.train.synthetic import synthetic_episodes
 from abm.types import KeyframeAction
-
-TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-        "decoder_channels": 4, "lang_dim": 16}
+from conftest import TINY_POLICY as TINY
 
 
 @pytest.fixture(scope="module")
@@ -99,16 +99,31 @@ def test_adamw_optimizer_trains_and_resumes_and_unknown_optimizer_fails(episodes
         train(_cfg(tmp_path / "sgd", optimizer="sgd"), episodes)
 
 
-def test_resume_into_another_variant_is_a_clear_error(episodes, tmp_path) -> None:
-    train(_cfg(tmp_path, steps=1), episodes)
+@pytest.fixture(scope="module")
+def trained(episodes, tmp_path_factory) -> Path:
+    """A 2-step abm run of ``_cfg`` (one checkpoint, at step 2), trained once for the module."""
+    out = tmp_path_factory.mktemp("trained") / "run"
+    train(_cfg(out, steps=2), episodes)
+    return out
+
+
+@pytest.fixture
+def abm_run(trained, tmp_path) -> Path:
+    """This test's own copy of the module's trained abm run, in ``tmp_path`` itself."""
+    shutil.copytree(trained, tmp_path, dirs_exist_ok=True)
+    return tmp_path
+
+
+def test_resume_into_another_variant_is_a_clear_error(episodes, abm_run) -> None:
+    tmp_path = abm_run
     with pytest.raises(ValueError, match="variant 'abm' but the model is 'rvt'"):
         train(_cfg(tmp_path, method="rvt", steps=2, resume=True), episodes)
     with pytest.raises(ValueError, match="expected 'rvt'"):
         KeyframePolicy.from_checkpoint(tmp_path, expect_variant="rvt")
 
 
-def test_policy_load_and_act(episodes, tmp_path) -> None:
-    train(_cfg(tmp_path, steps=2), episodes)
+def test_policy_load_and_act(episodes, abm_run) -> None:
+    tmp_path = abm_run  # trained for 2 steps
     policy = KeyframePolicy.from_checkpoint(tmp_path)
     assert not policy.training
     obs, _ = episodes[0].steps[0]
@@ -141,8 +156,8 @@ def test_policy_load_and_act(episodes, tmp_path) -> None:
     assert ((uv >= -0.5) & (uv <= r - 0.5)).all()
 
 
-def test_grounder_override_of_the_same_kind_keeps_trained_options(episodes, tmp_path) -> None:
-    train(_cfg(tmp_path, steps=1), episodes)
+def test_grounder_override_of_the_same_kind_keeps_trained_options(abm_run) -> None:
+    tmp_path = abm_run
     (_, path), = list_checkpoints(tmp_path)
     ckpt = torch.load(path, weights_only=True)
     ckpt["grounder"] = {"kind": "clip", "model": "tiny", "threshold": 0.7}  # as if trained with a CLIP grounder
@@ -252,8 +267,8 @@ def test_grounding_is_an_explicit_cached_step(episodes, tmp_path, capsys) -> Non
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 6  # training used the entries made above
 
 
-def test_overwrite_with_bad_options_keeps_the_old_run(episodes, tmp_path) -> None:
-    train(_cfg(tmp_path, steps=1), episodes)
+def test_overwrite_with_bad_options_keeps_the_old_run(episodes, abm_run) -> None:
+    tmp_path = abm_run
     before = list_checkpoints(tmp_path)
     with pytest.raises(ValueError, match="use --grounder clip"):
         train(_cfg(tmp_path, steps=1, method="ifd", overwrite=True), episodes)
@@ -262,8 +277,8 @@ def test_overwrite_with_bad_options_keeps_the_old_run(episodes, tmp_path) -> Non
     assert list_checkpoints(tmp_path) == before  # nothing was deleted: the options were checked first
 
 
-def test_export_drops_training_state_and_loads_like_a_checkpoint(episodes, tmp_path) -> None:
-    train(_cfg(tmp_path / "run", steps=2), episodes)
+def test_export_drops_training_state_and_loads_like_a_checkpoint(episodes, tmp_path, trained) -> None:
+    shutil.copytree(trained, tmp_path / "run")  # trained for 2 steps
     obs, _ = episodes[0].steps[0]
     args = (obs, episodes[0].instruction, episodes[0].object_names)
     reference = KeyframePolicy.from_checkpoint(tmp_path / "run").act(*args)

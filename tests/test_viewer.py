@@ -16,9 +16,7 @@ from abm.train.synthetic import synthetic_episodes
 from abm.types import KeyframeAction
 from abm.viewer import ViewerRecord, ViewerStep, overlay_views, record_from_episode, view_camera_pose
 from abm.viewer.browser import find_chromium
-
-TINY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
-        "decoder_channels": 4, "lang_dim": 16}
+from conftest import TINY_POLICY as TINY
 
 
 @pytest.fixture(scope="module")
