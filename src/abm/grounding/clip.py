@@ -26,7 +26,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Union
 
 import numpy as np
 import torch
@@ -42,6 +42,9 @@ DEFAULT_MODEL = GPU_CLIP_MODEL  # the paper's (abm.configuration holds the defau
 TEXT_CONTEXT = 77
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+ClipImages = Union[np.ndarray, Sequence[np.ndarray], torch.Tensor]  # noqa: UP007
+"""Images for the backbone: a ``uint8`` ``(B, H, W, 3)`` array, ``uint8`` ``(H, W, 3)`` arrays (sizes may differ),
+or a float ``(B, 3, H, W)`` tensor in ``[0, 1]``."""
 
 # Architectures of the public OpenAI checkpoints, for random-weight speed measurements.
 CLIP_PRESETS: dict[str, dict[str, Any]] = {
@@ -140,7 +143,7 @@ class ClipBackbone:
         return float(self.model.logit_scale.detach().exp().item())
 
     # ---- images ---------------------------------------------------------------------------------
-    def preprocess(self, images: Any, input_size: tuple[int, int] | None = None) -> torch.Tensor:
+    def preprocess(self, images: ClipImages, input_size: tuple[int, int] | None = None) -> torch.Tensor:
         """Images -> normalised pixel values ``(B, 3, H_in, W_in)`` on :attr:`device`.
 
         Args:
@@ -176,7 +179,7 @@ class ClipBackbone:
         return ((pixels - mean) / std).to(self.dtype)
 
     @torch.no_grad()
-    def dense_features(self, images: Any, input_size: tuple[int, int] | None = None,
+    def dense_features(self, images: ClipImages, input_size: tuple[int, int] | None = None,
                        mode: str = "maskclip") -> torch.Tensor:
         """Dense patch features ``(B, h, w, D)`` float32, unit length, for a batch of images.
 
@@ -196,7 +199,7 @@ class ClipBackbone:
         return x.reshape(x.shape[0], gh, gw, x.shape[-1])
 
     @torch.no_grad()
-    def image_features(self, images: Any, input_size: tuple[int, int] | None = None) -> torch.Tensor:
+    def image_features(self, images: ClipImages, input_size: tuple[int, int] | None = None) -> torch.Tensor:
         """CLIP's image embedding ``(B, D)`` float32, unit length: the standard forward, CLS token, projection
         (what the contrastive loss trains; used to score object crops)."""
         pixels = self.preprocess(images, input_size)
