@@ -119,7 +119,7 @@ class GroundingCache:
         path = self._path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
         buffer = io.BytesIO()
-        np.savez(buffer, **value)
+        np.savez(buffer, **value)  # type: ignore[arg-type]  # numpy types **kwds as able to fill allow_pickle
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
         try:
             with os.fdopen(fd, "wb") as f:

@@ -26,7 +26,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Union
 
 import numpy as np
 import torch
@@ -35,10 +35,16 @@ import torch.nn.functional as F
 from abm.configuration import GPU_CLIP_MODEL, TEST_ONLY_CLIP
 from abm.grounding.tokenizer import tiny_tokenizer
 
+if TYPE_CHECKING:  # transformers is imported where a model is built, so importing abm stays fast
+    from transformers.models.clip.modeling_clip import CLIPAttention, CLIPEncoderLayer
+
 DEFAULT_MODEL = GPU_CLIP_MODEL  # the paper's (abm.configuration holds the defaults shared by commands)
 TEXT_CONTEXT = 77
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+ClipImages = Union[np.ndarray, Sequence[np.ndarray], torch.Tensor]  # noqa: UP007
+"""Images for the backbone: a ``uint8`` ``(B, H, W, 3)`` array, ``uint8`` ``(H, W, 3)`` arrays (sizes may differ),
+or a float ``(B, 3, H, W)`` tensor in ``[0, 1]``."""
 
 # Architectures of the public OpenAI checkpoints, for random-weight speed measurements.
 CLIP_PRESETS: dict[str, dict[str, Any]] = {
@@ -94,7 +100,8 @@ class ClipBackbone:
         name: identifier used in cache keys (hub name, directory, or ``"random:<preset>:<seed>"``).
         device: where the model lives.
         dtype: parameter dtype (float32 on CPU; float16 recommended on CUDA).
-        image_mean, image_std: per-channel RGB normalisation for pixel values in ``[0, 1]``.
+        image_mean, image_std: per-channel RGB normalisation for pixel values in ``[0, 1]`` (3 values each;
+            a local model's are read from its ``preprocessor_config.json``).
     """
 
     model: Any
@@ -102,8 +109,8 @@ class ClipBackbone:
     name: str
     device: torch.device
     dtype: torch.dtype = torch.float32
-    image_mean: tuple[float, float, float] = CLIP_MEAN
-    image_std: tuple[float, float, float] = CLIP_STD
+    image_mean: tuple[float, ...] = CLIP_MEAN
+    image_std: tuple[float, ...] = CLIP_STD
 
     # ---- architecture facts -------------------------------------------------------------------
     @property
@@ -136,7 +143,7 @@ class ClipBackbone:
         return float(self.model.logit_scale.detach().exp().item())
 
     # ---- images ---------------------------------------------------------------------------------
-    def preprocess(self, images: Any, input_size: tuple[int, int] | None = None) -> torch.Tensor:
+    def preprocess(self, images: ClipImages, input_size: tuple[int, int] | None = None) -> torch.Tensor:
         """Images -> normalised pixel values ``(B, 3, H_in, W_in)`` on :attr:`device`.
 
         Args:
@@ -172,7 +179,7 @@ class ClipBackbone:
         return ((pixels - mean) / std).to(self.dtype)
 
     @torch.no_grad()
-    def dense_features(self, images: Any, input_size: tuple[int, int] | None = None,
+    def dense_features(self, images: ClipImages, input_size: tuple[int, int] | None = None,
                        mode: str = "maskclip") -> torch.Tensor:
         """Dense patch features ``(B, h, w, D)`` float32, unit length, for a batch of images.
 
@@ -192,7 +199,7 @@ class ClipBackbone:
         return x.reshape(x.shape[0], gh, gw, x.shape[-1])
 
     @torch.no_grad()
-    def image_features(self, images: Any, input_size: tuple[int, int] | None = None) -> torch.Tensor:
+    def image_features(self, images: ClipImages, input_size: tuple[int, int] | None = None) -> torch.Tensor:
         """CLIP's image embedding ``(B, D)`` float32, unit length: the standard forward, CLS token, projection
         (what the contrastive loss trains; used to score object crops)."""
         pixels = self.preprocess(images, input_size)
@@ -229,14 +236,15 @@ class ClipBackbone:
     def text_tokens(self, texts: Sequence[str]) -> torch.Tensor:
         """Token embeddings ``(B, 77, D_text)`` float32 (text encoder output before the projection)."""
         out = self.model.text_model(**self.tokenize(texts))
-        return out.last_hidden_state.float()
+        tokens: torch.Tensor = out.last_hidden_state.float()
+        return tokens
 
 
 QUICK_GELU_SCALE = 1.702
 """CLIP's ``quick_gelu(x) = x * sigmoid(1.702 x)``; equal to ``silu(1.702 x) / 1.702``."""
 
 
-def run_encoder_layer(layer: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
+def run_encoder_layer(layer: CLIPEncoderLayer, x: torch.Tensor) -> torch.Tensor:
     """One CLIP encoder layer without masks, ``(B, N, W) -> (B, N, W)``: the layer's own attention and
     layer norms, and an MLP that computes ``quick_gelu`` as one ``silu`` kernel.
 
@@ -252,7 +260,8 @@ def run_encoder_layer(layer: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
     mlp = layer.mlp
     act = getattr(getattr(mlp, "config", None), "hidden_act", None)
     if act != "quick_gelu" or torch.is_grad_enabled():
-        return x + mlp(h)
+        mixed: torch.Tensor = x + mlp(h)
+        return mixed
     flat = h.reshape(-1, h.shape[-1])
     s = QUICK_GELU_SCALE
     hidden = torch.addmm(mlp.fc1.bias * s, flat, mlp.fc1.weight.t(), alpha=s)
@@ -281,7 +290,7 @@ def gaussian_window(grid: tuple[int, int], sigma: float = NACLIP_SIGMA) -> torch
     return torch.exp(-torch.cdist(pos, pos).pow(2) / (2.0 * sigma * sigma))
 
 
-def last_block_attention(attn: torch.nn.Module, h: torch.Tensor, mode: str, grid: tuple[int, int] | None = None,
+def last_block_attention(attn: CLIPAttention, h: torch.Tensor, mode: str, grid: tuple[int, int] | None = None,
                          sigma: float = NACLIP_SIGMA) -> torch.Tensor:
     """Attention weights ``(B, heads, N, N)`` of a :data:`DENSE_MODES` variant over the tokens ``h`` ``(B, N, W)``
     (the last block's layer-normed input, CLS first). ``naclip`` needs the patch ``grid`` (``N = 1 + h*w``);
@@ -330,7 +339,8 @@ def maskclip_head(model: Any, x: torch.Tensor, mode: str = "maskclip", grid: tup
         heads = weights.shape[1]
         v = (weights @ v.reshape(b, n, heads, width // heads).transpose(1, 2)).transpose(1, 2).reshape(b, n, width)
     x = last.self_attn.out_proj(v)
-    return model.visual_projection(vision.post_layernorm(x[:, 1:]))
+    projected: torch.Tensor = model.visual_projection(vision.post_layernorm(x[:, 1:]))
+    return projected
 
 
 def _resolve_device(device: str | torch.device | None) -> torch.device:

@@ -19,13 +19,23 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
 
 from abm.geometry import PointCloud, Workspace, fuse_cameras
 from abm.grounding.instruction import PLACEHOLDER, MultiStepInstructionError, default_parser
 from abm.types import Observation
+
+if TYPE_CHECKING:
+    from abm.grounding.grounders import Grounder  # types only: grounders.py loads torch
+
+
+class PointFeatureGrounder(Protocol):
+    """A grounder that also gives per-point CLIP features (the CLIP grounder; the tracking grounder passes its
+    inner grounder's on)."""
+
+    def point_features(self, observation: Observation, cloud: PointCloud) -> np.ndarray: ...
 
 
 @dataclass
@@ -91,7 +101,7 @@ def active_role(gripper_open: float, roles: int) -> int:
     return 0 if roles < 2 or float(gripper_open) >= 0.5 else 1
 
 
-def ground_points(grounder: Any, observation: Observation, cloud: PointCloud, target: str,
+def ground_points(grounder: Grounder, observation: Observation, cloud: PointCloud, target: str,
                   object_names: Mapping[int, str]) -> PointMask:
     """Run a grounder and normalise its result to :class:`PointMask` (float32 arrays of length N)."""
     field = grounder.ground(observation, cloud, target, dict(object_names))
@@ -133,7 +143,7 @@ def condition_cloud(
     instruction: str,
     workspace: Workspace,
     *,
-    grounder: Any | None = None,
+    grounder: Grounder | None = None,
     object_names: Mapping[int, str] | None = None,
     split: bool = True,
     target: str | tuple[str, ...] | None = None,
@@ -155,7 +165,7 @@ def condition_cloud(
         target / skill: the already known split; ``target`` may be the tuple of the sub-goals' objects,
             of which the active one (:func:`active_role`) is grounded.
         mask: compute the mask field of X over the cloud.
-        features: compute per-point CLIP features.
+        features: compute per-point CLIP features (the grounder must have ``point_features``: CLIP, tracking).
         camera_names: cameras to fuse (default all).
 
     Raises:
@@ -171,6 +181,12 @@ def condition_cloud(
         target = target[role]
     if (mask or features) and grounder is None:
         raise ValueError("a grounder is needed for the mask field and CLIP point features")
-    point_mask = ground_points(grounder, observation, cloud, target, object_names or {}) if mask else None
-    feats = np.asarray(grounder.point_features(observation, cloud), np.float32) if features else None
+    point_mask = None
+    if mask:
+        assert grounder is not None and target is not None  # checked above; split_roles always gives a target
+        point_mask = ground_points(grounder, observation, cloud, target, object_names or {})
+    feats = None
+    if features:
+        # features=True needs a grounder with point features (documented above); mypy cannot know which one
+        feats = np.asarray(cast("PointFeatureGrounder", grounder).point_features(observation, cloud), np.float32)
     return ConditionedCloud(cloud, instruction, target, skill, point_mask, feats, role)

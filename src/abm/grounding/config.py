@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Union
+from typing import TYPE_CHECKING, Any, ClassVar, Union, overload
 
 from abm.grounding.mask_field import (
     DEFAULT_LOGIT_SCALE,
@@ -31,6 +31,11 @@ from abm.grounding.mask_field import (
     MaskFieldConfig,
 )
 from abm.grounding.proposals import ProposalConfig
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+    from abm.grounding.grounders import ClipGrounder, Grounder  # grounders.py imports its defaults from this module
 
 GROUNDERS: tuple[str, ...] = ("oracle", "clip", "tracking")
 CLIP_MODES: tuple[str, ...] = ("field", "proposals")
@@ -49,13 +54,14 @@ def _json(value: Any) -> Any:
     return value
 
 
-def _explicit(config: Any, given: frozenset[str]) -> list[str]:
+def _explicit(config: DataclassInstance, given: frozenset[str]) -> list[str]:
     """Option names to write: the ones named when read, and the ones differing from their default."""
     out = []
     for f in dataclasses.fields(config):
         if f.name.startswith("_") or not f.init:
             continue
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc,operator]
+        # every option has a default or a default_factory (typeshed: the factory may be MISSING, not callable)
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[operator]
         if f.name in given or getattr(config, f.name) != default:
             out.append(f.name)
     return out
@@ -127,8 +133,9 @@ class ClipGrounderConfig:
     def __post_init__(self) -> None:
         if self.mode not in CLIP_MODES:
             raise ValueError(f"clip grounder mode must be one of {CLIP_MODES}, got {self.mode!r}")
-        if isinstance(self.input_size, list):
-            object.__setattr__(self, "input_size", tuple(int(v) for v in self.input_size))
+        size: object = self.input_size  # a list when read from JSON
+        if isinstance(size, list):
+            object.__setattr__(self, "input_size", tuple(int(v) for v in size))
         object.__setattr__(self, "scales", tuple(int(v) for v in self.scales))
         object.__setattr__(self, "negatives", tuple(self.negatives))
         if isinstance(self.proposals, Mapping):
@@ -198,7 +205,8 @@ class TrackingGrounderConfig:
     _given: frozenset[str] = field(default=frozenset(), compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        if isinstance(self.inner, TrackingGrounderConfig):
+        inner: object = self.inner  # any configuration may be passed, whatever the annotation says
+        if isinstance(inner, TrackingGrounderConfig):
             raise ValueError("a tracking grounder cannot track with another tracking grounder")
 
     def to_dict(self) -> dict[str, Any]:
@@ -280,7 +288,15 @@ def merge_grounder_configs(stored: GrounderConfig | None, override: GrounderConf
     return override
 
 
-def build_grounder(config: GrounderConfig | Mapping[str, Any] | None, **runtime: Any) -> Any:
+@overload
+def build_grounder(config: ClipGrounderConfig, **runtime: Any) -> ClipGrounder: ...
+
+
+@overload
+def build_grounder(config: GrounderConfig | Mapping[str, Any] | None, **runtime: Any) -> Grounder: ...
+
+
+def build_grounder(config: GrounderConfig | Mapping[str, Any] | None, **runtime: Any) -> Grounder:
     """The grounder object of ``config`` (a dict is read with :func:`grounder_config_from_dict`).
 
     ``runtime`` goes to the CLIP grounder's constructor (e.g. ``backbone=`` a loaded model, ``cache=``).

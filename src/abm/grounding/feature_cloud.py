@@ -13,15 +13,25 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 
 from abm.geometry import PointCloud, Workspace, fuse_cameras
 from abm.types import Observation
 
 
-def nearest_patch_index(size: int, grid: int) -> np.ndarray:
+class DenseFeatureBackbone(Protocol):
+    """What :func:`build_feature_cloud` needs of a backbone (:class:`~abm.grounding.clip.ClipBackbone` has it)."""
+
+    def dense_features(self, images: Sequence[np.ndarray]) -> torch.Tensor:
+        """``(B, h, w, D)`` patch features of ``uint8`` ``(H, W, 3)`` images."""
+        ...
+
+
+def nearest_patch_index(size: int, grid: int) -> NDArray[np.int64]:
     """``(size,)`` int64: the patch (of ``grid`` along this axis) containing each pixel centre."""
     if size < 1 or grid < 1:
         raise ValueError(f"size and grid must be positive, got {size}, {grid}")
@@ -37,18 +47,19 @@ def upsample_nearest(patch_features: torch.Tensor | np.ndarray, height: int, wid
     return feats.index_select(-3, rows).index_select(-2, cols)
 
 
-def patch_index_map(height: int, width: int, grid_h: int, grid_w: int, offset: int = 0) -> np.ndarray:
+def patch_index_map(height: int, width: int, grid_h: int, grid_w: int, offset: int = 0) -> NDArray[np.int64]:
     """``(height, width)`` int64: flat index ``offset + i * grid_w + j`` of the nearest patch of each pixel."""
     rows = nearest_patch_index(height, grid_h)
     cols = nearest_patch_index(width, grid_w)
-    return offset + rows[:, None] * grid_w + cols[None, :]
+    index: NDArray[np.int64] = offset + rows[:, None] * grid_w + cols[None, :]
+    return index
 
 
 def lift_patch_features(
     cloud: PointCloud,
     patch_features: Mapping[str, np.ndarray | torch.Tensor],
     image_sizes: Mapping[str, tuple[int, int]],
-) -> np.ndarray:
+) -> NDArray[np.float32]:
     """Attach per-camera patch grids to the points of ``cloud``.
 
     Args:
@@ -71,7 +82,8 @@ def lift_patch_features(
         flats.append(grid.reshape(gh * gw, d))
         offset += gh * gw
     table = np.concatenate(flats).astype(np.float32, copy=False)
-    return table[cloud.gather(index_maps)]
+    features: NDArray[np.float32] = table[cloud.gather(index_maps)]
+    return features
 
 
 @dataclass
@@ -90,7 +102,7 @@ class FeatureCloud:
 
 
 def build_feature_cloud(
-    backbone: object,
+    backbone: DenseFeatureBackbone,
     observation: Observation,
     workspace: Workspace | None = None,
     cloud: PointCloud | None = None,

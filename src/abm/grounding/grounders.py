@@ -20,14 +20,15 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, cast, runtime_checkable
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
-from abm.grounding.clip import DEFAULT_MODEL, DENSE_MODES, load_clip
+from abm.grounding.clip import DEFAULT_MODEL, DENSE_MODES, ClipBackbone, load_clip
 from abm.grounding.config import (  # noqa: F401 - the defaults live with the typed configurations
     CLIP_MODES,
     DEFAULT_CLIP_MODE,
@@ -90,11 +91,13 @@ def match_object_ids(target: str, object_names: Mapping[int, str]) -> list[int]:
 
 def segmentation_of_points(observation: Observation, cloud: PointCloud) -> np.ndarray:
     """``(N,)`` int32 segmentation id of every point (needs simulator segmentation in every camera)."""
-    missing = [n for n in cloud.camera_names if observation.camera(n).segmentation is None]
+    segmentations = {n: observation.camera(n).segmentation for n in cloud.camera_names}
+    missing = [n for n, seg in segmentations.items() if seg is None]
     if missing:
         raise ValueError(f"cameras {missing} have no segmentation; the oracle grounder needs simulator "
                          "segmentation (use the clip grounder on real data)")
-    return cloud.gather({n: observation.camera(n).segmentation for n in cloud.camera_names})
+    ids: np.ndarray = cloud.gather({n: seg for n, seg in segmentations.items() if seg is not None})
+    return ids
 
 
 def target_point_mask(
@@ -165,12 +168,12 @@ class ClipGrounder:
 
     def __init__(
         self,
-        backbone: Any | None = None,
+        backbone: ClipBackbone | None = None,
         model: str | None = None,
         device: str | torch.device | None = None,
         config: MaskFieldConfig | None = None,
         cache: GroundingCache | str | Path | None = None,
-        input_size: tuple[int, int] | None = None,
+        input_size: int | tuple[int, ...] | None = None,
         cache_features: bool = ClipGrounderConfig.cache_features,
         allow_download: bool = ClipGrounderConfig.allow_download,
         dense_mode: str = DEFAULT_DENSE_MODE,
@@ -191,7 +194,8 @@ class ClipGrounder:
             input_size = DEFAULT_INPUT_SIZE
         if isinstance(input_size, int):
             input_size = (input_size, input_size)
-        self.input_size = tuple(input_size) if input_size is not None else None
+        # (H, W): ClipBackbone.preprocess unpacks two sides (a configuration read from JSON holds a list)
+        self.input_size = cast("tuple[int, int] | None", tuple(input_size) if input_size is not None else None)
         self.dense_mode = dense_mode
         self.mode = mode
         self.scales = tuple(int(v) for v in (DEFAULT_SCALES if scales is None else scales))
@@ -243,7 +247,7 @@ class ClipGrounder:
                     self.cache.put(key, {"features": out[name]})
         return out
 
-    def point_features(self, observation: Observation, cloud: PointCloud) -> np.ndarray:
+    def point_features(self, observation: Observation, cloud: PointCloud) -> NDArray[np.float32]:
         """``(N, D)`` float32 unit-length CLIP feature of every point of ``cloud`` (the Feature Cloud)."""
         _check_cloud(observation, cloud)
         patch = self.camera_patch_features(observation, cloud.camera_names)
@@ -254,7 +258,8 @@ class ClipGrounder:
         for side in self.scales:
             patch = self.camera_patch_features(observation, cloud.camera_names, (side, side))
             feats = feats + lift_patch_features(cloud, patch, sizes)
-        return feats / np.maximum(np.linalg.norm(feats, axis=1, keepdims=True), 1e-8)
+        unit: NDArray[np.float32] = feats / np.maximum(np.linalg.norm(feats, axis=1, keepdims=True), 1e-8)
+        return unit
 
     def text_features(self, prompts: Sequence[str]) -> np.ndarray:
         """``(K, D)`` float32 unit-length text features (memoised per prompt)."""
@@ -301,7 +306,7 @@ class ClipGrounder:
         )
         hit = self.cache.get(key)
         if hit is not None:
-            return MaskField(hit["mask"], hit["heatmap"], bool(hit["found"]), target, prompt, hit["similarity"])
+            return MaskField(hit["mask"], hit["heatmap"], bool(hit["found"]), target, prompt, hit.get("similarity"))
         field = self._ground_proposals(observation, cloud, target, prompt) if self.mode == "proposals" else None
         if field is None:
             feats = self.point_features(observation, cloud)
@@ -310,8 +315,10 @@ class ClipGrounder:
             if self.config.normalization == "softmax":
                 negatives = self.text_features(negative_prompts(self.config.negatives))
             field = mask_field_from_features(feats, text, negatives, self.config, target, prompt)
-        self.cache.put(key, {"mask": field.mask, "heatmap": field.heatmap, "found": np.array(field.found),
-                             "similarity": field.similarity})
+        entry = {"mask": field.mask, "heatmap": field.heatmap, "found": np.array(field.found)}
+        if field.similarity is not None:  # None (crop scoring) is left out: np.load refuses object arrays
+            entry["similarity"] = field.similarity
+        self.cache.put(key, entry)
         return field
 
 
@@ -332,7 +339,7 @@ class ClipGrounder:
             chosen = np.arange(len(candidates))
             if cfg.scoring == "combined" and 0 < cfg.crop_top_k < len(candidates):
                 chosen = np.sort(np.argsort(-dense[:, 0], kind="stable")[:cfg.crop_top_k])
-            crops, owner, weight = candidate_crops(observation, cloud, [candidates[i] for i in chosen], cfg)
+            crops, owner, weight = candidate_crops(observation, cloud, [candidates[int(i)] for i in chosen], cfg)
             owner = chosen[owner]
             crop = np.zeros_like(out)
             if crops:

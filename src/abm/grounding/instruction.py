@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
-from typing import NamedTuple, NoReturn, Protocol, runtime_checkable
+from typing import Any, NamedTuple, NoReturn, Protocol, runtime_checkable
 
 import yaml
 
@@ -345,7 +345,7 @@ _WORD_LISTS = (
 )
 
 
-def _string_list(data: dict, key: str) -> tuple[str, ...]:
+def _string_list(data: Mapping[str, Any], key: str) -> tuple[str, ...]:
     """The word list ``data[key]`` (lower case, spaces collapsed); empty when absent."""
     value = data.get(key, [])
     if not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(v, str | int | float) for v in value):
@@ -356,7 +356,7 @@ def _string_list(data: dict, key: str) -> tuple[str, ...]:
     return tuple(" ".join(str(v).lower().split()) for v in value)
 
 
-def parse_templates(data: dict, base_synonyms: Synonyms | None = None) -> TemplateSet:
+def parse_templates(data: dict[str, Any], base_synonyms: Synonyms | None = None) -> TemplateSet:
     """Build a :class:`TemplateSet` from the YAML structure (``skills`` and the optional word lists).
 
     ``base_synonyms`` are synonym groups the patterns may use besides the file's own ``synonyms``
@@ -399,7 +399,7 @@ def parse_templates(data: dict, base_synonyms: Synonyms | None = None) -> Templa
     return TemplateSet(tuple(skills), synonyms=synonyms, **lists)
 
 
-def _builtin_data() -> dict:
+def _builtin_data() -> dict[str, Any]:
     """The parsed YAML of the built-in ``templates.yaml``."""
     text = resources.files("abm.grounding").joinpath("templates.yaml").read_text(encoding="utf-8")
     return yaml.safe_load(text) or {}
@@ -475,7 +475,7 @@ class TemplateParser:
             templates = templates.merged(load_templates(p))
         return cls(templates)
 
-    def with_templates(self, extra: TemplateSet | dict | str | Path) -> TemplateParser:
+    def with_templates(self, extra: TemplateSet | dict[str, Any] | str | Path) -> TemplateParser:
         """A new parser whose templates are extended by ``extra`` (tried first)."""
         if isinstance(extra, dict):
             extra = parse_templates(extra, self.templates.synonyms)
@@ -646,12 +646,12 @@ class TemplateParser:
         if len(parts) > 1 and self._step_split is not None and self._step_split.search(f" {normalized} "):
             unknown = [p for p in parts if self._match(p) is None]
             listed = "; ".join(repr(p) for p in parts)
-            verb = "is" if len(unknown) == 1 else "are"
+            be = "is" if len(unknown) == 1 else "are"
             raise self._refusal(
                 instruction,
                 normalized,
                 f"it asks for {len(parts)} steps ({listed}), but abm runs one skill per instruction (and "
-                f"{', '.join(repr(p) for p in unknown)} {verb} no skill it knows)",
+                f"{', '.join(repr(p) for p in unknown)} {be} no skill it knows)",
                 MultiStepInstructionError,
             )
         words = normalized.split()

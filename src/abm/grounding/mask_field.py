@@ -23,12 +23,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from abm.grounding.instruction import clip_prompt
 from abm.render import binarize_mask, center_pixel_mask, soft_mask
+
+if TYPE_CHECKING:
+    from abm.geometry import PointCloud
+    from abm.render import OrthographicRenderer
 
 NORMALIZATIONS: tuple[str, ...] = ("raw", "minmax", "softmax")
 DEFAULT_NEGATIVES: tuple[str, ...] = ("object", "things", "stuff", "texture")
@@ -220,8 +225,8 @@ class MaskViews:
         return {"center": self.center, "soft": self.soft, "full": self.full}
 
 
-def mask_views(renderer: object, cloud: object, mask: np.ndarray | torch.Tensor | MaskField,
-               binarize_threshold: float = 0.5) -> MaskViews:
+def mask_views(renderer: OrthographicRenderer, cloud: PointCloud | np.ndarray,
+               mask: np.ndarray | torch.Tensor | MaskField, binarize_threshold: float = 0.5) -> MaskViews:
     """Render a per-point mask into the virtual views and post-process it.
 
     Args:

@@ -27,8 +27,10 @@ Nothing here needs CLIP; :func:`object_proposals` is pure geometry on ``(N, 3)``
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -106,7 +108,7 @@ class Proposals:
     cluster: list[int]
     table: np.ndarray
     table_height: float
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.candidates)
@@ -128,7 +130,7 @@ def _cells(xyz: np.ndarray, voxel: float) -> np.ndarray:
     return np.floor(xyz / voxel).astype(np.int64)
 
 
-def voxel_clusters(xyz: np.ndarray, voxel: float) -> np.ndarray:
+def voxel_clusters(xyz: np.ndarray, voxel: float) -> NDArray[np.int64]:
     """``(N,)`` cluster id of every point: 26-connected components of the occupied ``voxel`` cells."""
     if len(xyz) == 0:
         return np.zeros(0, np.int64)
@@ -137,10 +139,11 @@ def voxel_clusters(xyz: np.ndarray, voxel: float) -> np.ndarray:
     grid = np.zeros(cells.max(0) + 1, bool)
     grid[tuple(cells.T)] = True
     labels, _ = ndimage.label(grid, structure=np.ones((3, 3, 3), bool))
-    return labels[tuple(cells.T)].astype(np.int64) - 1
+    clusters: NDArray[np.int64] = labels[tuple(cells.T)].astype(np.int64) - 1
+    return clusters
 
 
-def same_colour(a: np.ndarray, b: np.ndarray, tol: float, shade: float = 2.0) -> np.ndarray:
+def same_colour(a: np.ndarray, b: np.ndarray, tol: float, shade: float = 2.0) -> NDArray[np.bool_]:
     """``(K,)`` bool: colours ``a`` and ``b`` ``(K, 3)`` in ``[0, 1]`` are one surface's. Shading changes the
     brightness, not the hue: the chromaticities (``rgb / sum``) must agree within ``tol`` per channel and the
     brightnesses within a factor ``shade``; two dark colours (mean below 0.1) agree."""
@@ -148,10 +151,11 @@ def same_colour(a: np.ndarray, b: np.ndarray, tol: float, shade: float = 2.0) ->
     chroma = np.abs(a / sa[:, None] - b / sb[:, None]).max(1) <= tol
     bright = np.abs(np.log(sa / sb)) <= np.log(shade)
     dark = (sa < 0.3) & (sb < 0.3)
-    return (chroma & bright) | dark
+    same: NDArray[np.bool_] = (chroma & bright) | dark
+    return same
 
 
-def color_parts(xyz: np.ndarray, rgb: np.ndarray, voxel: float, tol: float) -> np.ndarray:
+def color_parts(xyz: np.ndarray, rgb: np.ndarray, voxel: float, tol: float) -> NDArray[np.int32]:
     """``(M,)`` part id of the points of one cluster: neighbouring cells (26-connectivity) are joined when
     their mean colours are one surface's (:func:`same_colour` with chromaticity tolerance ``tol``)."""
     cells = _cells(xyz, voxel)
@@ -162,7 +166,8 @@ def color_parts(xyz: np.ndarray, rgb: np.ndarray, voxel: float, tol: float) -> n
     n = len(uniq)
     counts = np.bincount(inverse, minlength=n).astype(np.float64)
     colour = np.stack([np.bincount(inverse, weights=rgb[:, c], minlength=n) for c in range(3)], 1) / counts[:, None]
-    rows, cols = [], []
+    rows: list[NDArray[np.intp]] = []
+    cols: list[NDArray[np.intp]] = []
     offsets = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) > (0, 0, 0)]
     for a, b, c in offsets:
         shifted = uniq + (a * dims[1] + b) * dims[2] + c
@@ -172,10 +177,11 @@ def color_parts(xyz: np.ndarray, rgb: np.ndarray, voxel: float, tol: float) -> n
         close = same_colour(colour[src], colour[dst], tol)
         rows.append(src[close])
         cols.append(dst[close])
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(len(r)), (r, c)), shape=(n, n))
+    r, k = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(r)), (r, k)), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
-    return labels[inverse]
+    parts: NDArray[np.int32] = labels[inverse]  # scipy's component labels are int32
+    return parts
 
 
 def object_proposals(xyz: np.ndarray, rgb: np.ndarray, config: ProposalConfig | None = None) -> Proposals:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -40,6 +41,9 @@ from abm.geometry import PointCloud
 from abm.grounding.config import TrackingGrounderConfig
 from abm.grounding.mask_field import MaskField
 from abm.types import Observation
+
+if TYPE_CHECKING:
+    from abm.grounding.grounders import Grounder  # types only: grounders.py loads torch and CLIP
 
 _DEFAULTS = TrackingGrounderConfig()  # the defaults' one source
 
@@ -73,7 +77,7 @@ class TrackingGrounder:
 
     name = "tracking"
 
-    def __init__(self, inner, radius: float = _DEFAULTS.radius, min_kept: float = _DEFAULTS.min_kept,
+    def __init__(self, inner: Grounder, radius: float = _DEFAULTS.radius, min_kept: float = _DEFAULTS.min_kept,
                  closed_below: float = _DEFAULTS.closed_below, color_tol: float = _DEFAULTS.color_tol,
                  reacquire: bool = _DEFAULTS.reacquire, reacquire_ratio: float = _DEFAULTS.reacquire_ratio) -> None:
         if radius <= 0 or not 0 < min_kept <= 1 or color_tol <= 0:
@@ -93,7 +97,7 @@ class TrackingGrounder:
         """Forget the tracked target (call at the start of every episode)."""
         self._track = None
 
-    def __getattr__(self, name: str):  # point_features, skill_embeddings, ... of the inner grounder
+    def __getattr__(self, name: str) -> Any:  # point_features, skill_embeddings, ... of the inner grounder
         if name.startswith("_") or name == "inner":
             raise AttributeError(name)
         return getattr(self.inner, name)

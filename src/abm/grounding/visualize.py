@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 # Anchor colours of a perceptually ordered blue -> cyan -> green -> yellow -> red colormap.
 _ANCHORS = np.array([
@@ -16,13 +17,14 @@ _ANCHORS = np.array([
 ])
 
 
-def colormap(values: np.ndarray) -> np.ndarray:
+def colormap(values: np.ndarray) -> NDArray[np.uint8]:
     """Values ``(...)`` in ``[0, 1]`` -> colours ``(..., 3)`` uint8 (piecewise-linear, blue = low, red = high)."""
     v = np.clip(np.nan_to_num(np.asarray(values, np.float64)), 0.0, 1.0) * (len(_ANCHORS) - 1)
     lo = np.minimum(np.floor(v).astype(int), len(_ANCHORS) - 2)
     frac = (v - lo)[..., None]
     rgb = _ANCHORS[lo] * (1 - frac) + _ANCHORS[lo + 1] * frac
-    return (rgb * 255).round().astype(np.uint8)
+    colours: NDArray[np.uint8] = (rgb * 255).round().astype(np.uint8)
+    return colours
 
 
 def blend(base: np.ndarray, overlay: np.ndarray, alpha: np.ndarray | float) -> np.ndarray:
@@ -120,8 +122,10 @@ def overlay_views(rgb: np.ndarray, target: np.ndarray | None = None, heatmaps: n
         if heatmaps is not None:
             h = heatmaps[v] / max(float(heatmaps[v].max()), 1e-12)
             img = blend(img, colormap(h), (0.85 * np.sqrt(h))[..., None])
-        rows, cols = np.nonzero(marks[v] > 0.5) if marks is not None else ((), ())
-        if 0 < len(rows) <= MAX_MARKS:  # a full mask (the ablations' channel) is already the cyan tint
-            img = mark_pixels(img, list(zip(rows.tolist(), cols.tolist(), strict=True)), radius=2, color=MARK_COLOR)
+        if marks is not None:
+            rows, cols = np.nonzero(marks[v] > 0.5)
+            if 0 < len(rows) <= MAX_MARKS:  # a full mask (the ablations' channel) is already the cyan tint
+                img = mark_pixels(img, list(zip(rows.tolist(), cols.tolist(), strict=True)), radius=2,
+                                  color=MARK_COLOR)
         out.append(np.ascontiguousarray(img))
     return out
