@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import ast
 import subprocess
 import sys
 
@@ -71,13 +72,16 @@ def test_help_describes_every_option_with_its_default(name: str, parser: argpars
     assert "%(" not in text  # argparse formatting placeholders are filled
 
 
-def test_abm_help_is_fast() -> None:
-    """`abm --help` imports no heavy library (torch, mujoco, transformers, numpy); it answers in under 1.5 s."""
-    code = ("import sys, time; t = time.perf_counter(); from abm.cli import main\n"
+def test_abm_help_imports_nothing_heavy() -> None:
+    """`abm --help` imports no heavy library (torch, mujoco, transformers, numpy, ...) and no command module: what
+    keeps it at ~0.25 s on an idle 2-core machine (timed in docs, not here: wall time depends on the load)."""
+    code = ("import sys; from abm.cli import main\n"
             "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
             "heavy = [m for m in ('torch', 'mujoco', 'transformers', 'numpy', 'h5py', 'viser') if m in sys.modules]\n"
-            "print(heavy, time.perf_counter() - t, file=sys.stderr)")
+            "ours = [m for m in sys.modules if m.startswith('abm.')]\n"
+            "print(repr((heavy, ours)), file=sys.stderr)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    heavy, seconds = done.stderr.strip().rsplit("] ", 1)
-    assert heavy == "[", f"abm --help imported {heavy}]"
-    assert float(seconds) < 1.5, seconds  # ~0.25 s on an idle 2-core machine
+    heavy, ours = ast.literal_eval(done.stderr.strip().splitlines()[-1])
+    assert heavy == [], f"abm --help imported {heavy}"
+    commands = [m for m in ours if m.startswith("abm.cli.commands.")]
+    assert commands == [], f"abm --help imported command modules {commands}"

@@ -35,6 +35,7 @@ from typing import Any
 # Defaults shared by several commands, defined once here (this module is imported by every command).
 CAMERA_RESOLUTION = 128  #: camera image side (px) of demonstrations, evaluation, the quickstart and rollouts
 MAX_KEYFRAMES = 8  #: keyframes per evaluation rollout (abm eval, abm quickstart, abm view --task, the scripts)
+SPLITS: tuple[str, ...] = ("seen", "unseen", "compositional")  #: the object splits (abm.types.Split), light for parsers
 WORKERS = 2  #: parallel processes of data generation, evaluation, the quickstart and abm clip train
 CPU_CLIP_MODEL = "openai/clip-vit-base-patch16"  #: the CPU-sized pretrained CLIP (tried first on CPU)
 GPU_CLIP_MODEL = "openai/clip-vit-large-patch14-336"  #: the paper's CLIP (the default of the clip grounder)

@@ -22,8 +22,9 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from abm.configuration import SPLITS  # noqa: F401 - the object splits, re-exported beside Split
+
 Split = Literal["seen", "unseen", "compositional"]
-SPLITS: tuple[str, ...] = ("seen", "unseen", "compositional")
 
 
 def _check_array(

@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from abm.configuration import WORKERS, add_config_arguments, count, int_range
+from abm.configuration import SPLITS, WORKERS, add_config_arguments, count, int_range
 from abm.evaluation.settings import EvalSettings
 from abm.ray_pool import add_backend_arguments
-from abm.types import SPLITS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
