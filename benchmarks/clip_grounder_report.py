@@ -44,7 +44,7 @@ START, END = "<!-- clip-grounder:start -->", "<!-- clip-grounder:end -->"
 #: run folder -> (variant, what grounds the target / carries the instruction), in table order
 RUNS: dict[str, tuple[str, str]] = {
     "abm_oracle": ("abm", "mask from the simulator's segmentation (oracle, upper bound)"),
-    "abm_clip": ("abm", "mask from the benchmark CLIP's Object Mask Field"),
+    "abm_clip": ("abm", "mask from the benchmark CLIP (the default grounder: 3-D proposals scored by CLIP)"),
     "rvt_hash": ("rvt", "instruction through the weight-free hash encoder (no mask)"),
     "rvt_clip": ("rvt", "instruction through the benchmark CLIP's text encoder (no mask)"),
     "ifd_clip": ("ifd", "benchmark-CLIP point features in the views + CLIP text (no mask)"),
