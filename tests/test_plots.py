@@ -77,7 +77,7 @@ def test_keyframe_error_and_loss_curves(tmp_path):
 
 
 @pytest.mark.parametrize("script, names", [("seen_unseen_report", ["seen_unseen_success", "seen_unseen_training"]),
-                                           ("clip_grounder_report", ["clip_grounder_success"])])
+                                           ("clip_grounder_report", ["clip_grounder_losses", "clip_grounder_success"])])
 def test_readme_images_are_what_the_report_scripts_draw_from_the_committed_json(tmp_path, script, names):
     module = pytest.importorskip(script)
     store = ROOT / "docs" / "results" / script.removesuffix("_report")
