@@ -49,10 +49,11 @@ def _same_episodes(a_dir, b_dir):
 
 
 def test_killed_ray_generation_resumes_and_equals_the_local_pool(cluster, tmp_path):
-    """A driver joined to the cluster by address is killed after its first episode; the rerun completes
-    the set (each seed once) and the episodes equal the local pool's, frame for frame."""
+    """A driver joined to the cluster by address is killed once an episode is written (its two workers may both
+    have finished one: three are asked for, so the set is never complete); the rerun completes the set (each
+    seed once) and the episodes equal the local pool's, frame for frame."""
     out = tmp_path / "ray"
-    cmd = [sys.executable, "-m", "abm.cli", *_gen(out, "ray", extra=["--ray-address", cluster])]
+    cmd = [sys.executable, "-m", "abm.cli", *_gen(out, "ray", episodes=3, extra=["--ray-address", cluster])]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 600  # generous: Ray's start-up on a loaded 2-core machine took minutes
     while time.time() < deadline and proc.poll() is None and not (out.is_dir() and find_episode_files(out)):
@@ -61,11 +62,11 @@ def test_killed_ray_generation_resumes_and_equals_the_local_pool(cluster, tmp_pa
     assert out.is_dir() and find_episode_files(out), "no episode was written within the deadline"
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
-    assert len(find_episode_files(out)) == 1
-    assert main(_gen(out, "ray", extra=["--ray-address", cluster])) == 0
-    assert [f.name for f in find_episode_files(out)] == [f"episode_{s:06d}.h5" for s in range(2)]
+    assert 1 <= len(find_episode_files(out)) < 3
+    assert main(_gen(out, "ray", episodes=3, extra=["--ray-address", cluster])) == 0
+    assert [f.name for f in find_episode_files(out)] == [f"episode_{s:06d}.h5" for s in range(3)]
     assert not list(out.rglob(".*tmp*"))
-    assert main(_gen(tmp_path / "local", "local")) == 0
+    assert main(_gen(tmp_path / "local", "local", episodes=3)) == 0
     _same_episodes(out, tmp_path / "local")
 
 
