@@ -178,9 +178,9 @@ if stage eval; then
       abm eval --run "$ZOO/$name.pt" --tasks $COMPOSITIONAL --split compositional --episodes "$EVAL_EPISODES" \
         --repeats "$REPEATS" --workers "$EVAL_WORKERS" --max-steps "$MAX_STEPS" --out "$OUT/eval/$name/compositional"
     fi
+    rm -rf "${ZOO:?}/carry/eval/$name"  # this run's evaluations are finished (others may still run elsewhere)
   done
   trap - INT TERM
-  rm -rf "$ZOO/carry/eval"
   stamp eval_end
 fi
 
