@@ -15,7 +15,10 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 import abm
+from abm.lazy import type_checking_exports
 
 ROOT = Path(abm.__file__).parent
 LAYERS = [
@@ -95,25 +98,13 @@ def module_level_imports(tree: ast.Module) -> list[ast.Import | ast.ImportFrom]:
     return found
 
 
-def lazy_exports(tree: ast.Module) -> dict[str, str]:
-    """Name -> module of a package's lazy exports (``lazy_exports(__name__, {module: (name, ...)})``)."""
-    found = {}
-    for node in ast.walk(tree):
-        if (isinstance(node, ast.Call) and getattr(node.func, "id", None) == "lazy_exports" and len(node.args) == 2
-                and isinstance(node.args[1], ast.Dict)):
-            for key, value in zip(node.args[1].keys, node.args[1].values, strict=True):
-                if isinstance(key, ast.Constant) and isinstance(value, (ast.Tuple, ast.List)):
-                    found.update({e.value: key.value for e in value.elts if isinstance(e, ast.Constant)})
-    return found
-
-
 def import_graph(root: Path) -> dict[str, set[str]]:
     """Module -> the package's modules it imports at module level. ``from a.b import c`` counts as an import
     of ``a.b`` (and of ``a.b.c`` when that is a module, or of the module a lazy export ``c`` of ``a.b`` comes
     from); importing a module imports its parent packages, so those count too, except a module's own parents
     (they are always initialised first)."""
     modules = {module_name(p, root): p for p in root.rglob("*.py")}
-    lazy = {m: lazy_exports(ast.parse(p.read_text())) for m, p in modules.items() if p.name == "__init__.py"}
+    lazy = {m: type_checking_exports(p) for m, p in modules.items() if p.name == "__init__.py"}
     graph: dict[str, set[str]] = {}
     for me, path in modules.items():
         is_package = path.name == "__init__.py"
@@ -245,8 +236,9 @@ def test_the_cycle_check_sees_a_crafted_cycle(tmp_path) -> None:
     (pkg / "d.py").write_text("from pkg import late\n")
     graph = import_graph(pkg)
     assert graph["pkg.d"] == set()  # `late` is no module of pkg ...
-    (pkg / "__init__.py").write_text("from pkg.lazy import lazy_exports\n\n"
-                                     "__getattr__, __dir__ = lazy_exports(__name__, {'pkg.c': ('late',)})\n")
+    (pkg / "__init__.py").write_text("from typing import TYPE_CHECKING\n\nfrom pkg.lazy import lazy_exports\n\n"
+                                     "if TYPE_CHECKING:\n    from pkg.c import late\n\n"
+                                     "__getattr__, __dir__ = lazy_exports(__name__, __file__)\n")
     graph = import_graph(pkg)
     assert graph["pkg.d"] == {"pkg.c"}  # ... but a lazy export of pkg.c: importing it imports pkg.c
     assert graph["pkg.sub.a"] == {"pkg.sub.b"} and graph["pkg.c"] == {"pkg.sub", "pkg.sub.a"}
@@ -275,3 +267,27 @@ def test_the_function_import_count_sees_nested_and_skips_type_checking(tmp_path)
     hits = function_level_imports(src)
     assert [(m, line) for m, line, _ in hits] == [("abm.files", 6), ("abm.lazy", 12)]
     assert "#" in hits[0][2] and "#" not in hits[1][2]
+
+
+def test_every_lazy_package_exports_exactly_its_type_checking_names() -> None:
+    """``__all__`` lists the names under ``if TYPE_CHECKING:`` (the one list type checkers read), and each
+    resolves at run time to the object of the module it is imported from there."""
+    import importlib
+
+    packages = [p for p in sorted(ROOT.rglob("__init__.py")) if "lazy_exports(" in p.read_text()]
+    assert len(packages) >= 8
+    for path in packages:
+        package = importlib.import_module(module_name(path))
+        where = type_checking_exports(path)
+        assert sorted(package.__all__) == sorted(where), path
+        for name, module in where.items():
+            assert getattr(package, name) is getattr(importlib.import_module(module), name)
+
+
+def test_lazy_exports_refuse_other_statements_under_type_checking(tmp_path) -> None:
+    init = tmp_path / "__init__.py"
+    init.write_text("from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n    from . import sibling\n")
+    with pytest.raises(ValueError, match="only absolute `from MODULE import NAME`"):
+        type_checking_exports(init)
+    init.write_text("from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n    from a.b import c as d, e\n")
+    assert type_checking_exports(init) == {"d": "a.b", "e": "a.b"}

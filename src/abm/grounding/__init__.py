@@ -13,32 +13,65 @@ transformers is imported only when a CLIP model is built, so the oracle grounder
 parser work without it.
 """
 
+from typing import TYPE_CHECKING
+
 from abm.lazy import lazy_exports
 
-# imported on first use (abm.lazy), so importing the package (every `abm` command does) stays light
-__getattr__, __dir__ = lazy_exports(__name__, {
-    "abm.grounding.cache": ("GroundingCache", "cloud_key", "content_key", "frame_key", "image_key",),
-    "abm.grounding.clip": (
-        "DEFAULT_MODEL", "CLIP_PRESETS", "ClipBackbone", "ClipWeightsNotFoundError", "load_clip", "random_clip",
-        "tiny_clip",
-    ),
-    "abm.grounding.feature_cloud": (
-        "FeatureCloud", "build_feature_cloud", "lift_patch_features", "nearest_patch_index", "upsample_nearest",
-    ),
-    "abm.grounding.grounders": (
-        "GROUNDERS", "ClipGrounder", "Grounder", "OracleGrounder", "make_grounder", "match_object_ids",
-        "target_point_mask",
-    ),
-    "abm.grounding.instruction": (
-        "InstructionError", "InstructionParser", "ParsedInstruction", "RewritingParser", "TemplateParser",
-        "TemplateSet", "clip_prompt", "decompose_instruction", "load_templates", "normalize_instruction",
-    ),
-    "abm.grounding.mask_field": (
-        "DEFAULT_NEGATIVES", "DEFAULT_NORMALIZATION", "DEFAULT_THRESHOLD", "NORMALIZATIONS", "MaskField",
-        "MaskFieldConfig", "MaskViews", "mask_field_from_features", "mask_views", "normalize_heatmap",
-        "threshold_heatmap",
-    ),
-})
+if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm.lazy), so importing the
+    # package (every `abm` command does) stays light
+    from abm.grounding.cache import GroundingCache, cloud_key, content_key, frame_key, image_key
+    from abm.grounding.clip import (
+        CLIP_PRESETS,
+        DEFAULT_MODEL,
+        ClipBackbone,
+        ClipWeightsNotFoundError,
+        load_clip,
+        random_clip,
+        tiny_clip,
+    )
+    from abm.grounding.config import GROUNDERS
+    from abm.grounding.feature_cloud import (
+        FeatureCloud,
+        build_feature_cloud,
+        lift_patch_features,
+        nearest_patch_index,
+        upsample_nearest,
+    )
+    from abm.grounding.grounders import (
+        ClipGrounder,
+        Grounder,
+        OracleGrounder,
+        make_grounder,
+        match_object_ids,
+        target_point_mask,
+    )
+    from abm.grounding.instruction import (
+        InstructionError,
+        InstructionParser,
+        ParsedInstruction,
+        RewritingParser,
+        TemplateParser,
+        TemplateSet,
+        clip_prompt,
+        decompose_instruction,
+        load_templates,
+        normalize_instruction,
+    )
+    from abm.grounding.mask_field import (
+        DEFAULT_NEGATIVES,
+        DEFAULT_NORMALIZATION,
+        DEFAULT_THRESHOLD,
+        NORMALIZATIONS,
+        MaskField,
+        MaskFieldConfig,
+        MaskViews,
+        mask_field_from_features,
+        mask_views,
+        normalize_heatmap,
+        threshold_heatmap,
+    )
+
+__getattr__, __dir__ = lazy_exports(__name__, __file__)
 
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_NEGATIVES", "DEFAULT_NORMALIZATION", "DEFAULT_THRESHOLD", "GROUNDERS",

@@ -11,17 +11,20 @@ Main entry points:
 * :func:`policy_loss`, :func:`translation_targets`, :func:`decode_output` — loss and decoding.
 """
 
+from typing import TYPE_CHECKING
+
 from abm.lazy import lazy_exports
 
-# imported on first use (abm.lazy), so importing the package (every `abm` command does) stays light
-__getattr__, __dir__ = lazy_exports(__name__, {
-    "abm.policy.action_coding": ("EncodedAction", "decode_action", "encode_action",),
-    "abm.policy.config": ("PRESETS", "PolicyConfig", "check_compatible",),
-    "abm.policy.heads": ("LossTerms", "decode_output", "decode_translation", "policy_loss", "translation_targets",),
-    "abm.policy.keyframe_policy": ("KeyframePolicy", "PolicyExplanation", "GroundingExplanation", "explain_grounding",),
-    "abm.policy.mvt": ("MultiViewTransformer", "PolicyOutput",),
-    "abm.policy.variants": ("VARIANTS", "VariantSpec", "get_variant", "mask_channel",),
-})
+if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm.lazy), so importing the
+    # package (every `abm` command does) stays light
+    from abm.policy.action_coding import EncodedAction, decode_action, encode_action
+    from abm.policy.config import PRESETS, PolicyConfig, check_compatible
+    from abm.policy.heads import LossTerms, decode_output, decode_translation, policy_loss, translation_targets
+    from abm.policy.keyframe_policy import GroundingExplanation, KeyframePolicy, PolicyExplanation, explain_grounding
+    from abm.policy.mvt import MultiViewTransformer, PolicyOutput
+    from abm.policy.variants import VARIANTS, VariantSpec, get_variant, mask_channel
+
+__getattr__, __dir__ = lazy_exports(__name__, __file__)
 
 __all__ = [
     "PRESETS", "VARIANTS", "EncodedAction", "KeyframePolicy", "LossTerms", "MultiViewTransformer", "PolicyConfig",

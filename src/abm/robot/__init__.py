@@ -4,14 +4,17 @@ hardware: :mod:`abm.robot.realsense` (RealSense cameras), :mod:`abm.robot.ur` (U
 :mod:`abm.robot.demonstrations` (demonstrations recorded on a robot, stored as episodes); imported on
 demand, as their SDKs are optional (docs/real-robot.md)."""
 
+from typing import TYPE_CHECKING
+
 from abm.lazy import lazy_exports
 
-# imported on first use (abm.lazy), so importing the package (every `abm` command does) stays light
-__getattr__, __dir__ = lazy_exports(__name__, {
-    "abm.robot.devices": ("DryRunArm", "ReplayCamera", "SimRobot", "record_observations",),
-    "abm.robot.limits": ("LimitError", "MotionLimits",),
-    "abm.robot.run": ("NoTargetError", "RobotConfig", "run_robot",),
-})
+if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm.lazy), so importing the
+    # package (every `abm` command does) stays light
+    from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot, record_observations
+    from abm.robot.limits import LimitError, MotionLimits
+    from abm.robot.run import NoTargetError, RobotConfig, run_robot
+
+__getattr__, __dir__ = lazy_exports(__name__, __file__)
 
 __all__ = ["DryRunArm", "LimitError", "MotionLimits", "NoTargetError", "ReplayCamera", "RobotConfig", "SimRobot",
            "record_observations", "run_robot"]

@@ -5,13 +5,21 @@
 screenshots of the page (docs, browser tests).
 """
 
+from typing import TYPE_CHECKING
+
 from abm.lazy import lazy_exports
 
-# imported on first use (abm.lazy), so importing the package (every `abm` command does) stays light
-__getattr__, __dir__ = lazy_exports(__name__, {
-    "abm.viewer.record": (
-        "ViewerRecord", "ViewerStep", "overlay_views", "record_rollout", "record_from_episode", "view_camera_pose",
-    ),
-})
+if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm.lazy), so importing the
+    # package (every `abm` command does) stays light
+    from abm.viewer.record import (
+        ViewerRecord,
+        ViewerStep,
+        overlay_views,
+        record_from_episode,
+        record_rollout,
+        view_camera_pose,
+    )
+
+__getattr__, __dir__ = lazy_exports(__name__, __file__)
 
 __all__ = ["ViewerRecord", "ViewerStep", "overlay_views", "record_rollout", "record_from_episode", "view_camera_pose"]
