@@ -166,6 +166,35 @@ def targets(cells: Mapping) -> str:
     return "Targets (issue 25): " + "; ".join(checks) + "."
 
 
+def keyframe_accuracy(out: Path) -> dict[str, list[dict[str, Any]]]:
+    """``run -> summary rows`` of the diagnosis stage (``OUT/keyframe_accuracy/RUN.json``)."""
+    found = {}
+    for run in RUNS:
+        path = out / "keyframe_accuracy" / f"{run}.json"
+        if path.is_file():
+            found[run] = json.loads(path.read_text())["summary"]
+    return found
+
+
+def keyframe_table(summaries: Mapping[str, Sequence[Mapping[str, Any]]], split: str = "seen") -> str:
+    """Median position error (cm) / rotation error (°, symmetry-aware) per task and keyframe kind, one column
+    per run: the policy predicts at every keyframe of the expert's rollout on the evaluation scenes."""
+    runs = list(summaries)
+    rows: dict[tuple[str, str], dict[str, Mapping[str, Any]]] = {}
+    for run in runs:
+        for row in summaries[run]:
+            if row["split"] == split:
+                rows.setdefault((row["task"], row["kind"]), {})[run] = row
+    order = {t: i for i, t in enumerate(TASKS)}
+    head = ["task", "keyframe", *runs]
+    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    for (task, kind), by_run in sorted(rows.items(), key=lambda kv: (order.get(kv[0][0], 99), kv[0][0])):
+        cells = [f"{r['position_cm_median']:.1f} / {r['rotation_deg_median']:.0f}" if (r := by_run.get(run))
+                 else "–" for run in runs]
+        lines.append("| " + " | ".join([task, kind, *cells]) + " |")
+    return "\n".join(lines)
+
+
 def zoo_index(out: Path, zoo: Path, clip: Path | None) -> list[dict[str, Any]]:
     """Describe every exported model of the zoo (and the benchmark CLIP); writes ZOO/index.json and README.md."""
     index_path = zoo / "index.json"
@@ -273,9 +302,20 @@ def main() -> None:
             src = args.out / "eval" / run / split / "results.json"
             if src.is_file():
                 shutil.copyfile(src, kept / f"{run}_{split}.json")
+        src = args.out / "keyframe_accuracy" / f"{run}.json"
+        if src.is_file():
+            shutil.copyfile(src, kept / f"keyframe_accuracy_{run}.json")
     (args.docs / "paper_tables.json").write_text(json.dumps(records(cells), indent=1) + "\n")
     text = report(args.out, cells, entries, args.command.strip())
     detail = ["", "## Every run on every task", "", detail_table(cells, list(RUNS)), ""]
+    summaries = keyframe_accuracy(args.out)
+    for split in ("seen", "unseen"):
+        if any(row["split"] == split for rows in summaries.values() for row in rows):
+            detail += [f"## Keyframe accuracy, {split} objects", "",
+                       "Median position error (cm) / rotation error (°, symmetry-aware) of each zoo model's "
+                       "prediction at every keyframe of the expert's rollout on the evaluation scenes (the "
+                       "diagnosis stage, `benchmarks/keyframe_accuracy.py`; JSON in docs/results/paper_tables/):",
+                       "", keyframe_table(summaries, split), ""]
     (args.docs / "paper_tables.md").write_text("# The paper's tables on ABM-Bench\n\n" + text + "\n".join(detail))
     if args.readme:
         replace_block(Path(args.readme), START, END,

@@ -15,9 +15,9 @@
 #
 # Usage: bash scripts/paper_tables.sh [OUT]        (default OUT=runs/paper)
 # Knobs (environment): RUNS (all seven, in training order), CLIP (models/benchmark-clip), DEMOS (20 per task),
-#   STEPS (5000), EVAL_EPISODES (25), REPEATS (2), EVAL_WORKERS (2), MAX_STEPS (8), COMPILE (0; 1 adds --compile),
-#   STAGES ("data ground train eval report"), README (README.md; "" = skip), ZOO (models), THREADS (per trainer:
-#   1 for a pair, 2 for one left alone).
+#   STEPS (5000), EVAL_EPISODES (25), REPEATS (2), EVAL_WORKERS (2), MAX_STEPS (8), DIAGNOSE_EPISODES (5),
+#   COMPILE (0; 1 adds --compile), STAGES ("data ground train eval diagnose report"), README (README.md; "" =
+#   skip), ZOO (models), THREADS (per trainer: 1 for a pair, 2 for one left alone).
 # Resumable at every stage: demonstrations are kept, grounding caches are filled once, trainings continue
 # from their last checkpoint (--resume), evaluations skip finished episodes, finished exports are kept.
 # Across machines: at the end of every pair, unfinished trainings leave their latest checkpoint and log in
@@ -46,7 +46,7 @@ REPEATS="${REPEATS:-2}"
 EVAL_WORKERS="${EVAL_WORKERS:-2}"
 MAX_STEPS="${MAX_STEPS:-8}"
 COMPILE="${COMPILE:-0}"
-STAGES="${STAGES:-data ground train eval report}"
+STAGES="${STAGES:-data ground train eval diagnose report}"
 README="${README-README.md}"
 mkdir -p "$OUT" "$ZOO"
 TIMES="$OUT/times.txt"
@@ -182,6 +182,17 @@ if stage eval; then
   done
   trap - INT TERM
   stamp eval_end
+fi
+
+# ---------------------------------------- diagnosis: keyframe accuracy on expert scenes (teacher-forced)
+if stage diagnose; then  # per keyframe kind: position and rotation error of each zoo model (~3 min per model)
+  mkdir -p "$OUT/keyframe_accuracy"
+  for name in $RUNS; do
+    [ -f "$ZOO/$name.pt" ] && [ ! -f "$OUT/keyframe_accuracy/$name.json" ] || continue
+    # shellcheck disable=SC2086
+    python benchmarks/keyframe_accuracy.py --run "$ZOO/$name.pt" --tasks $TASKS --splits seen unseen \
+      --episodes "${DIAGNOSE_EPISODES:-5}" --out "$OUT/keyframe_accuracy/$name.json" > "$OUT/keyframe_accuracy/$name.log"
+  done
 fi
 
 if stage report; then

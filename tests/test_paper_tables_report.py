@@ -75,3 +75,25 @@ def test_zoo_index_describes_exported_models(tmp_path: Path) -> None:
     again = paper_tables_report.zoo_index(tmp_path / "gone", zoo, None)
     assert again[0]["train_minutes"] == 120.0 and again[0]["sha256"] == hashlib.sha256(b"other").hexdigest()
     assert "| abm_oracle | abm | oracle | 5000 | 120.0 |" in (zoo / "README.md").read_text()
+
+
+def test_keyframe_accuracy_table_puts_runs_side_by_side_per_task_and_kind(tmp_path: Path) -> None:
+    out = tmp_path / "paper"
+    (out / "keyframe_accuracy").mkdir(parents=True)
+
+    def row(task: str, kind: str, split: str, cm: float, deg: float) -> dict:
+        return {"method": "abm", "task": task, "split": split, "kind": kind, "n": 5, "position_cm_median": cm,
+                "within_grasp_tolerance": 1.0, "rotation_deg_median": deg, "gripper_agrees": 1.0}
+
+    (out / "keyframe_accuracy" / "abm_oracle.json").write_text(json.dumps({"summary": [
+        row("place_food", "grasp", "seen", 0.44, 5.2), row("close_jar", "grasp", "seen", 0.5, 7.0),
+        row("close_jar", "grasp", "unseen", 9.0, 90.0)]}))
+    (out / "keyframe_accuracy" / "rvt_clip.json").write_text(json.dumps({"summary": [
+        row("close_jar", "grasp", "seen", 3.0, 40.0)]}))
+    summaries = paper_tables_report.keyframe_accuracy(out)
+    assert list(summaries) == ["rvt_clip", "abm_oracle"]  # the report's run order
+    table = paper_tables_report.keyframe_table(summaries, "seen").splitlines()
+    assert table[0] == "| task | keyframe | rvt_clip | abm_oracle |"
+    # tasks in the paper's order, a run without that keyframe shows –
+    assert table[2:] == ["| close_jar | grasp | 3.0 / 40 | 0.5 / 7 |", "| place_food | grasp | – | 0.4 / 5 |"]
+    assert "9.0 / 90" in paper_tables_report.keyframe_table(summaries, "unseen")
