@@ -16,7 +16,7 @@
 # Usage: bash scripts/paper_tables.sh [OUT]        (default OUT=runs/paper)
 # Knobs (environment): RUNS (all seven, in training order), CLIP (models/benchmark-clip), DEMOS (20 per task),
 #   STEPS (5000), EVAL_EPISODES (25), REPEATS (2), EVAL_WORKERS (2), MAX_STEPS (8), DIAGNOSE_EPISODES (5),
-#   COMPILE (0; 1 adds --compile), STAGES ("data ground train eval diagnose report"), README (README.md; "" =
+#   COMPILE (0; 1 adds --compile), STAGES ("data ground train eval diagnose zoo report"), README (README.md; "" =
 #   skip), ZOO (models), THREADS (per trainer: 1 for a pair, 2 for one left alone).
 # Resumable at every stage: demonstrations are kept, grounding caches are filled once, trainings continue
 # from their last checkpoint (--resume), evaluations skip finished episodes, finished exports are kept.
@@ -46,7 +46,7 @@ REPEATS="${REPEATS:-2}"
 EVAL_WORKERS="${EVAL_WORKERS:-2}"
 MAX_STEPS="${MAX_STEPS:-8}"
 COMPILE="${COMPILE:-0}"
-STAGES="${STAGES:-data ground train eval diagnose report}"
+STAGES="${STAGES:-data ground train eval diagnose zoo report}"
 README="${README-README.md}"
 mkdir -p "$OUT" "$ZOO"
 TIMES="$OUT/times.txt"
@@ -193,6 +193,13 @@ if stage diagnose; then  # per keyframe kind: position and rotation error of eac
     python benchmarks/keyframe_accuracy.py --run "$ZOO/$name.pt" --tasks $TASKS --splits seen unseen \
       --episodes "${DIAGNOSE_EPISODES:-5}" --out "$OUT/keyframe_accuracy/$name.json" > "$OUT/keyframe_accuracy/$name.log"
   done
+fi
+
+# ------------------------------------------------- what a new user runs first: abm zoo eval, timed
+if stage zoo && [ -f "$ZOO/abm_clip.pt" ] && [ -f "$ZOO/rvt_clip.pt" ] && [ ! -f "$OUT/zoo_eval/seconds" ]; then
+  started=$(date +%s)
+  abm zoo eval --zoo "$ZOO" --out "$OUT/zoo_eval"
+  echo $(( $(date +%s) - started )) > "$OUT/zoo_eval/seconds"
 fi
 
 if stage report; then

@@ -97,3 +97,14 @@ def test_keyframe_accuracy_table_puts_runs_side_by_side_per_task_and_kind(tmp_pa
     # tasks in the paper's order, a run without that keyframe shows –
     assert table[2:] == ["| close_jar | grasp | 3.0 / 40 | 0.5 / 7 |", "| place_food | grasp | – | 0.4 / 5 |"]
     assert "9.0 / 90" in paper_tables_report.keyframe_table(summaries, "unseen")
+
+
+def test_the_timed_zoo_eval_enters_the_report_once_it_ran(tmp_path: Path) -> None:
+    out = tmp_path / "paper"
+    assert paper_tables_report.zoo_eval(out) == ""
+    (out / "zoo_eval").mkdir(parents=True)
+    (out / "zoo_eval" / "results.md").write_text("| method | pick_block seen |\n|---|---|\n| abm_clip | 3/5 |\n")
+    assert paper_tables_report.zoo_eval(out) == ""  # still running: no time yet
+    (out / "zoo_eval" / "seconds").write_text("545\n")
+    text = paper_tables_report.zoo_eval(out)
+    assert "took 9 min" in text and "| abm_clip | 3/5 |" in text
