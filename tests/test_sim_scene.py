@@ -7,6 +7,7 @@ from sim_helpers import require_simulator
 
 require_simulator()
 
+import abm.sim.cameras as cameras_module  # noqa: E402
 from abm.geometry import depth_to_points, fuse_cameras, matrix_to_quat  # noqa: E402
 from abm.sim.catalog import catalog_entry  # noqa: E402
 from abm.sim.scene import CAMERA_NAMES, PlacedObject, SceneSpec  # noqa: E402
@@ -46,6 +47,27 @@ def test_observation_contract(sim):
         assert set(np.unique(frame.segmentation)) <= {-1, 0, 1, 2}
     assert obs.gripper_open == pytest.approx(1.0, abs=0.02)
     assert np.allclose(obs.gripper_pose, sim.robot.tcp_pose())
+
+
+def test_depth_and_segmentation_from_one_draw_equal_the_renderers_two_draws(sim, monkeypatch):
+    sim.reset()
+    sim.step_seconds(0.05)
+    first = sim.observe()
+    rig = sim.cameras
+    assert rig.one_pass is True  # the first frame checked it against mujoco.Renderer's own modes
+    rig.one_pass = False  # force the renderer's two draws
+    again = sim.observe()
+    rig.one_pass = True
+    for name in CAMERA_NAMES:
+        a, b = first.cameras[name], again.cameras[name]
+        assert np.array_equal(a.depth, b.depth) and np.array_equal(a.segmentation, b.segmentation)
+        assert np.array_equal(a.rgb, b.rgb) and (a.depth > 0).mean() > 0.5
+    rig.one_pass = None  # a mismatch (here: a crafted one) keeps the two draws
+    real = cameras_module._one_pass_depth_and_segmentation
+    monkeypatch.setattr(cameras_module, "_one_pass_depth_and_segmentation",
+                        lambda r, m: (lambda d, s: (d + 1e-3, s))(*real(r, m)))
+    sim.observe()
+    assert rig.one_pass is False
 
 
 @pytest.mark.parametrize("camera", CAMERA_NAMES)

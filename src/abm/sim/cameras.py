@@ -112,6 +112,8 @@ class CameraRig:
         self._renderer = make_renderer(model, self.height, self.width)
         self._geom_type = int(mujoco.mjtObj.mjOBJ_GEOM)
         self._zfar = float(model.vis.map.zfar * model.stat.extent)
+        # depth and segmentation from one draw: None = not checked yet (the first frame checks it)
+        self.one_pass: bool | None = None
 
     def close(self) -> None:
         if self._renderer is not None:
@@ -125,12 +127,7 @@ class CameraRig:
         for name, cid in zip(self.camera_names, self.camera_ids, strict=True):
             renderer.update_scene(data, camera=cid)
             rgb = renderer.render().copy()
-            renderer.enable_depth_rendering()
-            depth = renderer.render().astype(np.float32)
-            renderer.disable_depth_rendering()
-            renderer.enable_segmentation_rendering()
-            seg_raw = renderer.render()
-            renderer.disable_segmentation_rendering()
+            depth, seg_raw = self._depth_and_segmentation()
             depth[~np.isfinite(depth) | (depth >= 0.99 * self._zfar)] = 0.0
             ids, types = seg_raw[..., 0], seg_raw[..., 1]
             seg = np.full(ids.shape, -1, np.int32)
@@ -145,3 +142,75 @@ class CameraRig:
                 segmentation=seg,
             )
         return frames
+
+    def _depth_and_segmentation(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(H, W)`` float32 metric depth and ``(H, W, 2)`` int32 (object id, object type) of the scene in the
+        renderer, as ``mujoco.Renderer``'s depth and segmentation modes return them.
+
+        Both modes draw the same picture (flat id colours, for accurate far depth), so one draw can give both
+        buffers: :func:`_one_pass_depth_and_segmentation` reads them together, a third fewer draws per camera.
+        It mirrors the renderer's conversions, so the first frame checks it against the renderer's own two draws
+        and keeps it only when both agree exactly (any other MuJoCo version falls back to two draws).
+        """
+        renderer = self._renderer
+        if self.one_pass is not False:
+            try:
+                fast = _one_pass_depth_and_segmentation(renderer, self.model)
+            except AttributeError:  # another MuJoCo layout: no such renderer internals
+                fast = None
+            if self.one_pass:
+                assert fast is not None
+                return fast
+        renderer.enable_depth_rendering()
+        depth = renderer.render().astype(np.float32)
+        renderer.disable_depth_rendering()
+        renderer.enable_segmentation_rendering()
+        seg_raw = renderer.render()
+        renderer.disable_segmentation_rendering()
+        if self.one_pass is None:
+            self.one_pass = fast is not None and np.array_equal(fast[0], depth, equal_nan=True) \
+                and np.array_equal(fast[1], seg_raw)
+        return depth, seg_raw
+
+
+def _one_pass_depth_and_segmentation(renderer, model) -> tuple[np.ndarray, np.ndarray]:
+    """Draw the scene in ``renderer`` once with segmentation colours and read its colour and depth buffers:
+    ``mujoco.Renderer.render``'s depth mode (reverse-Z buffer to metric depth) and segmentation mode (colour to
+    (object id, object type)) in one draw. Uses the renderer's internals (``_scene``, ``_rect``, ``_mjr_context``,
+    ``_gl_context``) of MuJoCo's classic renderer; :meth:`CameraRig._depth_and_segmentation` checks the result."""
+    import mujoco
+
+    scene, rect, context = renderer._scene, renderer._rect, renderer._mjr_context
+    height, width = renderer.height, renderer.width
+    flags = scene.flags.copy()
+    try:
+        scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
+        scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+        if renderer._gl_context:
+            renderer._gl_context.make_current()
+        colour = np.empty((height, width, 3), np.uint8)
+        zbuffer = np.empty((height, width), np.float32)
+        mujoco.mjr_render(rect, scene, context)
+        mujoco.mjr_readPixels(colour, zbuffer, rect, context)
+    finally:
+        np.copyto(scene.flags, flags)
+    extent = model.stat.extent
+    znear, zfar = np.float32(model.vis.map.znear * extent), np.float32(model.vis.map.zfar * extent)
+    z = zbuffer.astype(np.float64)
+    if scene.camera[0].orthographic:
+        z = zfar - z * (zfar - znear)
+    else:  # reverse-Z perspective projection, undone as the renderer does (float32 coefficients)
+        c = np.float32(-0.5) * (-(zfar + znear) / (zfar - znear)) - np.float32(0.5)
+        d = np.float32(-0.5) * (-(np.float32(2) * zfar * znear) / (zfar - znear))
+        z = d / (z + c)
+    depth = z.astype(np.float32)
+    segid = colour.astype(np.uint32)
+    segid = segid[..., 0] + segid[..., 1] * (2**8) + segid[..., 2] * (2**16)
+    lookup = np.full((scene.ngeom + 1, 2), -1, np.int32)
+    visible = [g for g in scene.geoms[:scene.ngeom] if g.segid != -1]
+    lookup[np.array([g.segid + 1 for g in visible], np.int32), 0] = [g.objid for g in visible]
+    lookup[np.array([g.segid + 1 for g in visible], np.int32), 1] = [g.objtype for g in visible]
+    seg = lookup[segid]
+    if renderer._gl_context:  # EGL / OSMesa / GLFW images are upside down
+        depth, seg = np.flipud(depth), np.flipud(seg)
+    return np.ascontiguousarray(depth), np.ascontiguousarray(seg)
