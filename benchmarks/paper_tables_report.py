@@ -26,6 +26,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from abm.zoo import file_sha256
 from seen_unseen_report import _cell, _machine, _stage_minutes, _training, replace_block
 
@@ -195,6 +197,23 @@ def keyframe_table(summaries: Mapping[str, Sequence[Mapping[str, Any]]], split: 
     return "\n".join(lines)
 
 
+def weakest_keyframes(summaries: Mapping[str, Sequence[Mapping[str, Any]]], split: str = "seen") -> str:
+    """One sentence per run: its keyframe kinds by median (over tasks) position error, worst first."""
+    parts = []
+    for run, rows in summaries.items():
+        by_kind: dict[str, list[float]] = {}
+        for row in rows:
+            if row["split"] == split:
+                by_kind.setdefault(row["kind"], []).append(row["position_cm_median"])
+        if by_kind:
+            ranked = sorted(((float(np.median(v)), k) for k, v in by_kind.items() if len(v) > 1), reverse=True)
+            parts.append(f"{run}: " + ", ".join(f"{k} {cm:.1f} cm" for cm, k in ranked))
+    if not parts:
+        return ""
+    return (f"Keyframe position error ({split} objects, teacher-forced on the expert's rollouts, median over the "
+            "tasks that have the keyframe, worst first): " + "; ".join(parts) + ".")
+
+
 def zoo_index(out: Path, zoo: Path, clip: Path | None) -> list[dict[str, Any]]:
     """Describe every exported model of the zoo (and the benchmark CLIP); writes ZOO/index.json and README.md."""
     index_path = zoo / "index.json"
@@ -283,7 +302,7 @@ def report(out: Path, cells: Mapping, entries: Sequence[Mapping[str, Any]], comm
         "", table1(cells), "",
         "**Table 2** — the same models on the compositional tasks (never trained on):", "", table2(cells), "",
         "**Table 3** — mask fusion (ablations, grounded like ABM's CLIP row), averages over the 8 tasks:", "",
-        table3(cells), "", targets(cells), "", zoo_eval(out) +
+        table3(cells), "", targets(cells), "", weakest_keyframes(keyframe_accuracy(out)), "", zoo_eval(out) +
         "What differs from the paper: ABM-Bench is a MuJoCo re-creation of the RLBench tasks, not RLBench; the "
         "policies are the `small` preset (~1 M parameters at 64² views, each trained on one CPU core for the "
         "minutes above, against the paper's 220² views and GPU-days); demonstrations are 20 per task instead of "
@@ -324,7 +343,7 @@ def main() -> None:
     summaries = keyframe_accuracy(args.out)
     for split in ("seen", "unseen"):
         if any(row["split"] == split for rows in summaries.values() for row in rows):
-            detail += [f"## Keyframe accuracy, {split} objects", "",
+            detail += [f"## Keyframe accuracy, {split} objects", "", weakest_keyframes(summaries, split), "",
                        "Median position error (cm) / rotation error (°, symmetry-aware) of each zoo model's "
                        "prediction at every keyframe of the expert's rollout on the evaluation scenes (the "
                        "diagnosis stage, `benchmarks/keyframe_accuracy.py`; JSON in docs/results/paper_tables/):",

@@ -108,3 +108,14 @@ def test_the_timed_zoo_eval_enters_the_report_once_it_ran(tmp_path: Path) -> Non
     (out / "zoo_eval" / "seconds").write_text("545\n")
     text = paper_tables_report.zoo_eval(out)
     assert "took 9 min" in text and "| abm_clip | 3/5 |" in text
+
+
+def test_weakest_keyframes_ranks_kinds_by_their_median_error_over_tasks() -> None:
+    def row(task: str, kind: str, cm: float) -> dict:
+        return {"task": task, "split": "seen", "kind": kind, "position_cm_median": cm, "rotation_deg_median": 0.0}
+
+    rows = [row("a", "grasp", 0.5), row("b", "grasp", 0.7), row("c", "grasp", 9.0),
+            row("a", "move", 12.0), row("b", "move", 4.0), row("a", "pour", 30.0)]  # pour: one task only
+    text = paper_tables_report.weakest_keyframes({"abm_oracle": rows})
+    assert "abm_oracle: move 8.0 cm, grasp 0.7 cm." in text
+    assert paper_tables_report.weakest_keyframes({"abm_oracle": rows}, "unseen") == ""
