@@ -11,10 +11,12 @@ Reads the evaluation JSON ``OUT/eval/RUN/{seen,unseen,compositional}/results.jso
 * ``ZOO/index.json`` and ``ZOO/README.md``: every exported model (method, grounder, recipe, data, steps,
   minutes, file size, sha256) and the benchmark CLIP the rows used.
 
-Cells that are not evaluated yet show "–", so the tables can be filled in stages.
+Cells that are not evaluated yet show "–", so the tables can be filled in stages. Every finished result is kept
+in ``docs/results/paper_tables/`` (committed); ``--restore-only`` (run by the script first) copies them back into
+a fresh OUT, so nothing finished is evaluated twice and the report always has every finished row.
 
 Usage: python benchmarks/paper_tables_report.py OUT [--zoo models] [--clip models/benchmark-clip]
-       [--readme README.md] [--docs docs/results] [--index-only]
+       [--readme README.md] [--docs docs/results] [--index-only | --restore-only]
 """
 
 from __future__ import annotations
@@ -51,6 +53,31 @@ PAPER_T2 = {"rvt_clip": 21.6, "ifd_clip": 31.2, "abm_clip": 53.2}
 PAPER_T3 = {"stack": (72.8, 54.9), "concat-rerendered": (72.6, 54.7), "concat-full": (71.9, 57.0),
             "abm_clip": (70.0, 57.5)}
 SPLIT_TASKS = {"seen": TASKS, "unseen": TASKS, "compositional": COMPOSITIONAL}
+
+
+def finished_results(out: Path, kept: Path) -> list[tuple[Path, Path]]:
+    """``(file under OUT, its committed copy under kept)`` of every finished result: evaluations, keyframe
+    accuracy and the timed zoo eval. The report keeps each in ``docs/results/paper_tables/``; on a fresh clone
+    :func:`restore` puts them back, so the script skips what is finished and the report still has every row."""
+    pairs = []
+    for run in RUNS:
+        for split in SPLIT_TASKS:
+            pairs.append((out / "eval" / run / split / "results.json", kept / f"{run}_{split}.json"))
+        pairs.append((out / "keyframe_accuracy" / f"{run}.json", kept / f"keyframe_accuracy_{run}.json"))
+    pairs += [(out / "zoo_eval" / "results.md", kept / "zoo_eval.md"),
+              (out / "zoo_eval" / "seconds", kept / "zoo_eval_seconds.txt")]
+    return pairs
+
+
+def restore(out: Path, kept: Path) -> int:
+    """Copy the committed results into OUT where OUT lacks them; returns how many were copied."""
+    copied = 0
+    for made, copy in finished_results(out, kept):
+        if copy.is_file() and not made.exists():
+            made.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(copy, made)
+            copied += 1
+    return copied
 
 
 def collect(out: Path) -> dict[tuple[str, str, str], dict[str, Any]]:
@@ -319,24 +346,23 @@ def main() -> None:
     p.add_argument("--readme", default="README.md", help="README whose paper-tables block is replaced ('' = none)")
     p.add_argument("--docs", type=Path, default=Path("docs/results"), help="results folder (default docs/results)")
     p.add_argument("--index-only", action="store_true", help="only (re)write the zoo index")
+    p.add_argument("--restore-only", action="store_true",
+                   help="only copy the committed results (DOCS/paper_tables/) into OUT where OUT lacks them")
     p.add_argument("--command", default="bash scripts/paper_tables.sh", help="the command named in the report")
     args = p.parse_args()
+    kept = args.docs / "paper_tables"
+    if args.restore_only:
+        print(f"restored {restore(args.out, kept)} finished result file(s) from {kept} into {args.out}")
+        return
     entries = zoo_index(args.out, args.zoo, args.clip or args.zoo / "benchmark-clip")
     if args.index_only:
         return
+    restore(args.out, kept)
+    for made, copy in finished_results(args.out, kept):
+        if made.is_file():
+            copy.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(made, copy)
     cells = collect(args.out)
-    kept = args.docs / "paper_tables"
-    kept.mkdir(parents=True, exist_ok=True)
-    for run in RUNS:
-        for split in SPLIT_TASKS:
-            src = args.out / "eval" / run / split / "results.json"
-            if src.is_file():
-                shutil.copyfile(src, kept / f"{run}_{split}.json")
-        src = args.out / "keyframe_accuracy" / f"{run}.json"  # the diagnosis stage
-        if src.is_file():
-            shutil.copyfile(src, kept / f"keyframe_accuracy_{run}.json")
-    if (args.out / "zoo_eval" / "results.md").is_file():
-        shutil.copyfile(args.out / "zoo_eval" / "results.md", kept / "zoo_eval.md")
     (args.docs / "paper_tables.json").write_text(json.dumps(records(cells), indent=1) + "\n")
     text = report(args.out, cells, entries, args.command.strip())
     detail = ["", "## Every run on every task", "", detail_table(cells, list(RUNS)), ""]

@@ -49,6 +49,8 @@ COMPILE="${COMPILE:-0}"
 STAGES="${STAGES:-data ground train eval diagnose zoo report}"
 README="${README-README.md}"
 mkdir -p "$OUT" "$ZOO"
+# on a fresh clone: the finished evaluations, diagnoses and zoo eval come back from docs/results/paper_tables/
+python benchmarks/paper_tables_report.py "$OUT" --restore-only
 TIMES="$OUT/times.txt"
 stamp() { echo "$1 $(date +%s)" >> "$TIMES"; }
 stage() { [[ " $STAGES " == *" $1 "* ]]; }
@@ -167,12 +169,13 @@ if stage eval; then
   for name in $RUNS; do
     [ -f "$ZOO/$name.pt" ] || { echo "skip evaluating $name: $ZOO/$name.pt is not trained yet" >&2; continue; }
     for s in seen unseen; do
+      [ -f "$OUT/eval/$name/$s/results.json" ] && continue  # finished (here, or restored from the kept copy)
       restore_eval "$OUT/eval/$name/$s"
       # shellcheck disable=SC2086
       abm eval --run "$ZOO/$name.pt" --tasks $TASKS --split "$s" --episodes "$EVAL_EPISODES" --repeats "$REPEATS" \
         --workers "$EVAL_WORKERS" --max-steps "$MAX_STEPS" --out "$OUT/eval/$name/$s"
     done
-    if [[ " $TABLE1 " == *" $name "* ]]; then
+    if [[ " $TABLE1 " == *" $name "* ]] && [ ! -f "$OUT/eval/$name/compositional/results.json" ]; then
       restore_eval "$OUT/eval/$name/compositional"
       # shellcheck disable=SC2086
       abm eval --run "$ZOO/$name.pt" --tasks $COMPOSITIONAL --split compositional --episodes "$EVAL_EPISODES" \

@@ -119,3 +119,26 @@ def test_weakest_keyframes_ranks_kinds_by_their_median_error_over_tasks() -> Non
     text = paper_tables_report.weakest_keyframes({"abm_oracle": rows})
     assert "abm_oracle: move 8.0 cm, grasp 0.7 cm." in text
     assert paper_tables_report.weakest_keyframes({"abm_oracle": rows}, "unseen") == ""
+
+
+def test_finished_results_are_kept_and_restored_into_a_fresh_out(tmp_path: Path, monkeypatch) -> None:
+    out, docs, zoo = tmp_path / "paper", tmp_path / "docs", tmp_path / "models"
+    _write_eval(out, "rvt_clip", "seen", [_rate(t, "seen", [20.0, 40.0]) for t in TASKS])
+    (out / "zoo_eval").mkdir(parents=True)
+    (out / "zoo_eval" / "results.md").write_text("| method |\n")  # still running: no seconds yet
+    argv = ["paper_tables_report.py", str(out), "--zoo", str(zoo), "--docs", str(docs), "--readme", ""]
+    monkeypatch.setattr(sys, "argv", argv)
+    paper_tables_report.main()
+    kept = docs / "paper_tables"
+    assert (kept / "rvt_clip_seen.json").is_file() and (kept / "zoo_eval.md").is_file()
+    assert not (kept / "zoo_eval_seconds.txt").exists()
+    # a fresh clone: nothing under OUT; the script restores first, the report then has the row again
+    fresh = tmp_path / "fresh"
+    monkeypatch.setattr(sys, "argv", ["paper_tables_report.py", str(fresh), "--docs", str(docs), "--restore-only"])
+    paper_tables_report.main()
+    assert json.loads((fresh / "eval" / "rvt_clip" / "seen" / "results.json").read_text())[0]["mean"] == 30.0
+    assert paper_tables_report.average(paper_tables_report.collect(fresh), "rvt_clip", "seen") == 30.0
+    # what OUT has is never overwritten by an older kept copy
+    (fresh / "zoo_eval" / "results.md").write_text("newer\n")
+    assert paper_tables_report.restore(fresh, kept) == 0
+    assert (fresh / "zoo_eval" / "results.md").read_text() == "newer\n"
