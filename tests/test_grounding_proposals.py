@@ -53,6 +53,31 @@ def test_two_boxes_on_a_plane_are_two_clusters():
     assert props.kinds.count("part") == 0
 
 
+def test_an_object_held_in_the_hand_is_its_own_candidate_without_the_hand():
+    # a top-down gripper at (0.5, 0, 0.2) holding a 4 cm bottle across its closed fingers (opening 0.5 = 4 cm)
+    pose = np.eye(4)
+    pose[:3, :3] = np.diag([1.0, -1.0, -1.0])  # TCP +z points down, fingers close along y
+    pose[:3, 3] = (0.5, 0.0, 0.2)
+    bottle = _box((0.48, -0.018, 0.13), (0.52, 0.018, 0.26), (0.2, 0.5, 0.2))  # 3 cm below to 6 cm above TCP
+    fingers = [_box((0.492, y0, 0.19), (0.508, y0 + 0.012, 0.235), (0.5, 0.5, 0.5)) for y0 in (-0.032, 0.02)]
+    palm = _box((0.49, -0.1, 0.225), (0.51, 0.1, 0.27), (0.5, 0.5, 0.5))  # 2.5 to 7 cm behind the TCP
+    arm = _box((0.48, -0.02, 0.27), (0.52, 0.02, 0.6), (0.9, 0.9, 0.9))  # the wrist and arm going up
+    xyz, rgb = _scene(TABLE, bottle, *fingers, palm, arm)
+    n0 = len(TABLE[0])
+    bottle_ids = np.arange(n0, n0 + len(bottle[0]))
+    merged = object_proposals(xyz, rgb, ProposalConfig(hand_filter=False), pose, 0.5)
+    assert len(merged) == 1 and len(merged.candidates[0]) > 2 * len(bottle_ids)  # bottle + hand + arm
+    props = object_proposals(xyz, rgb, ProposalConfig(), pose, 0.5)
+    held = max(props.candidates, key=lambda c: len(np.intersect1d(c, bottle_ids)))
+    robot = np.arange(n0 + len(bottle[0]), len(xyz))
+    assert not np.intersect1d(held, robot).size  # no hand point
+    # the bottle keeps every point in front of the palm (it reaches 6 cm behind the TCP, into the palm's depth)
+    # and between the fingers' inner faces (3 mm inside the opening: the faces the fingers touch go with them)
+    in_front = bottle_ids[(xyz[bottle_ids, 2] < 0.2 + 0.02) & (np.abs(xyz[bottle_ids, 1]) < 0.017)]
+    assert np.isin(in_front, held).all() and np.isin(held, bottle_ids).all()
+    assert object_proposals(xyz, rgb, ProposalConfig(), None).candidates[0].size == merged.candidates[0].size
+
+
 def test_box_on_a_plate_is_split_from_its_support():
     plate = _box((0.40, -0.10, 0.008), (0.60, 0.10, 0.016), (0.95, 0.95, 0.95))
     box = _box((0.47, -0.02, 0.02), (0.52, 0.03, 0.07), (0.8, 0.2, 0.1))

@@ -217,6 +217,13 @@ class ClipGrounder:
     def _scales_key(self) -> tuple[str, ...]:
         return (f"scales={self.scales}",) if self.scales else ()
 
+    def _hand_key(self, observation: Observation) -> tuple[str, ...]:
+        """Cache-key part of the gripper pose and opening, which the proposals' hand filter reads (0.1 mm)."""
+        if self.mode != "proposals" or not self.proposal_config.hand_filter:
+            return ()
+        pose = np.asarray(observation.gripper_pose)[:3].ravel()
+        return ("gripper=" + ",".join(f"{v:.4f}" for v in (*pose, float(observation.gripper_open))),)
+
     def _mode_key(self) -> tuple[str, ...]:
         """Cache-key parts of the grounding mode (none for the per-point field)."""
         return () if self.mode == "field" else (f"mode={self.mode}", self.proposal_config.key())
@@ -302,7 +309,7 @@ class ClipGrounder:
         key = content_key(
             "mask", cloud_key(cloud), *(image_key(observation.camera(n).rgb) for n in cloud.camera_names),
             self.model_name, self.input_size, prompt, self.config.key(), *self._dense_key(), *self._mode_key(),
-            *self._scales_key(),
+            *self._scales_key(), *self._hand_key(observation),
         )
         hit = self.cache.get(key)
         if hit is not None:
@@ -360,7 +367,8 @@ class ClipGrounder:
                           ) -> MaskField | None:
         """The best-scoring 3-D object candidate as the mask (None when the cloud has no candidate)."""
         cfg = self.proposal_config
-        props = object_proposals(cloud.xyz, cloud.rgb, cfg)
+        props = object_proposals(cloud.xyz, cloud.rgb, cfg, observation.gripper_pose,
+                                 float(observation.gripper_open))
         if not len(props):
             return None
         texts = self.text_features([prompt, *negative_prompts(self.config.negatives)]).astype(np.float64)
