@@ -142,3 +142,11 @@ def test_finished_results_are_kept_and_restored_into_a_fresh_out(tmp_path: Path,
     (fresh / "zoo_eval" / "results.md").write_text("newer\n")
     assert paper_tables_report.restore(fresh, kept) == 0
     assert (fresh / "zoo_eval" / "results.md").read_text() == "newer\n"
+
+
+def test_caveats_appear_only_for_runs_with_cells(monkeypatch) -> None:
+    monkeypatch.setattr(paper_tables_report, "CAVEATS", {"abm_clip": "Rerun pending.", "stack": "Other."})
+    assert paper_tables_report.caveats({}) == ""
+    cells = {("abm_clip", "close_jar", "seen"): _rate("close_jar", "seen", [50.0])}
+    assert paper_tables_report.caveats(cells) == "Rerun pending.\n\n"
+    assert "Rerun pending." in paper_tables_report.report(Path("/nonexistent"), cells, [], "cmd")
