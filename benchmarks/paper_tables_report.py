@@ -297,11 +297,14 @@ def zoo_index(out: Path, zoo: Path, clip: Path | None) -> list[dict[str, Any]]:
     return entries
 
 
+def _paragraph(text: str) -> str:
+    return f"{text}\n\n" if text else ""
+
+
 def caveats(cells: Mapping) -> str:
     """The :data:`CAVEATS` of the runs that have cells, as a paragraph (or "")."""
     runs = {run for run, _, _ in cells}
-    text = " ".join(note for run, note in CAVEATS.items() if run in runs)
-    return f"{text}\n\n" if text else ""
+    return _paragraph(" ".join(note for run, note in CAVEATS.items() if run in runs))
 
 
 def zoo_eval(out: Path) -> str:
@@ -343,8 +346,8 @@ def report(out: Path, cells: Mapping, entries: Sequence[Mapping[str, Any]], comm
         "", table1(cells), "",
         "**Table 2** — the same models on the compositional tasks (never trained on):", "", table2(cells), "",
         "**Table 3** — mask fusion (ablations, grounded like ABM's CLIP row), averages over the 8 tasks:", "",
-        table3(cells), "", targets(cells), "", caveats(cells), weakest_keyframes(keyframe_accuracy(out)), "",
-        zoo_eval(out) +
+        table3(cells), "", targets(cells), "",
+        caveats(cells) + _paragraph(weakest_keyframes(keyframe_accuracy(out))) + zoo_eval(out) +
         "What differs from the paper: ABM-Bench is a MuJoCo re-creation of the RLBench tasks, not RLBench; the "
         "policies are the `small` preset (~1 M parameters at 64² views, each trained on one CPU core for the "
         "minutes above, against the paper's 220² views and GPU-days); demonstrations are 20 per task instead of "
