@@ -47,13 +47,8 @@ RUNS: dict[str, tuple[str, str, str, tuple[int, ...]]] = {
     "concat-rerendered": ("concat-rerendered", "concat-rerendered", "clip", (3,)),
     "concat-full": ("concat-full", "concat-full", "clip", (3,)),
 }
-# what a reader must know about a run's cells until it is rerun (printed under the tables while it has cells)
-CAVEATS: dict[str, str] = {
-    "abm_clip": "The ABM (CLIP) row was trained and evaluated before the proposal grounder learned to leave out "
-                "the hand: its mask of a held object covered the robot, which is why it never completes "
-                "place_wine (docs/grounding.md, \"An object in the hand\"). It is to be retrained with the fixed "
-                "grounder, and the ablations (Table 3) will use the fixed grounder.",
-}
+# run -> what a reader must know about its cells until it is rerun (printed under the tables while it has cells)
+CAVEATS: dict[str, str] = {}
 # the paper's averages (%): Table 1 seen / unseen, Table 2 compositional, Table 3 seen / unseen
 PAPER_T1 = {"rvt_clip": (74.2, 24.0), "ifd_clip": (70.9, 34.5), "abm_clip": (70.0, 57.5)}
 PAPER_T2 = {"rvt_clip": 21.6, "ifd_clip": 31.2, "abm_clip": 53.2}
