@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import torch
@@ -14,8 +16,10 @@ from abm.grounding.clip import (  # noqa: E402
     ClipWeightsNotFoundError,
     build_config,
     load_clip,
+    model_fingerprint,
     tiny_clip,
 )
+from abm.grounding.grounders import resolved_spec  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -125,6 +129,27 @@ def test_local_directory_round_trip(clip, images, tmp_path):
     loaded = load_clip(str(tmp_path), device="cpu")
     torch.testing.assert_close(loaded.dense_features(images), clip.dense_features(images))
     torch.testing.assert_close(loaded.text_features(["a photo of a cup"]), clip.text_features(["a photo of a cup"]))
+
+
+def test_cache_keys_name_a_local_model_by_content_not_by_path(clip, tmp_path):
+    def save(backbone, folder):
+        backbone.model.save_pretrained(folder)
+        backbone.tokenizer.save_pretrained(folder)
+        (folder / "train_log.csv").write_text("step,loss\n")  # notes beside the weights do not count
+
+    save(clip, tmp_path / "a")
+    shutil.copytree(tmp_path / "a", tmp_path / "moved")
+    (tmp_path / "moved" / "train_log.csv").write_text("step,loss\n1,2\n")
+    first = model_fingerprint(str(tmp_path / "a"))
+    assert first.startswith("sha256:") and model_fingerprint(str(tmp_path / "moved")) == first
+    assert load_clip(str(tmp_path / "moved"), device="cpu").fingerprint == first
+    spec = {"kind": "clip", "model": str(tmp_path / "a"), "mode": "proposals"}
+    moved = {**spec, "model": str(tmp_path / "moved")}
+    assert resolved_spec(spec) == resolved_spec(moved)
+    save(tiny_clip(seed=1), tmp_path / "a")  # retrained into the same folder: its cache entries are new ones
+    assert model_fingerprint(str(tmp_path / "a")) != first
+    assert resolved_spec(spec) != resolved_spec(moved)
+    assert model_fingerprint("tiny") == "tiny" and model_fingerprint(str(tmp_path / "none")) == str(tmp_path / "none")
 
 
 def test_missing_weights_explain_how_to_provide_them(tmp_path, monkeypatch):

@@ -26,6 +26,7 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
         ClipBackbone,
         ClipWeightsNotFoundError,
         load_clip,
+        model_fingerprint,
         random_clip,
         tiny_clip,
     )
@@ -80,6 +81,6 @@ __all__ = [
     "MaskViews", "OracleGrounder", "ParsedInstruction", "RewritingParser", "TemplateParser", "TemplateSet",
     "build_feature_cloud", "clip_prompt", "cloud_key", "content_key", "decompose_instruction", "frame_key",
     "image_key", "lift_patch_features", "load_clip", "load_templates", "make_grounder", "mask_field_from_features",
-    "mask_views", "match_object_ids", "nearest_patch_index", "normalize_heatmap", "normalize_instruction",
-    "random_clip", "target_point_mask", "threshold_heatmap", "tiny_clip", "upsample_nearest",
+    "mask_views", "match_object_ids", "model_fingerprint", "nearest_patch_index", "normalize_heatmap",
+    "normalize_instruction", "random_clip", "target_point_mask", "threshold_heatmap", "tiny_clip", "upsample_nearest",
 ]

@@ -20,6 +20,7 @@ speed measurements (same cost as the real ones).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
@@ -90,6 +91,54 @@ def _is_local_path(name: str) -> bool:
     return Path(name).expanduser().exists() or name.startswith((".", "/", "~")) or name.count("/") > 1
 
 
+# the files of a saved CLIP that its outputs depend on (logs and notes beside them are not)
+_MODEL_FILES = ("config.json", "preprocessor_config.json", "tokenizer.json", "tokenizer_config.json", "vocab.json",
+                "merges.txt", "special_tokens_map.json")
+_WEIGHT_PATTERNS = ("*.safetensors", "*.bin")
+_fingerprints: dict[tuple[object, ...], str] = {}
+
+
+def model_fingerprint(name_or_path: str) -> str:
+    """What a CLIP's outputs depend on, for grounding-cache keys.
+
+    A local folder is identified by its content, not its path: ``"sha256:<16 hex>"`` over its weight,
+    configuration and tokenizer files (names and bytes), so a moved or copied model reuses its cache entries
+    and a model retrained into the same folder never reads the old one's. The digest is memoised by the files'
+    sizes and modification times. A hub name is ``"NAME@REVISION"`` when its snapshot is in the local cache,
+    else the name; ``"tiny"`` and ``"random:..."`` (fixed seeds) are their own names.
+    """
+    if name_or_path == "tiny" or name_or_path.startswith("random:"):
+        return name_or_path
+    folder = Path(name_or_path).expanduser()
+    if folder.is_dir():
+        files = sorted({f for f in folder.iterdir() if f.is_file() and f.name in _MODEL_FILES}
+                       | {f for pattern in _WEIGHT_PATTERNS for f in folder.glob(pattern) if f.is_file()})
+        if not files:
+            return name_or_path
+        stamp = (str(folder.resolve()), *((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files))
+        if stamp not in _fingerprints:
+            digest = hashlib.sha256()
+            for f in files:
+                digest.update(f.name.encode() + b"\x00")
+                with f.open("rb") as fh:
+                    while block := fh.read(1 << 20):
+                        digest.update(block)
+                digest.update(b"\x00")
+            _fingerprints[stamp] = "sha256:" + digest.hexdigest()[:16]
+        return _fingerprints[stamp]
+    if _is_local_path(name_or_path):
+        return name_or_path
+    try:
+        from huggingface_hub import try_to_load_from_cache
+
+        cached = try_to_load_from_cache(name_or_path, "config.json")
+    except Exception:  # noqa: BLE001 - an unusual hub cache only costs the revision in the key
+        cached = None
+    if isinstance(cached, str) and Path(cached).parent.parent.name == "snapshots":
+        return f"{name_or_path}@{Path(cached).parent.name}"
+    return name_or_path
+
+
 @dataclass
 class ClipBackbone:
     """A frozen CLIP model, its tokenizer and its image normalisation.
@@ -97,11 +146,12 @@ class ClipBackbone:
     Attributes:
         model: the :class:`transformers.CLIPModel` (eval mode, no gradients).
         tokenizer: a CLIP tokenizer (callable like a transformers tokenizer).
-        name: identifier used in cache keys (hub name, directory, or ``"random:<preset>:<seed>"``).
+        name: the model's name (hub name, directory, or ``"random:<preset>:<seed>"``).
         device: where the model lives.
         dtype: parameter dtype (float32 on CPU; float16 recommended on CUDA).
         image_mean, image_std: per-channel RGB normalisation for pixel values in ``[0, 1]`` (3 values each;
             a local model's are read from its ``preprocessor_config.json``).
+        fingerprint: what cache keys use (:func:`model_fingerprint`; ``""``: the name).
     """
 
     model: Any
@@ -111,6 +161,7 @@ class ClipBackbone:
     dtype: torch.dtype = torch.float32
     image_mean: tuple[float, ...] = CLIP_MEAN
     image_std: tuple[float, ...] = CLIP_STD
+    fingerprint: str = ""
 
     # ---- architecture facts -------------------------------------------------------------------
     @property
@@ -472,4 +523,5 @@ def load_clip(
     except OSError as err:
         reason = "not in the local cache, downloads disabled" if local_only else f"download failed: {err}"
         raise ClipWeightsNotFoundError(_missing_weights_message(name_or_path, reason)) from err
-    return ClipBackbone(_finish(model, dev, dt), tokenizer, name_or_path, dev, dt, *mean_std)
+    return ClipBackbone(_finish(model, dev, dt), tokenizer, name_or_path, dev, dt, *mean_std,
+                        fingerprint=model_fingerprint(name_or_path))

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
-from abm.grounding.clip import DEFAULT_MODEL, DENSE_MODES, ClipBackbone, load_clip
+from abm.grounding.clip import DEFAULT_MODEL, DENSE_MODES, ClipBackbone, load_clip, model_fingerprint
 from abm.grounding.config import (  # noqa: F401 - the defaults live with the typed configurations
     CLIP_MODES,
     DEFAULT_CLIP_MODE,
@@ -208,7 +208,8 @@ class ClipGrounder:
 
     @property
     def model_name(self) -> str:
-        return str(self.backbone.name)
+        """The backbone's identity in cache keys (its content digest for a local folder)."""
+        return str(self.backbone.fingerprint or self.backbone.name)
 
     def _dense_key(self) -> tuple[str, ...]:
         """Cache-key parts of the dense-feature option (none for MaskCLIP, so older caches stay valid)."""
@@ -431,9 +432,15 @@ def resolved_spec(spec: GrounderConfig | Mapping[str, Any]) -> dict[str, Any]:
 
     Only defaults that differ from :data:`LEGACY_CLIP_OPTIONS` are added (and the full proposal settings
     in ``proposals`` mode), so a spec's key stays the same while the defaults do, and changes when they change.
+    The CLIP model is named by :func:`~abm.grounding.clip.model_fingerprint`: a local folder by its content,
+    so moving it keeps the key and retraining it into the same folder changes it.
     """
     out = spec.to_dict() if hasattr(spec, "to_dict") else dict(spec)
     if out.get("kind") == "clip":
+        model = str(out.get("model") or DEFAULT_MODEL)
+        fingerprint = model_fingerprint(model)
+        if "model" in out or fingerprint != model:
+            out["model"] = fingerprint
         current = {"mode": DEFAULT_CLIP_MODE, "dense_mode": DEFAULT_DENSE_MODE, "input_size": DEFAULT_INPUT_SIZE,
                    "scales": DEFAULT_SCALES}
         out.update({k: v for k, v in current.items() if k not in out and v != LEGACY_CLIP_OPTIONS[k]})
