@@ -194,6 +194,8 @@ def test_failure_reasons_and_the_html_report(tmp_path) -> None:
     assert failure_reason(True, "", ["unreachable"], False) == ""
     assert failure_reason(False, "boom", ["reached"], True) == "crashed"
     assert failure_reason(False, "", ["reached", "unreachable", "collided"], True) == "IK unreachable"
+    assert failure_reason(False, "", ["reached", "blocked", "unreachable"], True) == "IK unreachable"
+    assert failure_reason(False, "", ["blocked", "collided"], True) == "motion blocked"
     assert failure_reason(False, "", ["reached", "collided"], True) == "collision"
     assert failure_reason(False, "", ["reached"] * 3, False) == "grasp missed"
     assert failure_reason(False, "", ["reached"] * 3, True) == "timeout"

@@ -107,7 +107,7 @@ def test_abm_run_cli_with_sim_and_dry_run(recording, checkpoint, tmp_path, capsy
     assert cli_main(["run", "--robot", str(sim), "--run", str(checkpoint), "--steps", "2",
                      "--log", str(tmp_path / "b")]) == 0
     statuses = [json.loads(line)["status"] for line in (tmp_path / "b/steps.jsonl").read_text().splitlines()]
-    assert len(statuses) == 2 and set(statuses) <= {"reached", "unreachable", "collided"}
+    assert len(statuses) == 2 and set(statuses) <= {"reached", "unreachable", "blocked", "collided"}
     tight = tmp_path / "tight.yaml"
     tight.write_text(f"cameras: {{kind: replay, path: {folder}}}\n"
                      "limits: {workspace_lower: [0, 0, 0.9], workspace_upper: [0.1, 0.1, 1.0]}\n")
@@ -152,7 +152,7 @@ def test_run_refuses_to_move_when_grounding_finds_no_target(recording, checkpoin
         assert "the scene holds: " in errors[0] and "block" in errors[0]
         assert cli_main([*base, "--allow-no-target"]) == 0
         status = json.loads((log_dir / "steps.jsonl").read_text().splitlines()[0])["status"]
-        assert status in {"dry-run", "reached", "unreachable", "collided"}
+        assert status in {"dry-run", "reached", "unreachable", "blocked", "collided"}
 
 
 def _rotation(rng, max_deg: float) -> np.ndarray:

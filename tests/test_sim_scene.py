@@ -8,6 +8,7 @@ from sim_helpers import require_simulator
 require_simulator()
 
 import abm.sim.cameras as cameras_module  # noqa: E402
+from abm.evaluation.results import failure_reason  # noqa: E402
 from abm.geometry import depth_to_points, fuse_cameras, matrix_to_quat  # noqa: E402
 from abm.sim.catalog import catalog_entry  # noqa: E402
 from abm.sim.scene import CAMERA_NAMES, PlacedObject, SceneSpec  # noqa: E402
@@ -126,6 +127,17 @@ def test_unreachable_target_returns_failure_without_moving(sim):
     assert result.status == "unreachable" and not result.ok
     assert "no IK solution" in result.message
     assert np.allclose(sim.robot.arm_q, before, atol=1e-3)
+
+
+def test_a_straight_move_into_the_table_is_blocked_and_leaves_the_gripper_alone(sim):
+    sim.reset()
+    pose = top_down_pose(np.array([0.45, -0.15, -0.04]), 0.0)  # 4 cm into the table, no collision checks
+    result = sim.execute(KeyframeAction(pose[:3, 3], matrix_to_quat(pose[:3, :3]), False, True))
+    assert result.status == "blocked" and not result.ok, result.message
+    assert result.position_error > 0.01 and "target not reached" in result.message
+    assert sim.robot.tcp_pose()[2, 3] > -0.01  # the table stopped it
+    assert sim.robot.gripper_opening() > 0.9  # not closed: a stopped motion does not actuate the gripper
+    assert failure_reason(False, "", ["reached", result.status], False) == "motion blocked"
 
 
 def test_pushing_into_the_table_is_reported_as_collision(sim):

@@ -75,15 +75,17 @@ class EpisodeOutcome:
         return (self.method, self.task, self.split, self.repeat, self.episode, self.checkpoint, self.settings)
 
 
-FAILURES = ("crashed", "IK unreachable", "collision", "grasp missed", "timeout")
+FAILURES = ("crashed", "IK unreachable", "motion blocked", "collision", "grasp missed", "timeout")
 
 
 def failure_reason(success: bool, error: str, motions: Sequence[str], held_target: bool) -> str:
     """Why a rollout failed, in :data:`FAILURES` order of precedence (``""`` when it succeeded).
 
-    ``crashed``: the rollout raised; ``IK unreachable`` / ``collision``: a keyframe's motion; ``grasp
-    missed``: the gripper never held the target; ``timeout``: it held it but the task was not done
-    within the step limit (e.g. placed wrong).
+    ``crashed``: the rollout raised; ``IK unreachable``: a keyframe pose had no IK solution (the arm did not
+    move); ``motion blocked``: the arm moved but stopped short of a keyframe pose (e.g. pressing into an
+    object); ``collision``: the arm touched the scene on a transfer; ``grasp missed``: the gripper never
+    held the target; ``timeout``: it held it but the task was not done within the step limit (e.g. placed
+    wrong). Logs written before ``blocked`` existed count blocked motions as ``IK unreachable``.
     """
     if success:
         return ""
@@ -91,6 +93,8 @@ def failure_reason(success: bool, error: str, motions: Sequence[str], held_targe
         return "crashed"
     if "unreachable" in motions:
         return "IK unreachable"
+    if "blocked" in motions:
+        return "motion blocked"
     if "collided" in motions:
         return "collision"
     return "timeout" if held_target else "grasp missed"

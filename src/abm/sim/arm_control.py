@@ -9,7 +9,8 @@ A :class:`abm.types.KeyframeAction` is executed in three stages:
    <= 1 cm / 5 degrees); otherwise a collision-avoiding path: up to a safe height, across, then down.
 3. **Execution** in physics with joint position servos (gravity compensation comes from the bodies'
    ``gravcomp``), then the gripper opens or closes. Contacts of the arm with the scene during a
-   collision-avoiding motion make the result ``"collided"``.
+   collision-avoiding motion make the result ``"collided"``; a motion that ends more than 1 cm / 5 degrees
+   from its target without such contacts (something stopped the arm or the held object) is ``"blocked"``.
 """
 
 from __future__ import annotations
@@ -22,7 +23,10 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from abm.sim.scene import ARM_JOINTS, FINGER_JOINTS, GRIPPER_ACTUATOR, HOME_QPOS, TCP_SITE, robot_spec
 
-MotionStatus = Literal["reached", "unreachable", "collided"]
+MotionStatus = Literal["reached", "unreachable", "blocked", "collided"]
+STOPPED: tuple[MotionStatus, ...] = ("unreachable", "blocked")
+"""Statuses after which the gripper is not actuated and an expert demonstration ends."""
+REACH_TOLERANCE = (0.01, 5.0)  # m, degrees: a motion ending farther from its target did not reach it
 
 SAFE_HEIGHT = 0.25          # m, TCP height for collision-avoiding transfers
 MAX_CART_STEP = 0.01        # m between Cartesian waypoints
@@ -40,7 +44,9 @@ class MotionResult:
     """Outcome of executing one keyframe.
 
     Attributes:
-        status: ``"reached"``, ``"unreachable"`` (no IK solution / not converged) or ``"collided"``.
+        status: ``"reached"``; ``"unreachable"`` (no IK solution, or the straight path leaves the reachable
+            space: the arm did not move); ``"blocked"`` (the arm moved but ended more than
+            :data:`REACH_TOLERANCE` from the target, e.g. pressing into an object); or ``"collided"``.
         position_error: final TCP distance to the target, m (NaN if nothing moved).
         rotation_error_deg: final TCP angle to the target (either grasp flip), degrees.
         message: human-readable explanation.
@@ -332,8 +338,8 @@ class RobotController:
         pos_err, rot_err = pose_error(self.tcp_pose(), target)
         if contacts:
             return MotionResult("collided", pos_err, rot_err, f"the arm touched {contacts}", contacts, flipped)
-        if pos_err > 0.01 or rot_err > 5.0:
-            return MotionResult("unreachable", pos_err, rot_err,
+        if pos_err > REACH_TOLERANCE[0] or rot_err > REACH_TOLERANCE[1]:
+            return MotionResult("blocked", pos_err, rot_err,
                                 f"target not reached (error {pos_err * 1000:.1f} mm, {rot_err:.1f} deg)",
                                 flipped=flipped)
         return MotionResult("reached", pos_err, rot_err, "reached", flipped=flipped)

@@ -21,7 +21,7 @@ from typing import Any
 import mujoco
 
 from abm.geometry.rotations import canonical_gripper_quat, matrix_to_quat
-from abm.sim.arm_control import FLIP_Z
+from abm.sim.arm_control import FLIP_Z, STOPPED
 from abm.sim.recorder import DenseRecorder
 from abm.sim.scene import CAMERA_NAMES
 from abm.sim.simulation import Simulation
@@ -170,7 +170,7 @@ def run_expert(env: TaskEnv, record: bool = True, dense_fps: float | None = None
         subgoals.append(env.task.keyframe_subgoal(action))
         if record:
             steps.append((obs, executed_action(action, motion.flipped)))
-        if motion.status == "unreachable":
+        if motion.status in STOPPED:
             break
     trajectory = recorder.detach() if recorder else None
     success = env.success()

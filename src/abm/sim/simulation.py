@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from abm.sim.arm_control import MotionResult, RobotController
+from abm.sim.arm_control import STOPPED, MotionResult, RobotController
 from abm.sim.cameras import CameraRig
 from abm.sim.scene import CAMERA_NAMES, OBJECT_PREFIX, SceneSpec, build_spec
 from abm.types import KeyframeAction, Observation
@@ -120,9 +120,9 @@ class Simulation:
 
     # --- control -----------------------------------------------------------------------------
     def execute(self, action: KeyframeAction) -> MotionResult:
-        """Move to the keyframe pose, then open/close the gripper (not when unreachable)."""
+        """Move to the keyframe pose, then open/close the gripper (not when unreachable or blocked)."""
         result = self.robot.move_to(action.matrix, action.ignore_collision)
-        if result.status != "unreachable":
+        if result.status not in STOPPED:
             self.robot.actuate_gripper(action.gripper_open)
         self.step_count += 1
         return result
