@@ -61,7 +61,7 @@ def random_like(backbone: Any, seed: int = 0) -> Any:
         model = CLIPModel(backbone.model.config).eval()
     for p in model.parameters():
         p.requires_grad_(False)
-    return replace(backbone, model=model, name=f"random-init:{backbone.name}")
+    return replace(backbone, model=model, name=f"random-init:{backbone.name}", fingerprint="")
 
 
 # --------------------------------------------------------------------------------------------------

@@ -111,8 +111,9 @@ def test_page_draws_the_cloud_and_the_views_in_a_real_browser(tmp_path) -> None:
         # The page fades its objects in once the scene arrives over the websocket, so on a loaded machine an
         # early picture can catch them half-transparent: wait longer and try again before failing.
         for wait_ms in (8000, 16000, 30000, 60000):
-            shot = np.asarray(Image.open(screenshot(viewer.url, tmp_path / "page.png", 1200, 800, wait_ms=wait_ms)
-                                         ).convert("RGB"))
+            picture = screenshot(viewer.url, tmp_path / "page.png", 1200, 800, wait_ms=wait_ms,
+                                 timeout_s=wait_ms / 1000 + 90)
+            shot = np.asarray(Image.open(picture).convert("RGB"))
             r, g, b = (shot[..., i].astype(int) for i in range(3))
             magenta = (r > 200) & (g < 60) & (b > 200)
             green = (r < 60) & (g > 200) & (b < 60)

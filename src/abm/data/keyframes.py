@@ -26,6 +26,7 @@ used in the main process), so multiple workers work.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import random
@@ -311,14 +312,19 @@ class KeyframeDataset(Dataset[Sample]):
         """Whether conditioning is read from the on-disk cache (non-oracle grounders, CLIP features)."""
         return self.cache_dir is not None and ((self.mask and not self.oracle) or self.features)
 
+    @functools.cached_property
+    def _cache_grounder(self) -> dict[str, Any]:
+        """The grounder part of every cache key, resolved once per dataset: the defaults the spec relies on and
+        the CLIP's content digest, so retraining the CLIP in place during a training cannot change the keys."""
+        spec = resolved_spec(self.grounder_config.to_dict())
+        return {k: v for k, v in spec.items() if k not in ("device", "cache")}  # not results
+
     def _cache_file(self, j: int, k: int) -> Path:
         assert self.cache_dir is not None
         meta = self.source.meta[j]
         target = self.targets[j] if self.mask else None  # CLIP point features do not depend on the target
         target_key = list(target) if isinstance(target, tuple) else target  # sub-goal objects: one entry per step
-        spec = resolved_spec(self.grounder_config.to_dict())  # the defaults it relies on are part of the key
-        grounder = {k: v for k, v in spec.items() if k not in ("device", "cache")}  # not results
-        what = {"grounder": grounder, "target": target_key, "key": meta.key,
+        what = {"grounder": self._cache_grounder, "target": target_key, "key": meta.key,
                 "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}
         digest = hashlib.sha1(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
         return self.cache_dir / f"{digest}_k{k:03d}.npz"

@@ -127,6 +127,9 @@ def model_fingerprint(name_or_path: str) -> str:
             _fingerprints[stamp] = "sha256:" + digest.hexdigest()[:16]
         return _fingerprints[stamp]
     if _is_local_path(name_or_path):
+        logging.getLogger("abm").warning(
+            "CLIP folder %s not found: grounding-cache keys name it by its path, so entries written where the "
+            "folder exists are not found here", name_or_path)
         return name_or_path
     try:
         from huggingface_hub import try_to_load_from_cache

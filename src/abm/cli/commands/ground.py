@@ -159,7 +159,8 @@ def run(args: argparse.Namespace) -> int:
                           for i, v in enumerate(renderer.views)},
     }
     if args.grounder == "clip":
-        summary.update(model=grounder.model_name, normalization=grounder.config.normalization,
+        summary.update(model=grounder.backbone.name, model_fingerprint=grounder.model_name,
+                       normalization=grounder.config.normalization,
                        threshold=grounder.config.threshold)
         summary.update(mode=grounder.mode, dense_mode=grounder.dense_mode, input_size=grounder.input_size,
                        scales=list(grounder.scales))
