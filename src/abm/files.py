@@ -11,6 +11,7 @@ full disk included) and commands that write a run folder hold its :class:`Folder
 from __future__ import annotations
 
 import errno
+import hashlib
 import logging
 import os
 import pickle
@@ -220,3 +221,12 @@ class FolderLock:
                 self.folder.rmdir()  # only when still empty: the command wrote nothing
             except OSError:
                 pass
+
+
+def sha256_file(path: str | Path) -> str:
+    """Hex sha256 of a file's bytes, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with Path(path).open("rb") as f:
+        while block := f.read(1 << 20):
+            h.update(block)
+    return h.hexdigest()

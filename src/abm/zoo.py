@@ -4,10 +4,11 @@ the choice of the entries ``abm zoo eval`` compares. The ``abm zoo`` command is 
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 from typing import Any
+
+from abm.files import sha256_file
 
 DEFAULT_ZOO = Path("models")
 #: preference order of the abm and rvt entries ``abm zoo eval`` compares
@@ -40,12 +41,7 @@ def entry_path(zoo: Path, entry: dict[str, Any]) -> Path:
 
 def file_sha256(path: Path) -> str:
     """sha256 of a file, or of a folder's ``model.safetensors`` (the benchmark CLIP)."""
-    target = path / "model.safetensors" if path.is_dir() else path
-    h = hashlib.sha256()
-    with target.open("rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+    return sha256_file(path / "model.safetensors" if path.is_dir() else path)
 
 
 def verify(zoo: Path, entry: dict[str, Any]) -> Path:

@@ -34,6 +34,7 @@ import torch
 import torch.nn.functional as F
 
 from abm.configuration import GPU_CLIP_MODEL, TEST_ONLY_CLIP
+from abm.files import sha256_file
 from abm.grounding.tokenizer import tiny_tokenizer
 
 if TYPE_CHECKING:  # transformers is imported where a model is built, so importing abm stays fast
@@ -117,14 +118,8 @@ def model_fingerprint(name_or_path: str) -> str:
             return name_or_path
         stamp = (str(folder.resolve()), *((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files))
         if stamp not in _fingerprints:
-            digest = hashlib.sha256()
-            for f in files:
-                digest.update(f.name.encode() + b"\x00")
-                with f.open("rb") as fh:
-                    while block := fh.read(1 << 20):
-                        digest.update(block)
-                digest.update(b"\x00")
-            _fingerprints[stamp] = "sha256:" + digest.hexdigest()[:16]
+            listing = "".join(f"{f.name}\x00{sha256_file(f)}\x00" for f in files)
+            _fingerprints[stamp] = "sha256:" + hashlib.sha256(listing.encode()).hexdigest()[:16]
         return _fingerprints[stamp]
     if _is_local_path(name_or_path):
         logging.getLogger("abm").warning(
