@@ -7,14 +7,18 @@
 # Runs (one folder each under OUT):
 #   abm_oracle   abm, target mask from the simulator's segmentation (upper bound; needs no CLIP)
 #   rvt_clip     rvt, instruction through the benchmark CLIP's text encoder (the paper's RVT had CLIP text)
-#   abm_clip     abm, the benchmark CLIP's Object Mask Field with the package's default grounding configuration
+#   abm_clip     abm, the benchmark CLIP's Object Mask Field with the package's default grounding configuration;
+#                its skill text ("put X in the wine rack") through the benchmark CLIP's text encoder
+#   abm_clip_hash  the same mask field, skill text through the hash encoder (a distinct code per text; the
+#                benchmark CLIP's text tower was trained on object captions only)
 #   ifd_clip     ifd, benchmark-CLIP point features and text
-#   stack, concat-rerendered, concat-full   the ablations, grounded like abm_clip
+#   stack, concat-rerendered, concat-full   the ablations, grounded and worded like abm_clip_hash (Table 3's
+#                center-pixel row)
 # Every finished model is exported (bfloat16) into the model zoo (ZOO, default models/) with its index, and
 # evaluated FROM THE ZOO FILE, so `abm eval --run models/NAME.pt ...` reproduces its row on a fresh clone.
 #
 # Usage: bash scripts/paper_tables.sh [OUT]        (default OUT=runs/paper)
-# Knobs (environment): RUNS (all seven, in training order), CLIP (models/benchmark-clip), DEMOS (20 per task),
+# Knobs (environment): RUNS (all eight, in training order), CLIP (models/benchmark-clip), DEMOS (20 per task),
 #   STEPS (5000), EVAL_EPISODES (25), REPEATS (2), EVAL_WORKERS (2), MAX_STEPS (8), DIAGNOSE_EPISODES (5),
 #   COMPILE (0; 1 adds --compile), STAGES ("data ground train eval diagnose zoo report"), README (README.md; "" =
 #   skip), ZOO (models), THREADS (per trainer: 1 for a pair, 2 for one left alone).
@@ -37,8 +41,8 @@ CLIP="${CLIP:-$ZOO/benchmark-clip}"
 DATA="${DATA:-$OUT/data}"
 TASKS="close_jar insert_peg pick_block place_food place_wine put_in_shelf take_off_pan water_plants"
 COMPOSITIONAL="place_block_in_plate pick_food_to_target"
-RUNS="${RUNS:-abm_oracle rvt_clip abm_clip ifd_clip stack concat-rerendered concat-full}"
-TABLE1="abm_oracle rvt_clip abm_clip ifd_clip"
+RUNS="${RUNS:-abm_oracle rvt_clip abm_clip ifd_clip abm_clip_hash stack concat-rerendered concat-full}"
+TABLE1="abm_oracle rvt_clip abm_clip ifd_clip abm_clip_hash"
 DEMOS="${DEMOS:-20}"
 STEPS="${STEPS:-5000}"
 EVAL_EPISODES="${EVAL_EPISODES:-25}"
@@ -88,8 +92,11 @@ train_one() {  # run name, threads -> one multi-task training (resumes), then it
     rvt_clip) extra=(--method rvt --language clip --clip-model "$CLIP") ;;
     abm_clip) extra=(--method abm --grounder clip --clip-model "$CLIP" --cache-dir "$OUT/cache_masks") ;;
     ifd_clip) extra=(--method ifd --grounder clip --clip-model "$CLIP" --cache-dir "$OUT/cache_features") ;;
-    stack|concat-rerendered|concat-full)
-      extra=(--method "$name" --grounder clip --clip-model "$CLIP" --cache-dir "$OUT/cache_masks") ;;
+    abm_clip_hash) extra=(--method abm --grounder clip --clip-model "$CLIP" --cache-dir "$OUT/cache_masks"
+                          --language hash) ;;
+    stack|concat-rerendered|concat-full)  # compared with abm_clip_hash (the same mask field and language)
+      extra=(--method "$name" --grounder clip --clip-model "$CLIP" --cache-dir "$OUT/cache_masks"
+             --language hash) ;;
     *) echo "unknown run $name" >&2; return 1 ;;
   esac
   [ "$COMPILE" = 1 ] && flags+=(--compile)
