@@ -34,21 +34,26 @@ def test_records_averages_and_tables_fill_in_stages(tmp_path: Path) -> None:
                 [_rate(t, "compositional", [20.0, 20.0]) for t in paper_tables_report.COMPOSITIONAL])
     cells = paper_tables_report.collect(out)
     recs = paper_tables_report.records(cells)
-    # abm_clip belongs to tables 1 and 3 (seen/unseen cells) and table 2 (compositional cells)
+    # abm_clip belongs to table 1 (seen/unseen cells) and table 2 (compositional cells); table 3's center-pixel
+    # row is abm_clip_hash, worded like the ablations
     assert {r["table"] for r in recs if r["split"] == "compositional"} == {2}
-    assert {r["table"] for r in recs if r["split"] != "compositional"} == {1, 3}
+    assert {r["table"] for r in recs if r["split"] != "compositional"} == {1}
     cell = next(r for r in recs if r["table"] == 1 and r["task"] == "close_jar" and r["split"] == "seen")
     assert (cell["successes"], cell["episodes"], cell["grounder"]) == (35, 50, "clip")
     assert paper_tables_report.average(cells, "abm_clip", "seen") == 70.0
     assert paper_tables_report.average(cells, "abm_clip", "unseen") is None  # water_plants not evaluated yet
     t1 = paper_tables_report.table1(cells)
-    assert "| close_jar | – | – | – | – | 70 ± 0 (35/50) | 50 ± 0 (25/50) | – | – |" in t1
+    assert "| close_jar | – | – | – | – | 70 ± 0 (35/50) | 50 ± 0 (25/50) | – | – | – | – |" in t1
     assert "**70.0**" in t1 and "74.2" in t1  # ours beside the paper's
     t2 = paper_tables_report.table2(cells)
-    assert "| ABM (CLIP mask field) | 20 ± 0 (10/50) | 20 ± 0 (10/50) | 20.0 | 53.2 |" in t2
-    assert "| center-pixel (abm) | 70.0 | – | – | 70.0 | 57.5 |" in paper_tables_report.table3(cells)
-    assert "abm (CLIP) seen ≥ 60 %: met (70.0)" in paper_tables_report.targets(cells)
-    assert "abm unseen ≥ 0.85 × seen: not evaluated yet" in paper_tables_report.targets(cells)
+    assert "| ABM (CLIP mask field, CLIP skill text) | 20 ± 0 (10/50) | 20 ± 0 (10/50) | 20.0 | 53.2 |" in t2
+    assert "| center-pixel (abm_clip_hash) | – | – | – | 70.0 | 57.5 |" in paper_tables_report.table3(cells)
+    _write_eval(out, "abm_clip_hash", "seen", [_rate(t, "seen", [40.0, 40.0]) for t in TASKS])
+    cells = paper_tables_report.collect(out)
+    assert "| center-pixel (abm_clip_hash) | 40.0 | – | – | 70.0 | 57.5 |" in paper_tables_report.table3(cells)
+    goals = paper_tables_report.targets(cells)
+    assert "abm_clip: seen ≥ 60 %: met (70.0); unseen ≥ 0.85 × seen: not evaluated yet" in goals
+    assert "abm_clip_hash: seen ≥ 60 %: not met (40.0)" in goals
 
 
 def test_zoo_index_describes_exported_models(tmp_path: Path) -> None:
