@@ -56,6 +56,12 @@ PAPER_T2 = {"rvt_clip": 21.6, "ifd_clip": 31.2, "abm_clip": 53.2}
 PAPER_T3 = {"stack": (72.8, 54.9), "concat-rerendered": (72.6, 54.7), "concat-full": (71.9, 57.0),
             "abm_clip_hash": (70.0, 57.5)}
 SPLIT_TASKS = {"seen": TASKS, "unseen": TASKS, "compositional": COMPOSITIONAL}
+ORACLE_MASK = "@oracle"  # diagnosis of a CLIP-grounded mask run fed the simulator's mask (keyframe_accuracy/RUN@oracle)
+
+
+def diagnoses() -> list[str]:
+    """Names of the diagnosis stage's files: every run, and every CLIP-grounded mask run with the oracle mask."""
+    return [name for r, spec in RUNS.items() for name in ((r, r + ORACLE_MASK) if spec[2] == "clip" else (r,))]
 
 
 def finished_results(out: Path, kept: Path) -> list[tuple[Path, Path]]:
@@ -66,7 +72,8 @@ def finished_results(out: Path, kept: Path) -> list[tuple[Path, Path]]:
     for run in RUNS:
         for split in SPLIT_TASKS:
             pairs.append((out / "eval" / run / split / "results.json", kept / f"{run}_{split}.json"))
-        pairs.append((out / "keyframe_accuracy" / f"{run}.json", kept / f"keyframe_accuracy_{run}.json"))
+    for name in diagnoses():
+        pairs.append((out / "keyframe_accuracy" / f"{name}.json", kept / f"keyframe_accuracy_{name}.json"))
     pairs += [(out / "zoo_eval" / "results.md", kept / "zoo_eval.md"),
               (out / "zoo_eval" / "seconds", kept / "zoo_eval_seconds.txt")]
     return pairs
@@ -206,12 +213,13 @@ def targets(cells: Mapping) -> str:
 
 
 def keyframe_accuracy(out: Path) -> dict[str, list[dict[str, Any]]]:
-    """``run -> summary rows`` of the diagnosis stage (``OUT/keyframe_accuracy/RUN.json``)."""
+    """``run -> summary rows`` of the diagnosis stage (``OUT/keyframe_accuracy/RUN.json``); a CLIP-grounded
+    mask run scored with the oracle mask is ``RUN@oracle``."""
     found = {}
-    for run in RUNS:
-        path = out / "keyframe_accuracy" / f"{run}.json"
+    for name in diagnoses():
+        path = out / "keyframe_accuracy" / f"{name}.json"
         if path.is_file():
-            found[run] = json.loads(path.read_text())["summary"]
+            found[name] = json.loads(path.read_text())["summary"]
     return found
 
 
@@ -393,7 +401,9 @@ def main() -> None:
             detail += [f"## Keyframe accuracy, {split} objects", "", weakest_keyframes(summaries, split), "",
                        "Median position error (cm) / rotation error (°, symmetry-aware) of each zoo model's "
                        "prediction at every keyframe of the expert's rollout on the evaluation scenes (the "
-                       "diagnosis stage, `benchmarks/keyframe_accuracy.py`; JSON in docs/results/paper_tables/):",
+                       "diagnosis stage, `benchmarks/keyframe_accuracy.py`; JSON in docs/results/paper_tables/); "
+                       "RUN@oracle is a CLIP-grounded model fed the simulator's mask instead of its own, so an "
+                       "error it keeps is the policy's, not the grounder's:",
                        "", keyframe_table(summaries, split), ""]
     (args.docs / "paper_tables.md").write_text("# The paper's tables on ABM-Bench\n\n" + text + "\n".join(detail))
     if args.readme:

@@ -195,13 +195,22 @@ if stage eval; then
 fi
 
 # ---------------------------------------- diagnosis: keyframe accuracy on expert scenes (teacher-forced)
-if stage diagnose; then  # per keyframe kind: position and rotation error of each zoo model (~3 min per model)
+if stage diagnose; then  # per keyframe kind: position and rotation error of each zoo model (~3 min per model),
+  # and of each CLIP-grounded mask model with the oracle mask
   mkdir -p "$OUT/keyframe_accuracy"
   for name in $RUNS; do
     [ -f "$ZOO/$name.pt" ] && [ ! -f "$OUT/keyframe_accuracy/$name.json" ] || continue
     # shellcheck disable=SC2086
     python benchmarks/keyframe_accuracy.py --run "$ZOO/$name.pt" --tasks $TASKS --splits seen unseen \
       --episodes "${DIAGNOSE_EPISODES:-5}" --out "$OUT/keyframe_accuracy/$name.json" > "$OUT/keyframe_accuracy/$name.log"
+  done
+  for name in $RUNS; do  # a CLIP-grounded mask run fed the oracle mask: what stays wrong is the policy's, not the mask's
+    case "$name" in abm_oracle|rvt_clip|ifd_clip) continue ;; esac
+    [ -f "$ZOO/$name.pt" ] && [ ! -f "$OUT/keyframe_accuracy/$name@oracle.json" ] || continue
+    # shellcheck disable=SC2086
+    python benchmarks/keyframe_accuracy.py --run "$ZOO/$name.pt" --tasks $TASKS --splits seen unseen \
+      --episodes "${DIAGNOSE_EPISODES:-5}" --grounder oracle --out "$OUT/keyframe_accuracy/$name@oracle.json" \
+      > "$OUT/keyframe_accuracy/$name@oracle.log"
   done
 fi
 

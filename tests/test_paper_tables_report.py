@@ -95,12 +95,21 @@ def test_keyframe_accuracy_table_puts_runs_side_by_side_per_task_and_kind(tmp_pa
         row("close_jar", "grasp", "unseen", 9.0, 90.0)]}))
     (out / "keyframe_accuracy" / "rvt_clip.json").write_text(json.dumps({"summary": [
         row("close_jar", "grasp", "seen", 3.0, 40.0)]}))
+    # a CLIP-grounded mask run is also scored with the oracle mask (RUN@oracle), in the column beside it
+    (out / "keyframe_accuracy" / "abm_clip@oracle.json").write_text(json.dumps({"summary": [
+        row("close_jar", "grasp", "seen", 1.0, 10.0)]}))
+    (out / "keyframe_accuracy" / "abm_clip.json").write_text(json.dumps({"summary": [
+        row("close_jar", "grasp", "seen", 2.0, 20.0)]}))
     summaries = paper_tables_report.keyframe_accuracy(out)
-    assert list(summaries) == ["rvt_clip", "abm_oracle"]  # the report's run order
+    assert list(summaries) == ["rvt_clip", "abm_clip", "abm_clip@oracle", "abm_oracle"]  # the report's run order
     table = paper_tables_report.keyframe_table(summaries, "seen").splitlines()
-    assert table[0] == "| task | keyframe | rvt_clip | abm_oracle |"
+    assert table[0] == "| task | keyframe | rvt_clip | abm_clip | abm_clip@oracle | abm_oracle |"
     # tasks in the paper's order, a run without that keyframe shows –
-    assert table[2:] == ["| close_jar | grasp | 3.0 / 40 | 0.5 / 7 |", "| place_food | grasp | – | 0.4 / 5 |"]
+    assert table[2:] == ["| close_jar | grasp | 3.0 / 40 | 2.0 / 20 | 1.0 / 10 | 0.5 / 7 |",
+                         "| place_food | grasp | – | – | – | 0.4 / 5 |"]
+    # the committed copies include the oracle-mask diagnosis, so a fresh clone restores it
+    kept = [copy.name for _, copy in paper_tables_report.finished_results(out, tmp_path / "kept")]
+    assert "keyframe_accuracy_abm_clip@oracle.json" in kept and "keyframe_accuracy_rvt_clip@oracle.json" not in kept
     assert "9.0 / 90" in paper_tables_report.keyframe_table(summaries, "unseen")
 
 
