@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from abm.evaluation.keyframe_accuracy import keyframe_errors, markdown, score_keyframe, summarise
+from abm.evaluation.keyframe_accuracy import (
+    keyframe_errors,
+    markdown,
+    score_keyframe,
+    skill_text_probe,
+    summarise,
+    task_skills,
+)
 from abm.evaluation.results import eval_seed
 from abm.geometry import matrix_to_quat
 from abm.sim.env import make_env, run_expert
@@ -41,3 +49,21 @@ def test_keyframe_errors_score_every_expert_keyframe() -> None:
     assert {r["kind"] for r in rows} == {a.kind for a in labels}
     table = markdown(rows, kinds=["grasp"])
     assert table.count("\n") == 2 and "| fixed | pick_block | seen | grasp | 1 |" in table
+
+
+def test_skill_text_probe_reports_how_far_each_skill_text_moves_the_prediction() -> None:
+    skills = task_skills(["place_wine", "take_off_pan"])
+    assert skills == {"put X in the wine rack": "place_wine", "take X off the frypan": "take_off_pan"}
+
+    def reads_its_text(obs, instruction: str, names) -> KeyframeAction:  # 10 cm along x for "frypan"
+        return KeyframeAction([0.5 + 0.1 * ("frypan" in instruction), 0.0, 0.3], _down(0.0), False)
+
+    rows = skill_text_probe(reads_its_text, "place_wine", "seen", 1, "move", list(skills), resolution=16)
+    with make_env("place_wine", "seen", eval_seed(0, 0), 16) as env:
+        move = next(a for _, a in run_expert(env).steps if a.kind == "move")
+    own, other = rows
+    assert (own["skill"], own["own"], own["n"], other["own"]) == ("put X in the wine rack", True, 1, False)
+    assert own["moved_cm_median"] == 0.0 and abs(other["moved_cm_median"] - 10.0) < 1e-6
+    assert abs(own["position_cm_median"] - 100 * np.linalg.norm(np.array([0.5, 0.0, 0.3]) - move.position)) < 1e-6
+    with pytest.raises(ValueError, match="no successful expert rollout .* 'pour' keyframe"):
+        skill_text_probe(reads_its_text, "place_wine", "seen", 1, "pour", list(skills), resolution=16)

@@ -12,7 +12,8 @@ is scored against the expert's label:
 
 Rows are grouped by keyframe kind (approach, grasp, lift, move, place, retreat, pour), so one can see
 which part of a task a checkpoint has learned. It is the quick check of a checkpoint before rollouts
-(``benchmarks/keyframe_accuracy.py``).
+(``benchmarks/keyframe_accuracy.py``). :func:`skill_text_probe` asks whether a mask policy's keyframe
+follows its skill text (``benchmarks/skill_text_probe.py``).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 
 from abm.evaluation.results import eval_seed
 from abm.geometry import symmetric_angle_deg
+from abm.grounding.conditioning import split_roles
 from abm.sim.env import make_env, run_expert
 from abm.types import KeyframeAction, Observation
 
@@ -118,3 +120,49 @@ def markdown(rows: Sequence[Mapping[str, object]], kinds: Sequence[str] | None =
 def as_records(errors: Iterable[KeyframeDeviation]) -> list[dict[str, object]]:
     """Plain dicts (for JSON)."""
     return [asdict(e) for e in errors]
+
+
+def task_skills(tasks: Sequence[str]) -> dict[str, str]:
+    """``skill text -> task`` (the first task with that text) from each task's first evaluation scene."""
+    out: dict[str, str] = {}
+    for task in tasks:
+        with make_env(task, "seen", eval_seed(0, 0), 16) as env:
+            _, skill = split_roles(env.instruction, env.object_names)
+        out.setdefault(skill, task)
+    return out
+
+
+def skill_text_probe(act: ActFn, task: str, split: str, episodes: int, kind: str, skills: Sequence[str],
+                     resolution: int = 128) -> list[dict[str, object]]:
+    """Does a mask policy's ``kind`` keyframe follow its skill text?
+
+    Teacher-forced like :func:`keyframe_errors`: at every expert keyframe of that kind the policy predicts
+    once with the scene's instruction and once per skill text in ``skills``, worded about the scene's
+    target (``"take X off the frypan"`` -> ``"take the wine bottle off the frypan"``). One row per skill
+    text: ``position_cm_median`` against the expert's label, ``moved_cm_median`` from the prediction with
+    the scene's own instruction, and ``own`` (the scene's own skill text). A policy that reads its text
+    moves when the text changes.
+    """
+    errors: dict[str, list[float]] = {s: [] for s in skills}
+    moved: dict[str, list[float]] = {s: [] for s in skills}
+    own_skill = None
+    for ep in range(episodes):
+        with make_env(task, split, eval_seed(0, ep), resolution) as env:
+            episode = run_expert(env)
+            if not episode.success:
+                continue
+            targets, own_skill = split_roles(env.instruction, env.object_names)
+            for obs, label in episode.steps:
+                if label.kind != kind:
+                    continue
+                own = act(obs, env.instruction, env.object_names).position
+                for skill in skills:
+                    pred = act(obs, skill.replace("X", f"the {targets[0]}"), env.object_names).position
+                    errors[skill].append(100.0 * float(np.linalg.norm(pred - label.position)))
+                    moved[skill].append(100.0 * float(np.linalg.norm(pred - own)))
+    if not any(errors.values()):
+        raise ValueError(f"no successful expert rollout of {task} ({split}) with a {kind!r} keyframe in "
+                         f"{episodes} scenes")
+    return [{"skill": s, "own": s == own_skill, "n": len(errors[s]),
+             "position_cm_median": statistics.median(errors[s]), "moved_cm_median": statistics.median(moved[s])}
+            for s in skills]
