@@ -364,13 +364,15 @@ def report(out: Path, cells: Mapping, entries: Sequence[Mapping[str, Any]], comm
         "minutes above, against the paper's 220² views and GPU-days); demonstrations are 20 per task instead of "
         "100; the CLIP is the benchmark CLIP trained here on renders of the catalog objects (no pretrained CLIP "
         "can be downloaded on this machine), so its open-vocabulary reach is narrower than ViT-L/14's but it has "
-        "seen every object's mesh, and its text tower has only read object captions, never skill texts like \"put X "
-        "in the wine rack\": the abm row that reads its skill text through it (abm_clip) does not tell every skill "
-        "apart (place_wine, see [the skill-text probe](docs/results/skill_text_probe.md)), so abm_clip_hash reads "
-        "the skill text through the hash encoder (a fixed random code per text) and is Table 3's center-pixel row; "
-        "on insert_peg every method finds the ring's bar but on some scenes grasps it far off its yaw (the "
+        "seen every object's mesh, and its text tower has only read object captions, never skill texts. The carry to "
+        "a destination that only the skill text names (\"put X in the wine rack\") is the least-learned keyframe: "
+        "abm_clip (skill text through the CLIP text tower) never carries the bottle to the rack, with its own mask or "
+        "the oracle's, and abm_clip_hash (hash skill text, Table 3's center-pixel row like the ablations) does but "
+        "never carries the block to the target; each merges two skills that share words "
+        "([skill-text probe](docs/results/skill_text_probe.md)). "
+        "On insert_peg every method finds the ring's bar but on some scenes grasps it far off its yaw (the "
         "diagnosis JSON), likely because 64² views with 8-pixel patches make a token 12.5 cm wide, wider than the "
-        "ring, and the rotation head reads tokens; and the oracle row has no counterpart in the paper.", ""])
+        "ring, and the rotation head reads tokens. The oracle row has no counterpart in the paper.", ""])
 
 
 def main() -> None:
