@@ -300,9 +300,10 @@ def zoo_index(out: Path, zoo: Path, clip: Path | None) -> list[dict[str, Any]]:
     lines = ["# Model zoo", "", "Written by `benchmarks/paper_tables_report.py` (`scripts/paper_tables.sh`). Every "
              "policy is one multi-task model over the 8 paper tasks, exported with `abm export --dtype bfloat16`; "
              "evaluate one with `abm eval --run models/NAME.pt --tasks ... --split seen`.", "",
-             "| name | method | grounder | steps | train min | MB | sha256 |", "|---|---|---|---|---|---|---|"]
+             "| name | what | method | grounder | steps | train min | MB | sha256 |", "|---" * 8 + "|"]
     for e in entries:
-        lines.append(f"| {e['name']} | {e['method']} | {e.get('grounder', '–')} | {e.get('steps', '–')} | "
+        lines.append(f"| {e['name']} | {e.get('label') or '–'} | {e['method']} | {e.get('grounder', '–')} | "
+                     f"{e.get('steps', '–')} | "
                      f"{e.get('train_minutes', '–')} | {e['size_bytes'] / 1e6:.1f} | `{e['sha256'][:16]}…` |")
     (zoo / "README.md").write_text("\n".join(lines) + "\n")
     return entries

@@ -79,7 +79,8 @@ def test_zoo_index_describes_exported_models(tmp_path: Path) -> None:
     (zoo / "abm_oracle.pt").write_bytes(b"other")
     again = paper_tables_report.zoo_index(tmp_path / "gone", zoo, None)
     assert again[0]["train_minutes"] == 120.0 and again[0]["sha256"] == hashlib.sha256(b"other").hexdigest()
-    assert "| abm_oracle | abm | oracle | 5000 | 120.0 |" in (zoo / "README.md").read_text()
+    row = "| abm_oracle | ABM, oracle mask (upper bound) | abm | oracle | 5000 | 120.0 |"
+    assert row in (zoo / "README.md").read_text()
 
 
 def test_keyframe_accuracy_table_puts_runs_side_by_side_per_task_and_kind(tmp_path: Path) -> None:
