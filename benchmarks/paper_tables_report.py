@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -325,9 +326,12 @@ def zoo_eval(out: Path) -> str:
     if not (folder / "results.md").is_file() or not (folder / "seconds").is_file():
         return ""
     minutes = int((folder / "seconds").read_text()) / 60
+    table = (folder / "results.md").read_text().strip()
+    episodes = max((int(n) for n in re.findall(r"\(\d+/(\d+)\)", table)), default=0)
+    each = f", {episodes} episodes each" if episodes else ""
     return (f"Without training: `abm zoo eval` evaluates the zoo's abm and rvt models on seen and unseen objects "
-            f"with its defaults (a few tasks, 5 episodes each) through the full pipeline; it took {minutes:.0f} min "
-            f"on this machine:\n\n{(folder / 'results.md').read_text().strip()}\n\n")
+            f"with its defaults (a few tasks{each}) through the full pipeline; it took {minutes:.0f} min "
+            f"on this machine:\n\n{table}\n\n")
 
 
 def report(out: Path, cells: Mapping, entries: Sequence[Mapping[str, Any]], command: str) -> str:

@@ -118,11 +118,11 @@ def test_the_timed_zoo_eval_enters_the_report_once_it_ran(tmp_path: Path) -> Non
     out = tmp_path / "paper"
     assert paper_tables_report.zoo_eval(out) == ""
     (out / "zoo_eval").mkdir(parents=True)
-    (out / "zoo_eval" / "results.md").write_text("| method | pick_block seen |\n|---|---|\n| abm_clip | 3/5 |\n")
+    (out / "zoo_eval" / "results.md").write_text("| method | pick_block |\n|---|---|\n| abm_clip | 60.0 (3/5) |\n")
     assert paper_tables_report.zoo_eval(out) == ""  # still running: no time yet
     (out / "zoo_eval" / "seconds").write_text("545\n")
     text = paper_tables_report.zoo_eval(out)
-    assert "took 9 min" in text and "| abm_clip | 3/5 |" in text
+    assert "took 9 min" in text and "| abm_clip | 60.0 (3/5) |" in text and "5 episodes each" in text
 
 
 def test_weakest_keyframes_ranks_kinds_by_their_median_error_over_tasks() -> None:

@@ -4,7 +4,7 @@ training.
 * ``abm zoo list`` prints the index (``models/index.json``, written by ``benchmarks/paper_tables_report.py``)
   and checks every file against its recorded sha256;
 * ``abm zoo eval`` evaluates the zoo's abm and rvt models on seen and unseen objects of a few tasks through
-  the full pipeline (simulator, grounding, policy, executor) and prints one table: about 10 minutes on 2 CPU
+  the full pipeline (simulator, grounding, policy, executor) and prints one table: about 5 minutes on 2 CPU
   cores with the defaults.
 
 The abm model is the CLIP-grounded one (``abm_clip``) when it and the benchmark CLIP are in the zoo, else
@@ -31,8 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument("--zoo", type=Path, default=DEFAULT_ZOO, help=f"zoo folder (default {DEFAULT_ZOO})")
     ev.add_argument("--tasks", nargs="+", default=["pick_block", "close_jar"],
                     help="tasks to evaluate (default: pick_block close_jar)")
-    ev.add_argument("--episodes", type=int_range(1, 10_000), default=5,
-                    help="seeded episodes per task and split (default 5)")
+    ev.add_argument("--episodes", type=int_range(1, 10_000), default=10,
+                    help="seeded episodes per task and split (default 10)")
     ev.add_argument("--workers", type=int_range(1, 256), default=2, help="parallel rollout processes (default 2)")
     ev.add_argument("--max-steps", type=int_range(1, 100), default=8, help="keyframes per episode (default 8)")
     ev.add_argument("--out", type=Path, default=Path("out/zoo"), help="output folder (default out/zoo)")
