@@ -38,6 +38,7 @@ START, END = "<!-- paper-tables:start -->", "<!-- paper-tables:end -->"
 TASKS = ("close_jar", "insert_peg", "pick_block", "place_food", "place_wine", "put_in_shelf", "take_off_pan",
          "water_plants")
 COMPOSITIONAL = ("place_block_in_plate", "pick_food_to_target")
+_ABLATION = "ABM ablation, {} mask fusion (CLIP mask field, hash skill text)"
 # run name -> (table label, method, grounder, tables it belongs to)
 RUNS: dict[str, tuple[str, str, str, tuple[int, ...]]] = {
     "rvt_clip": ("RVT (CLIP text)", "rvt", "none (CLIP text)", (1, 2)),
@@ -45,9 +46,9 @@ RUNS: dict[str, tuple[str, str, str, tuple[int, ...]]] = {
     "abm_clip": ("ABM (CLIP mask field, CLIP skill text)", "abm", "clip", (1, 2)),
     "abm_clip_hash": ("ABM (CLIP mask field, hash skill text)", "abm", "clip", (1, 2, 3)),
     "abm_oracle": ("ABM, oracle mask (upper bound)", "abm", "oracle", (1, 2)),
-    "stack": ("stack", "stack", "clip", (3,)),
-    "concat-rerendered": ("concat-rerendered", "concat-rerendered", "clip", (3,)),
-    "concat-full": ("concat-full", "concat-full", "clip", (3,)),
+    "stack": (_ABLATION.format("stack"), "stack", "clip", (3,)),
+    "concat-rerendered": (_ABLATION.format("concat-rerendered"), "concat-rerendered", "clip", (3,)),
+    "concat-full": (_ABLATION.format("concat-full"), "concat-full", "clip", (3,)),
 }
 # run -> what a reader must know about its cells until it is rerun (printed under the tables while it has cells)
 CAVEATS: dict[str, str] = {}
