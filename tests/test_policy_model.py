@@ -108,3 +108,26 @@ def test_config_errors_and_compatibility() -> None:
         check_compatible(small, PolicyConfig.from_preset("small", "rvt"))
     with pytest.raises(ValueError, match="preset 'small' does not match the model preset 'paper'"):
         check_compatible(small, PolicyConfig.from_preset("paper", "abm"))
+
+
+@pytest.mark.parametrize("local", [False, True])
+def test_local_rotation_features_tell_pixels_of_one_token_apart(local: bool) -> None:
+    # two pooling points inside the same 8x8 patch: the token-level head cannot tell them apart, the
+    # pixel-level decoder features can (and an old config without the field loads as token-only)
+    cfg = PolicyConfig.from_preset("small", "abm", resolution=32, lang_dim=LANG, local_rotation_features=local)
+    assert cfg.preset == "small+custom"
+    data = cfg.to_dict()
+    del data["local_rotation_features"]
+    assert PolicyConfig.from_dict(data).local_rotation_features is False
+    torch.manual_seed(0)
+    model = MultiViewTransformer(cfg).eval()
+    args, kw = _inputs(cfg, 1)
+    outs = []
+    for pixel in (8, 13):  # rows/cols 8 and 13 both lie in token (1, 1)
+        weights = torch.zeros(1, cfg.num_views, 32, 32)
+        weights[..., pixel, pixel] = 1.0
+        with torch.no_grad():
+            outs.append(model(*args, **kw, pool_weights=weights).rotation)
+    assert torch.equal(outs[0], outs[1]) is not local
+    extra = cfg.decoder_channels * cfg.num_views if local else 0
+    assert model.global_head[0].in_features == 2 * cfg.width * cfg.num_views + extra

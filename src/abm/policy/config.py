@@ -58,6 +58,10 @@ class PolicyConfig:
         ifd_feature_dim: dimension of the per-point CLIP features (``ifd`` only).
         proprio_dim: proprioception size (gripper open, gripper position in cube coordinates).
         rotation_bins: bins per Euler axis.
+        local_rotation_features: also feed the rotation/gripper head the full-resolution decoder features
+            (``decoder_channels`` per view) pooled with the heatmap at the pixel level, not only the
+            patch tokens (a token spans ``patch_size`` pixels: 12.5 cm at 64² views over the 1 m cube,
+            wider than most objects whose yaw the approach has to read).
         dropout: dropout in attention / MLP.
         workspace_center: workspace cube centre (m), used for action decoding.
         workspace_size: workspace cube edge (m).
@@ -82,6 +86,7 @@ class PolicyConfig:
     ifd_feature_dim: int = 512
     proprio_dim: int = field(default=4, metadata={"cli": False})  # fixed by the policy
     rotation_bins: int = 72
+    local_rotation_features: bool = False
     dropout: float = 0.0
     workspace_center: tuple[float, float, float] = (0.5, 0.0, 0.35)
     workspace_size: float = 1.0
@@ -125,7 +130,7 @@ class PolicyConfig:
         if preset not in PRESETS:
             raise ValueError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
         values: dict[str, Any] = dict(PRESETS[preset])
-        size_keys = set(values) | {"views", "lang_tokens", "rotation_bins"}
+        size_keys = set(values) | {"views", "lang_tokens", "rotation_bins", "local_rotation_features"}
         name = preset + ("+custom" if any(k in size_keys for k in overrides) else "")
         values.update(overrides)
         return cls(variant=variant, preset=name, **values)

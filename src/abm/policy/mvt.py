@@ -18,7 +18,8 @@ Data flow for a batch of ``B`` samples with ``V`` virtual views of ``H x W`` pix
    the fused stem features (skip connection; after conditioning, so a mask pixel can reach the heatmap
    at full resolution without passing through the patch tokens) and decoded by two small convs into
    one translation logit per pixel and view. A global feature per view (max-pooled tokens and tokens
-   pooled with the heatmap: the ground-truth one in training, the predicted one at inference) goes
+   pooled with the heatmap: the ground-truth one in training, the predicted one at inference; with
+   ``local_rotation_features`` also the full-resolution decoder features pooled with it pixel by pixel) goes
    through an MLP to the rotation logits (3 axes x ``rotation_bins``), gripper-open and
    ignore-collision logits (2 each).
 """
@@ -119,7 +120,8 @@ class MultiViewTransformer(nn.Module):
         self.skip = nn.Conv2d(c, dc, 1)
         self.decode = nn.Sequential(nn.GELU(), nn.Conv2d(dc, dc, 3, padding=1), nn.GELU(), nn.Conv2d(dc, 1, 1))
         out = 3 * config.rotation_bins + 2 + 2
-        self.global_head = nn.Sequential(nn.Linear(2 * d * v, d), nn.GELU(), nn.Linear(d, out))
+        per_view = 2 * d + (dc if config.local_rotation_features else 0)
+        self.global_head = nn.Sequential(nn.Linear(per_view * v, d), nn.GELU(), nn.Linear(d, out))
 
     # ------------------------------------------------------------------ input checks
     def _check(
@@ -230,7 +232,8 @@ class MultiViewTransformer(nn.Module):
         p = cfg.patch_size
         up = self.up(tok).transpose(1, 2).reshape(b * v, -1, g, g)
         up = F.pixel_shuffle(up, p)  # (B*V, dc, H, W)
-        heat = self.decode(up + self.skip(feat)).view(b, v, h, w)
+        fine = up + self.skip(feat)
+        heat = self.decode(fine).view(b, v, h, w)
 
         # global feature: max-pooled tokens + tokens pooled by the (detached) heatmap per view
         # (ground truth in training, prediction at inference)
@@ -242,7 +245,10 @@ class MultiViewTransformer(nn.Module):
             prob = pool_weights.detach().float().reshape(b * v, 1, h, w)
         weights = F.avg_pool2d(prob, p).flatten(1) * (p * p)  # (B*V, g*g), sums to 1
         pooled = torch.einsum("nt,ntd->nd", weights.to(tok.dtype), tok)
-        glob = torch.cat([tok.amax(1), pooled], dim=-1).reshape(b, v * 2 * d)
+        parts = [tok.amax(1), pooled]
+        if cfg.local_rotation_features:  # the decoder's per-pixel features at the heatmap, (B*V, dc)
+            parts.append(torch.einsum("nhw,nchw->nc", prob[:, 0].to(fine.dtype), fine))
+        glob = torch.cat(parts, dim=-1).reshape(b, -1)
         out = self.global_head(glob)
         nb = cfg.rotation_bins
         return PolicyOutput(
