@@ -68,8 +68,9 @@ def diagnoses() -> list[str]:
 
 def finished_results(out: Path, kept: Path) -> list[tuple[Path, Path]]:
     """``(file under OUT, its committed copy under kept)`` of every finished result: evaluations, keyframe
-    accuracy and the timed zoo eval. The report keeps each in ``docs/results/paper_tables/``; on a fresh clone
-    :func:`restore` puts them back, so the script skips what is finished and the report still has every row."""
+    accuracy, the timed zoo eval and the stage times. The report keeps each in ``docs/results/paper_tables/``;
+    on a fresh clone :func:`restore` puts them back, so the script skips what is finished and the report still
+    has every row."""
     pairs = []
     for run in RUNS:
         for split in SPLIT_TASKS:
@@ -77,7 +78,9 @@ def finished_results(out: Path, kept: Path) -> list[tuple[Path, Path]]:
     for name in diagnoses():
         pairs.append((out / "keyframe_accuracy" / f"{name}.json", kept / f"keyframe_accuracy_{name}.json"))
     pairs += [(out / "zoo_eval" / "results.md", kept / "zoo_eval.md"),
-              (out / "zoo_eval" / "seconds", kept / "zoo_eval_seconds.txt")]
+              (out / "zoo_eval" / "seconds", kept / "zoo_eval_seconds.txt"),
+              (out / "times.txt", kept / "times.txt"),  # the stage times of every session, added up
+              (out / "machines.txt", kept / "machines.txt")]  # every machine that ran a stage
     return pairs
 
 
@@ -360,11 +363,22 @@ def zoo_eval(out: Path) -> str:
             f"on this machine:\n\n{table}\n\n")
 
 
+def _machines(path: Path) -> list[str]:
+    """The machines recorded in ``path`` (one per line) with this one added (and recorded) if it is new."""
+    known = [line for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
+    if _machine() not in known:
+        known.append(_machine())
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("\n".join(known) + "\n")
+    return known
+
+
 def report(out: Path, cells: Mapping, entries: Sequence[Mapping[str, Any]], command: str) -> str:
     stages = _stage_minutes(out / "times.txt")
     trained = [e for e in entries if e["method"] != "clip"]
     recipe = next((e.get("recipe") for e in trained if e.get("recipe")), None)
-    setup = [f"Machine: {_machine()}."]
+    machines = _machines(out / "machines.txt")
+    setup = [f"Machine{'s' if len(machines) > 1 else ''} (every session that ran a stage): {'; '.join(machines)}."]
     if recipe:
         setup.append(f"Recipe (every model): `{recipe['preset']}` preset at {recipe['resolution']}² views, patch "
                      f"{recipe['patch_size']}, {trained[0].get('steps')} steps of batch {recipe['batch']}, "
@@ -373,8 +387,10 @@ def report(out: Path, cells: Mapping, entries: Sequence[Mapping[str, Any]], comm
         setup.append("Training minutes: " + ", ".join(f"{e['name']} {e.get('train_minutes', '?')}" for e in trained)
                      + ".")
     if stages:
-        setup.append("Wall time per stage of the script's runs (min): "
-                     + ", ".join(f"{k} {v:.0f}" for k, v in stages.items()) + ".")
+        order = ["data", "ground", "train", "eval"]
+        ranked = sorted(stages.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else len(order))
+        setup.append("Wall time per stage of the script's runs, every session added up (min): "
+                     + ", ".join(f"{k} {v:.0f}" for k, v in ranked) + ".")
     n = max((r["episodes"] for r in cells.values()), default=0)
     reps = max((len(r["per_repeat"]) for r in cells.values()), default=0)
     if n:
@@ -427,6 +443,7 @@ def main() -> None:
     if args.index_only:
         return
     restore(args.out, kept)
+    _machines(args.out / "machines.txt")  # this machine ran (at least) the report's stage
     for made, copy in finished_results(args.out, kept):
         if made.is_file():
             copy.parent.mkdir(parents=True, exist_ok=True)

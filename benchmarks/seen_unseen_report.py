@@ -171,7 +171,10 @@ def _training(run: Path) -> dict[str, float]:
 
 
 def _stage_minutes(times: Path) -> dict[str, float]:
-    """Minutes per stage, summed over every (start, end) pair: a resumed stage counts all its runs."""
+    """Minutes per stage, summed over every (start, end) pair: a resumed stage counts all its runs.
+
+    A line ``STAGE_minutes M`` adds ``M`` minutes measured elsewhere (the totals of earlier sessions, whose
+    run folders did not survive)."""
     total: dict[str, float] = {}
     open_at: dict[str, int] = {}
     if times.is_file():
@@ -182,6 +185,8 @@ def _stage_minutes(times: Path) -> dict[str, float]:
             stage, _, edge = key.rpartition("_")
             if edge == "start":
                 open_at[stage] = int(value)
+            elif edge == "minutes":
+                total[stage] = total.get(stage, 0.0) + float(value)
             elif edge == "end" and stage in open_at:
                 total[stage] = total.get(stage, 0.0) + (int(value) - open_at.pop(stage)) / 60
     return total

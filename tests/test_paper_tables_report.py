@@ -136,9 +136,26 @@ def test_weakest_keyframes_ranks_kinds_by_their_median_error_over_tasks() -> Non
     assert paper_tables_report.weakest_keyframes({"abm_oracle": rows}, "unseen") == ""
 
 
+def test_approach_yaw_sets_the_approach_against_the_grasp_per_run() -> None:
+    def row(task: str, kind: str, deg: float, split: str = "seen") -> dict:
+        return {"task": task, "split": split, "kind": kind, "position_cm_median": 1.0, "rotation_deg_median": deg}
+
+    rows = [row("place_food", "approach", 80.0), row("pick_block", "approach", 20.0),
+            row("close_jar", "approach", 30.0), row("place_food", "grasp", 4.0), row("pick_block", "grasp", 6.0),
+            row("close_jar", "move", 90.0),
+            row("place_food", "approach", 10.0, "unseen")]
+    text = paper_tables_report.approach_yaw({"abm_oracle": rows, "rvt_clip": [row("a", "approach", 50.0)]})
+    assert "abm_oracle 30° / 5° (place_food 80°)." in text  # medians over tasks; move and unseen left out
+    assert "rvt_clip" not in text  # no grasp keyframe to compare with
+    assert paper_tables_report.approach_yaw({"abm_oracle": rows}, "unseen") == ""
+
+
 def test_finished_results_are_kept_and_restored_into_a_fresh_out(tmp_path: Path, monkeypatch) -> None:
     out, docs, zoo = tmp_path / "paper", tmp_path / "docs", tmp_path / "models"
     _write_eval(out, "rvt_clip", "seen", [_rate(t, "seen", [20.0, 40.0]) for t in TASKS])
+    # stage times: this session's stamps plus the totals carried from sessions whose folders are gone
+    (out / "times.txt").write_text("train_minutes 100\ntrain_start 0\ntrain_end 600\neval_start 600\n")
+    assert paper_tables_report._stage_minutes(out / "times.txt") == {"train": 110.0}
     (out / "zoo_eval").mkdir(parents=True)
     (out / "zoo_eval" / "results.md").write_text("| method |\n")  # still running: no seconds yet
     argv = ["paper_tables_report.py", str(out), "--zoo", str(zoo), "--docs", str(docs), "--readme", ""]
@@ -146,12 +163,21 @@ def test_finished_results_are_kept_and_restored_into_a_fresh_out(tmp_path: Path,
     paper_tables_report.main()
     kept = docs / "paper_tables"
     assert (kept / "rvt_clip_seen.json").is_file() and (kept / "zoo_eval.md").is_file()
+    # the machine that wrote the report is recorded once beside those of earlier sessions
+    (kept / "machines.txt").write_text("an earlier machine\n")
+    (out / "machines.txt").unlink()
+    paper_tables_report.main()
+    machine = paper_tables_report._machine()
+    assert (kept / "machines.txt").read_text().splitlines() == ["an earlier machine", machine]
+    assert f"Machines (every session that ran a stage): an earlier machine; {machine}." in (
+        docs / "paper_tables.md").read_text()
     assert not (kept / "zoo_eval_seconds.txt").exists()
     # a fresh clone: nothing under OUT; the script restores first, the report then has the row again
     fresh = tmp_path / "fresh"
     monkeypatch.setattr(sys, "argv", ["paper_tables_report.py", str(fresh), "--docs", str(docs), "--restore-only"])
     paper_tables_report.main()
     assert json.loads((fresh / "eval" / "rvt_clip" / "seen" / "results.json").read_text())[0]["mean"] == 30.0
+    assert paper_tables_report._stage_minutes(fresh / "times.txt") == {"train": 110.0}
     assert paper_tables_report.average(paper_tables_report.collect(fresh), "rvt_clip", "seen") == 30.0
     # what OUT has is never overwritten by an older kept copy
     (fresh / "zoo_eval" / "results.md").write_text("newer\n")
