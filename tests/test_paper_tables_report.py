@@ -53,6 +53,13 @@ def test_records_averages_and_tables_fill_in_stages(tmp_path: Path) -> None:
     assert "| center-pixel (abm_clip_hash) | 40.0 | – | – | 70.0 | 57.5 |" in paper_tables_report.table3(cells)
     goals = paper_tables_report.targets(cells)
     assert "abm_clip: seen ≥ 60 %: met (70.0); unseen ≥ 0.85 × seen: not evaluated yet" in goals
+    assert paper_tables_report.fusion_spread(cells) == ""  # only once every fusion has both averages
+    for run, rate in (("stack", 20.0), ("concat-rerendered", 30.0), ("concat-full", 50.0)):
+        for split in ("seen", "unseen"):
+            _write_eval(out, run, split, [_rate(t, split, [rate, rate]) for t in TASKS])
+    _write_eval(out, "abm_clip_hash", "unseen", [_rate(t, "unseen", [10.0, 10.0]) for t in TASKS])
+    spread = paper_tables_report.fusion_spread(paper_tables_report.collect(out))
+    assert "span 20.0–50.0 % seen and 10.0–50.0 % unseen (the paper's: 70.0–72.8 and 54.7–57.5)" in spread
     assert "abm_clip_hash: seen ≥ 60 %: not met (40.0)" in goals
 
 
