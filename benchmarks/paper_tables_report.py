@@ -174,24 +174,21 @@ def fusion_spread(cells: Mapping) -> str:
     """One sentence on Table 3 once every fusion has both averages: their range, and what it can't tell."""
     seen = [average(cells, r, "seen") for r in FUSIONS]
     unseen = [average(cells, r, "unseen") for r in FUSIONS]
-    if any(v is None for v in seen + unseen):
+    if None in seen or None in unseen:
         return ""
-    lo_s, hi_s = min(v for v in seen if v is not None), max(v for v in seen if v is not None)
-    lo_u, hi_u = min(v for v in unseen if v is not None), max(v for v in unseen if v is not None)
-    paper = [PAPER_T3[r] for r in FUSIONS]
-    return (f"The four mask fusions (same seed, data, mask field, wording and recipe) span {lo_s:.1f}–{hi_s:.1f} % "
-            f"seen and {lo_u:.1f}–{hi_u:.1f} % unseen (the paper's: {min(p[0] for p in paper)}–"
-            f"{max(p[0] for p in paper)} and {min(p[1] for p in paper)}–{max(p[1] for p in paper)}). The skill-text "
+    ours = [f"{min(v):.1f}–{max(v):.1f}" for v in (seen, unseen)]
+    paper = [f"{min(v)}–{max(v)}" for v in zip(*(PAPER_T3[r] for r in FUSIONS), strict=True)]
+    return (f"The four mask fusions (same seed, data, mask field, wording and recipe) span {ours[0]} % seen and "
+            f"{ours[1]} % unseen (the paper's: {paper[0]} and {paper[1]}). The skill-text "
             "probe finds that which carry to a named destination each of these runs learned differs from run to "
             "run, so these differences may be run-to-run spread rather than a ranking of the fusions; telling them "
             "apart needs several seeds per fusion.")
 
 
 def table3(cells: Mapping) -> str:
-    order = FUSIONS
     head = ["mask fusion", "seen avg", "unseen avg", "unseen / seen", "paper seen", "paper unseen"]
     lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
-    for r in order:
+    for r in FUSIONS:
         seen, unseen = average(cells, r, "seen"), average(cells, r, "unseen")
         name = "center-pixel (abm_clip_hash)" if r == "abm_clip_hash" else r
         lines.append(f"| {name} | {_pct(seen)} | {_pct(unseen)} | {_ratio(seen, unseen)} | {PAPER_T3[r][0]} | "
@@ -386,16 +383,15 @@ def zoo_eval(out: Path) -> str:
 
 
 def _machines(path: Path) -> list[str]:
-    """The machines recorded in ``path`` (one per line) with this one added (and recorded) if it is new."""
+    """The machines recorded in ``path`` (one per line), with this one added if it is new."""
     known = [line for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
-    if _machine() not in known:
-        known.append(_machine())
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text("\n".join(known) + "\n")
-    return known
+    return known if _machine() in known else [*known, _machine()]
 
 
-def report(out: Path, cells: Mapping, entries: Sequence[Mapping[str, Any]], command: str) -> str:
+def report(out: Path, cells: Mapping, entries: Sequence[Mapping[str, Any]], command: str,
+           summaries: Mapping[str, Sequence[Mapping[str, Any]]] | None = None) -> str:
+    """The report's text; ``summaries`` are the diagnosis stage's (:func:`keyframe_accuracy`, read if not given)."""
+    summaries = keyframe_accuracy(out) if summaries is None else summaries
     stages = _stage_minutes(out / "times.txt")
     trained = [e for e in entries if e["method"] != "clip"]
     recipe = next((e.get("recipe") for e in trained if e.get("recipe")), None)
@@ -427,8 +423,8 @@ def report(out: Path, cells: Mapping, entries: Sequence[Mapping[str, Any]], comm
         "**Table 2** — the same models on the compositional tasks (never trained on):", "", table2(cells), "",
         "**Table 3** — mask fusion (ablations, grounded and worded like abm_clip_hash), averages over the 8 tasks:", "",
         table3(cells), "", _paragraph(fusion_spread(cells)) + targets(cells), "",
-        caveats(cells) + _paragraph(weakest_keyframes(keyframe_accuracy(out)))
-        + _paragraph(approach_yaw(keyframe_accuracy(out))) + zoo_eval(out) +
+        caveats(cells) + _paragraph(weakest_keyframes(summaries)) + _paragraph(approach_yaw(summaries))
+        + zoo_eval(out) +
         "What differs from the paper: ABM-Bench is a MuJoCo re-creation of the RLBench tasks, not RLBench; the "
         "policies are the `small` preset (~1 M parameters at 64² views, each trained on one CPU core for the "
         "minutes above, against the paper's 220² views and GPU-days); demonstrations are 20 per task instead of "
@@ -465,16 +461,18 @@ def main() -> None:
     if args.index_only:
         return
     restore(args.out, kept)
-    _machines(args.out / "machines.txt")  # this machine ran (at least) the report's stage
+    machines = args.out / "machines.txt"  # this machine ran (at least) the report's stage: record it
+    machines.parent.mkdir(parents=True, exist_ok=True)
+    machines.write_text("\n".join(_machines(machines)) + "\n")
     for made, copy in finished_results(args.out, kept):
         if made.is_file():
             copy.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(made, copy)
     cells = collect(args.out)
     (args.docs / "paper_tables.json").write_text(json.dumps(records(cells), indent=1) + "\n")
-    text = report(args.out, cells, entries, args.command.strip())
-    detail = ["", "## Every run on every task", "", detail_table(cells, list(RUNS)), ""]
     summaries = keyframe_accuracy(args.out)
+    text = report(args.out, cells, entries, args.command.strip(), summaries)
+    detail = ["", "## Every run on every task", "", detail_table(cells, list(RUNS)), ""]
     for split in ("seen", "unseen"):
         if any(row["split"] == split for rows in summaries.values() for row in rows):
             detail += [f"## Keyframe accuracy, {split} objects", "", weakest_keyframes(summaries, split), "",
