@@ -106,7 +106,9 @@ def export_checkpoint(run_or_ckpt: str | Path, out: str | Path, dtype: torch.dty
     data = load_checkpoint(run_or_ckpt)
     payload = {k: v for k, v in data.items() if k not in (*TRAINING_STATE_KEYS, "path", "format", "version")}
     if dtype is not None:
-        payload["model"] = {k: v.to(dtype) if v.is_floating_point() else v for k, v in data["model"].items()}
+        for key in ("model", "zoom_model"):  # the network, and the zoomed stage's of a two-stage policy
+            if key in data:
+                payload[key] = {k: v.to(dtype) if v.is_floating_point() else v for k, v in data[key].items()}
         payload["exported_dtype"] = str(dtype).removeprefix("torch.")
     return save_checkpoint(out, payload)
 

@@ -62,6 +62,16 @@ class PolicyConfig:
             (``decoder_channels`` per view) pooled with the heatmap at the pixel level, not only the
             patch tokens (a token spans ``patch_size`` pixels: 12.5 cm at 64² views over the 1 m cube,
             wider than most objects whose yaw the approach has to read).
+        zoom_size: edge (m) of the zoomed cube of the second stage; 0 = one stage. With a zoom, a coarse
+            stage predicts only the translation heatmap over the workspace; the cloud is then re-rendered into
+            the same views over a cube of this edge around the coarse point (the label plus ``zoom_noise`` in
+            training, the coarse prediction at inference), and a second network of the same family predicts
+            the translation inside the zoom, the rotation, gripper and collision from those views (RVT-2's
+            coarse-to-fine scheme).
+        zoom_resolution: pixels per side of the zoomed views.
+        zoom_patch_size: token patch side (pixels) of the zoomed stage; must divide ``zoom_resolution``.
+        zoom_noise: training only: the zoom centre is the label plus uniform noise in ``[-zoom_noise,
+            zoom_noise]`` m per axis, so the fine stage learns to correct a coarse point that is off by as much.
         dropout: dropout in attention / MLP.
         workspace_center: workspace cube centre (m), used for action decoding.
         workspace_size: workspace cube edge (m).
@@ -87,6 +97,10 @@ class PolicyConfig:
     proprio_dim: int = field(default=4, metadata={"cli": False})  # fixed by the policy
     rotation_bins: int = 72
     local_rotation_features: bool = False
+    zoom_size: float = 0.0
+    zoom_resolution: int = 32
+    zoom_patch_size: int = 4
+    zoom_noise: float = 0.03
     dropout: float = 0.0
     workspace_center: tuple[float, float, float] = (0.5, 0.0, 0.35)
     workspace_size: float = 1.0
@@ -102,6 +116,15 @@ class PolicyConfig:
             raise ValueError(f"heads {self.heads} must divide width {self.width}")
         if self.layers_within < 0 or self.layers_joint < 0 or self.layers_within + self.layers_joint == 0:
             raise ValueError("the transformer needs at least one layer")
+        if not self.zoom_size >= 0.0 or self.zoom_size >= self.workspace_size:
+            raise ValueError(f"zoom_size must be in [0, workspace_size = {self.workspace_size}) m (0 = one stage), "
+                             f"got {self.zoom_size}")
+        if self.zoom_resolution % self.zoom_patch_size:
+            raise ValueError(f"zoom_patch_size {self.zoom_patch_size} must divide zoom_resolution "
+                             f"{self.zoom_resolution}")
+        if self.zoom_size and not 0.0 <= self.zoom_noise < self.zoom_size / 2:
+            raise ValueError(f"zoom_noise must be in [0, zoom_size / 2 = {self.zoom_size / 2:g}) m, "
+                             f"got {self.zoom_noise}")
         if 360 % self.rotation_bins:
             raise ValueError(f"rotation_bins must divide 360, got {self.rotation_bins}")
 
@@ -120,6 +143,19 @@ class PolicyConfig:
         """Tokens per view side (``resolution // patch_size``)."""
         return self.resolution // self.patch_size
 
+    @property
+    def two_stage(self) -> bool:
+        """Whether a zoomed second stage follows the coarse one (``zoom_size > 0``)."""
+        return self.zoom_size > 0.0
+
+    def zoom_config(self) -> PolicyConfig:
+        """The config of the zoomed stage's network: this one at the zoom's resolution and patch, over a cube of
+        edge ``zoom_size`` centred at the origin (the zoomed cloud is shifted so its centre is the origin)."""
+        if not self.two_stage:
+            raise ValueError("this policy has one stage (zoom_size = 0)")
+        return dataclasses.replace(self, resolution=self.zoom_resolution, patch_size=self.zoom_patch_size,
+                                   workspace_center=(0.0, 0.0, 0.0), workspace_size=self.zoom_size, zoom_size=0.0)
+
     @classmethod
     def from_preset(cls, preset: str, variant: str = "abm", **overrides: object) -> PolicyConfig:
         """Config of a size preset (``paper`` or ``small``) for one variant; ``overrides`` replace fields.
@@ -130,7 +166,8 @@ class PolicyConfig:
         if preset not in PRESETS:
             raise ValueError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
         values: dict[str, Any] = dict(PRESETS[preset])
-        size_keys = set(values) | {"views", "lang_tokens", "rotation_bins", "local_rotation_features"}
+        size_keys = set(values) | {"views", "lang_tokens", "rotation_bins", "local_rotation_features", "zoom_size",
+                                   "zoom_resolution", "zoom_patch_size"}
         name = preset + ("+custom" if any(k in size_keys for k in overrides) else "")
         values.update(overrides)
         return cls(variant=variant, preset=name, **values)

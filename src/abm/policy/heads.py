@@ -29,17 +29,19 @@ from abm.types import KeyframeAction
 
 @dataclass
 class LossTerms:
-    """Loss terms (scalars); ``total`` is their sum."""
+    """Loss terms (scalars); ``total`` is their sum. ``translation`` is the heatmap term over the workspace (the
+    coarse stage's in a two-stage policy), ``zoom_translation`` the zoomed stage's (0 for one stage)."""
 
     total: torch.Tensor
     translation: torch.Tensor
     rotation: torch.Tensor
     gripper: torch.Tensor
     collision: torch.Tensor
+    zoom_translation: torch.Tensor
 
     def as_floats(self) -> dict[str, float]:
         return {k: float(getattr(self, k).detach()) for k in ("total", "translation", "rotation", "gripper",
-                                                                "collision")}
+                                                                "collision", "zoom_translation")}
 
 
 def translation_targets(renderer: OrthographicRenderer, positions: torch.Tensor, sigma: float = 1.5) -> torch.Tensor:
@@ -62,31 +64,49 @@ def translation_targets(renderer: OrthographicRenderer, positions: torch.Tensor,
     return torch.softmax(logits.flatten(2), -1).view(*uv.shape[:2], res, res)
 
 
+def heatmap_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """KL divergence of the views' pixel softmax from the target heatmaps, summed over views, batch mean.
+
+    Args:
+        logits: ``(B, V, H, W)`` translation logits.
+        target: ``(B, V, H, W)`` from :func:`translation_targets`.
+    """
+    logp = torch.log_softmax(logits.float().flatten(2), -1)
+    tgt = target.float().flatten(2)
+    return (tgt * (torch.log(tgt.clamp_min(1e-30)) - logp)).sum(-1).sum(-1).mean()
+
+
 def policy_loss(
     out: PolicyOutput,
     heat_target: torch.Tensor,
     rotation_bins: torch.Tensor,
     gripper: torch.Tensor,
     collision: torch.Tensor,
+    coarse_target: torch.Tensor | None = None,
 ) -> LossTerms:
     """Sum of cross-entropies (batch means).
 
     Args:
         out: model output.
-        heat_target: ``(B, V, H, W)`` from :func:`translation_targets`.
+        heat_target: ``(B, V, H, W)`` from :func:`translation_targets` for ``out.heatmap`` (the zoomed views in a
+            two-stage policy).
         rotation_bins: ``(B, 3)`` int64.
         gripper: ``(B,)`` int64, 1 = open.
         collision: ``(B,)`` int64, 1 = ignore collisions.
+        coarse_target: two-stage policies: ``(B, V, H1, W1)`` the target of ``out.coarse_heatmap``.
     """
-    b, v = heat_target.shape[:2]
-    logp = torch.log_softmax(out.heatmap.float().flatten(2), -1)
-    tgt = heat_target.float().flatten(2)
-    trans = (tgt * (torch.log(tgt.clamp_min(1e-30)) - logp)).sum(-1).sum(-1).mean()
+    b = heat_target.shape[0]
+    trans = heatmap_loss(out.heatmap, heat_target)
+    zoom = trans.new_zeros(())
+    if out.coarse_heatmap is not None:
+        if coarse_target is None:
+            raise ValueError("a two-stage output needs the coarse heatmap's target (coarse_target)")
+        trans, zoom = heatmap_loss(out.coarse_heatmap, coarse_target), trans
     nb = out.rotation.shape[-1]
     rot = F.cross_entropy(out.rotation.float().reshape(b * 3, nb), rotation_bins.reshape(-1), reduction="sum") / b
     grip = F.cross_entropy(out.gripper.float(), gripper)
     coll = F.cross_entropy(out.collision.float(), collision)
-    return LossTerms(trans + rot + grip + coll, trans, rot, grip, coll)
+    return LossTerms(trans + zoom + rot + grip + coll, trans, rot, grip, coll, zoom)
 
 
 def _sample(logp: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
@@ -145,9 +165,20 @@ def decode_translation(
     return best
 
 
-def decode_output(out: PolicyOutput, renderer: OrthographicRenderer) -> list[KeyframeAction]:
-    """Model output of a batch -> one :class:`KeyframeAction` per sample."""
-    pos = decode_translation(out.heatmap.detach(), renderer).cpu().numpy()
+def decode_output(out: PolicyOutput, renderer: OrthographicRenderer,
+                  zoom_renderer: OrthographicRenderer | None = None) -> list[KeyframeAction]:
+    """Model output of a batch -> one :class:`KeyframeAction` per sample.
+
+    A two-stage output (``out.zoom_center`` set) decodes its heatmap with ``zoom_renderer`` (the zoom cube
+    centred at the origin) and adds the zoom centre; ``renderer`` is then unused.
+    """
+    if out.zoom_center is None:
+        position = decode_translation(out.heatmap.detach(), renderer)
+    else:
+        if zoom_renderer is None:
+            raise ValueError("a two-stage output needs the zoomed stage's renderer (zoom_renderer) to decode")
+        position = decode_translation(out.heatmap.detach(), zoom_renderer) + out.zoom_center.to(zoom_renderer.device)
+    pos = position.cpu().numpy()
     rot = out.rotation.detach().argmax(-1).cpu().numpy()
     grip = out.gripper.detach().argmax(-1).cpu().numpy()
     coll = out.collision.detach().argmax(-1).cpu().numpy()

@@ -47,7 +47,7 @@ from abm.grounding.config import (
 from abm.machine import cpu_supports_bf16
 from abm.policy.checkpoint import load_checkpoint, save_checkpoint
 from abm.policy.config import PolicyConfig
-from abm.policy.heads import decode_output, policy_loss, translation_targets
+from abm.policy.heads import decode_output, decode_translation, policy_loss, translation_targets
 from abm.policy.language import LanguageEncoder, make_language_encoder
 from abm.policy.mvt import MultiViewTransformer, PolicyOutput
 from abm.policy.variants import mask_channel
@@ -58,7 +58,7 @@ from abm.types import KeyframeAction, Observation
 if TYPE_CHECKING:
     from abm.grounding.grounders import Grounder
 
-LOSS_TERMS = ("total", "translation", "rotation", "gripper", "collision")
+LOSS_TERMS = ("total", "translation", "rotation", "gripper", "collision", "zoom_translation")
 
 
 @dataclass
@@ -97,13 +97,22 @@ class PolicyExplanation(GroundingExplanation):
             the view's near face, xyz in m, pixel location; :meth:`abm.render.RenderedViews.rvt_channels`).
         view_mask: ``(V, H, W)`` float32, the mask channel the network saw (``None`` for rvt / ifd); abm's
             marks only the target's centre pixel.
-        heatmaps: ``(V, H, W)`` float32, the predicted translation distribution of each view (sums to 1).
+        heatmaps: ``(V, H, W)`` float32, the predicted translation distribution of each view (sums to 1); the
+            coarse stage's in a two-stage policy.
+        zoom_center: two-stage policies: ``(3,)`` float32 world metres, the centre of the zoom cube (the coarse
+            point); ``None`` for one stage.
+        zoom_images: two-stage policies: ``(V, 10, h, w)`` float32, the zoomed views the second stage saw (xyz
+            relative to ``zoom_center``).
+        zoom_heatmaps: two-stage policies: ``(V, h, w)`` float32, the zoomed stage's translation distributions.
     """
 
     action: KeyframeAction
     view_images: NDArray[np.float32]
     view_mask: NDArray[np.float32] | None
     heatmaps: NDArray[np.float32]
+    zoom_center: NDArray[np.float32] | None = None
+    zoom_images: NDArray[np.float32] | None = None
+    zoom_heatmaps: NDArray[np.float32] | None = None
 
 
 def _occupied(images: torch.Tensor, renderer: OrthographicRenderer) -> NDArray[np.bool_]:
@@ -160,7 +169,10 @@ class KeyframePolicy(nn.Module):
         super().__init__()
         self.config = config
         self.spec = config.spec
-        self.model = MultiViewTransformer(config)
+        # one stage: the network; two stages: the coarse, translation-only network (its state-dict keys are
+        # those of a one-stage policy's network, so one-stage checkpoints load unchanged)
+        self.model = MultiViewTransformer(config, rotation_head=not config.two_stage)
+        self.zoom_model = MultiViewTransformer(config.zoom_config()) if config.two_stage else None
         self.language = make_language_encoder(dict(language)) if isinstance(language, Mapping) else language
         if self.language.tokens != config.lang_tokens or self.language.dim != config.lang_dim:
             raise ValueError(
@@ -175,12 +187,16 @@ class KeyframePolicy(nn.Module):
         self.camera_names = list(camera_names) if camera_names else None
         self.workspace = Workspace(config.workspace_center, config.workspace_size)
         self._renderer = OrthographicRenderer(self.workspace, config.resolution, config.views)
+        zoom_cube = Workspace((0.0, 0.0, 0.0), config.zoom_size) if config.two_stage else None
+        self._zoom_renderer = (OrthographicRenderer(zoom_cube, config.zoom_resolution, config.views)
+                               if zoom_cube is not None else None)
         self._lang_cache: dict[str, torch.Tensor] = {}
         self.last_timings: dict[str, float] = {}
         self.checkpoint_path: str | None = None
         self._last_target: str | None = None  # the grounded object of the last observe()
         # kept out of the module tree (plain attributes), so state_dict keys never change
         self.__dict__["_compiled_model"] = None
+        self.__dict__["_compiled_zoom_model"] = None
         self.cpu_bf16 = False
 
     # ------------------------------------------------------------------ parts
@@ -194,6 +210,18 @@ class KeyframePolicy(nn.Module):
         if self._renderer.device != self.device:
             self._renderer = self._renderer.to(self.device)
         return self._renderer
+
+    @property
+    def zoom_renderer(self) -> OrthographicRenderer | None:
+        """The zoomed stage's renderer (a cube of edge ``zoom_size`` centred at the origin), on the policy's
+        device; ``None`` for a one-stage policy."""
+        if self._zoom_renderer is not None and self._zoom_renderer.device != self.device:
+            self._zoom_renderer = self._zoom_renderer.to(self.device)
+        return self._zoom_renderer
+
+    def num_parameters(self) -> int:
+        """Parameters of the network(s) (both stages of a two-stage policy)."""
+        return self.model.num_parameters() + (self.zoom_model.num_parameters() if self.zoom_model else 0)
 
     @property
     def grounder_spec(self) -> dict[str, Any] | None:
@@ -233,15 +261,27 @@ class KeyframePolicy(nn.Module):
         return torch.stack([self._lang_cache[t] for t in texts]).to(self.device)
 
     # ------------------------------------------------------------------ batch -> model inputs
-    def model_inputs(self, batch: Batch) -> dict[str, torch.Tensor]:
+    def model_inputs(self, batch: Batch, zoom_center: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """Render a batch of samples into the network's inputs, on the policy's device.
+
+        Args:
+            batch: collated samples.
+            zoom_center: ``(B, 3)`` world metres: render the zoomed stage's views of the cube of edge
+                ``zoom_size`` around each centre instead of the workspace views (two-stage policies only).
 
         Returns ``images`` ``(B, V, 10, H, W)``, ``proprio`` ``(B, 4)``, ``lang`` ``(B, L, D)``, and
         ``mask`` ``(B, V, 1, H, W)`` (mask variants) or ``ifd_features`` ``(B, M, F)`` + ``ifd_index``
-        ``(B, V, H, W)`` (``ifd``).
+        ``(B, V, H, W)`` (``ifd``); ``H = W`` is ``zoom_resolution`` for the zoomed views, whose xyz channels are
+        relative to the zoom centre.
         """
         dev = self.device
         points = batch["points"].to(dev, torch.float32)
+        renderer = self.renderer
+        if zoom_center is not None:
+            if self.zoom_renderer is None:
+                raise ValueError("zoom_center given to a one-stage policy (zoom_size = 0)")
+            renderer = self.zoom_renderer
+            points = points - zoom_center.to(dev, torch.float32).reshape(-1, 1, 3)
         b, n, _ = points.shape
         valid = batch["valid"].to(dev) if "valid" in batch else None
         extra = []
@@ -254,8 +294,8 @@ class KeyframePolicy(nn.Module):
                 raise ValueError(f"variant {self.spec.name!r} needs per-point CLIP features (point_features)")
             extra.append(torch.arange(n, device=dev, dtype=torch.float32).expand(b, n))
         with torch.no_grad():
-            views = self.renderer.render(points, batch["colors"].to(dev, torch.float32),
-                                         extra=torch.stack(extra, -1) if extra else None, valid=valid)
+            views = renderer.render(points, batch["colors"].to(dev, torch.float32),
+                                    extra=torch.stack(extra, -1) if extra else None, valid=valid)
         inputs = {"images": views.rvt_channels().contiguous()}
         if self.spec.uses_mask:
             inputs["mask"] = mask_channel(self.spec, views.extra[:, :, :2]).contiguous()
@@ -309,6 +349,8 @@ class KeyframePolicy(nn.Module):
         ~50 s at the first step on 2 CPU cores and pays off in long runs (``benchmarks/train_speed.py
         --compile``, docs/performance.md)."""
         self.__dict__["_compiled_model"] = torch.compile(self.model, backend=backend) if enabled else None
+        self.__dict__["_compiled_zoom_model"] = (torch.compile(self.zoom_model, backend=backend)
+                                                 if enabled and self.zoom_model is not None else None)
         return self
 
     def use_cpu_bf16(self, mode: str = "auto") -> bool:
@@ -319,13 +361,18 @@ class KeyframePolicy(nn.Module):
         self.cpu_bf16 = mode == "on" or (mode == "auto" and cpu_supports_bf16())
         return self.cpu_bf16
 
-    def run_model(self, inputs: Mapping[str, torch.Tensor], pool_weights: torch.Tensor | None = None
-                  ) -> PolicyOutput:
-        """The network on prepared inputs (bf16 autocast on CUDA, and on CPU after :meth:`use_cpu_bf16`)."""
+    def run_model(self, inputs: Mapping[str, torch.Tensor], pool_weights: torch.Tensor | None = None,
+                  zoom: bool = False) -> PolicyOutput:
+        """One network on prepared inputs (bf16 autocast on CUDA, and on CPU after :meth:`use_cpu_bf16`): the
+        workspace network, or with ``zoom`` the zoomed stage's (inputs from ``model_inputs(batch, zoom_center)``)."""
         dev = self.device.type
         autocast = dev == "cuda" or (dev == "cpu" and self.cpu_bf16)
-        compiled = self.__dict__["_compiled_model"]
-        model = self.model if compiled is None else compiled
+        if zoom and self.zoom_model is None:
+            raise ValueError("this policy has one stage (zoom_size = 0)")
+        compiled = self.__dict__["_compiled_zoom_model" if zoom else "_compiled_model"]
+        network = self.zoom_model if zoom else self.model
+        assert network is not None  # checked above
+        model = compiled if compiled is not None else network
         with torch.autocast(device_type=dev, dtype=torch.bfloat16, enabled=autocast):
             out: PolicyOutput = model(inputs["images"], inputs["proprio"], inputs["lang"], mask=inputs.get("mask"),
                         ifd_features=inputs.get("ifd_features"), ifd_index=inputs.get("ifd_index"),
@@ -336,12 +383,28 @@ class KeyframePolicy(nn.Module):
     def forward(self, batch: Batch) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Loss of a batch of samples with targets: ``(total loss, detached loss terms)``.
 
-        The rotation/gripper head pools at the ground-truth heatmap (as RVT-2 does in training).
+        The rotation/gripper head pools at the ground-truth heatmap (as RVT-2 does in training). A two-stage
+        policy zooms on the label (plus uniform noise of ``zoom_noise`` m per axis in training mode) and adds
+        the zoomed stage's heatmap term (``zoom_translation``).
         """
         inputs = self.model_inputs(batch)
         target = self.targets(batch)
-        out = self.run_model(inputs, pool_weights=target["heatmap"])
-        terms = policy_loss(out, target["heatmap"], target["rotation_bins"], target["gripper"], target["collision"])
+        if self.zoom_model is None:
+            out = self.run_model(inputs, pool_weights=target["heatmap"])
+            terms = policy_loss(out, target["heatmap"], target["rotation_bins"], target["gripper"],
+                                target["collision"])
+        else:
+            coarse = self.run_model(inputs)
+            position = batch["action_position"].to(self.device, torch.float32)
+            noise = self.config.zoom_noise if self.training else 0.0
+            center = position + (torch.rand_like(position) * 2.0 - 1.0) * noise
+            assert self.zoom_renderer is not None  # built with the zoom model
+            zoom_target = translation_targets(self.zoom_renderer, position - center)
+            fine = self.run_model(self.model_inputs(batch, zoom_center=center), pool_weights=zoom_target, zoom=True)
+            out = PolicyOutput(fine.heatmap, fine.rotation, fine.gripper, fine.collision,
+                               coarse_heatmap=coarse.heatmap, zoom_center=center)
+            terms = policy_loss(out, zoom_target, target["rotation_bins"], target["gripper"], target["collision"],
+                                coarse_target=target["heatmap"])
         metrics = {k: getattr(terms, k).detach() for k in LOSS_TERMS}
         return terms.total, metrics
 
@@ -351,10 +414,28 @@ class KeyframePolicy(nn.Module):
         return loss
 
     @torch.no_grad()
+    def infer(self, batch: Batch, inputs: Mapping[str, torch.Tensor] | None = None
+              ) -> tuple[PolicyOutput, dict[str, torch.Tensor] | None]:
+        """The network output of a batch at inference: one stage, or the coarse stage, then the zoomed stage
+        around the coarse point. Returns the output and the zoomed inputs (``None`` for one stage); ``inputs``
+        are the batch's workspace inputs when already rendered."""
+        out = self.run_model(inputs if inputs is not None else self.model_inputs(batch))
+        if self.zoom_model is None:
+            return out, None
+        center = decode_translation(out.heatmap, self.renderer)
+        zoom_inputs = self.model_inputs(batch, zoom_center=center)
+        fine = self.run_model(zoom_inputs, zoom=True)
+        return PolicyOutput(fine.heatmap, fine.rotation, fine.gripper, fine.collision, coarse_heatmap=out.heatmap,
+                            zoom_center=center), zoom_inputs
+
+    def decode(self, out: PolicyOutput) -> list[KeyframeAction]:
+        """Keyframe actions of a network output (one- or two-stage)."""
+        return decode_output(out, self.renderer, self.zoom_renderer)
+
+    @torch.no_grad()
     def predict(self, batch: Batch) -> list[KeyframeAction]:
         """One keyframe action per sample of the batch (heatmaps decoded to a 3-D point, bins to a rotation)."""
-        out = self.run_model(self.model_inputs(batch))
-        return decode_output(out, self.renderer)
+        return self.decode(self.infer(batch)[0])
 
     def observe(self, observation: Observation, instruction: str,
                 object_names: Mapping[int, str] | None = None) -> Sample:
@@ -381,16 +462,27 @@ class KeyframePolicy(nn.Module):
                 find the target in the instruction when no decomposition template matches).
 
         Seconds per stage of the last call are in :attr:`last_timings`: ``condition_s`` (fusion, instruction
-        split, grounding), ``render_s`` (virtual views, language tokens), ``model_s`` and ``decode_s``.
+        split, grounding), ``render_s`` (virtual views, language tokens), ``model_s`` (with a zoomed stage: both
+        networks and the zoom's rendering) and ``decode_s``.
         """
         return self._step(observation, instruction, object_names)[3]
 
     def explain(self, observation: Observation, instruction: str,
                 object_names: Mapping[int, str] | None = None) -> PolicyExplanation:
         """:meth:`act` plus what the policy saw and where it looked (for viewers and reports)."""
-        sample, inputs, out, action = self._step(observation, instruction, object_names)
+        sample, inputs, out, action, zoom_inputs = self._step(observation, instruction, object_names)
         images = inputs["images"][0].float().cpu()
-        heat = torch.softmax(out.heatmap[0].float().flatten(1), -1).view_as(out.heatmap[0]).cpu().numpy()
+
+        def distribution(logits: torch.Tensor) -> NDArray[np.float32]:
+            return torch.softmax(logits.float().flatten(1), -1).view_as(logits).cpu().numpy().astype(np.float32)
+
+        coarse = out.heatmap[0] if out.coarse_heatmap is None else out.coarse_heatmap[0]
+        heat = distribution(coarse)
+        zoom = {}
+        if out.zoom_center is not None and zoom_inputs is not None:
+            zoom = {"zoom_center": out.zoom_center[0].float().cpu().numpy(),
+                    "zoom_images": zoom_inputs["images"][0].float().cpu().numpy(),
+                    "zoom_heatmaps": distribution(out.heatmap[0])}
         mask = inputs.get("mask")
         target = _target_views(self.renderer, sample)[1] if "point_mask" in sample else None
         return PolicyExplanation(
@@ -403,11 +495,12 @@ class KeyframePolicy(nn.Module):
             view_target=target,
             view_images=images.numpy(),
             view_mask=None if mask is None else mask[0, :, 0].float().cpu().numpy(),
-            heatmaps=heat.astype(np.float32),
+            heatmaps=heat,
+            **zoom,
         )
 
     def _step(self, observation: Observation, instruction: str, object_names: Mapping[int, str] | None
-              ) -> tuple[Sample, dict[str, torch.Tensor], PolicyOutput, KeyframeAction]:
+              ) -> tuple[Sample, dict[str, torch.Tensor], PolicyOutput, KeyframeAction, dict[str, torch.Tensor] | None]:
         sync = torch.cuda.synchronize if self.device.type == "cuda" else (lambda *_: None)
         t0 = time.perf_counter()
         sample = self.observe(observation, instruction, object_names)
@@ -417,13 +510,13 @@ class KeyframePolicy(nn.Module):
             inputs = self.model_inputs(batch)
             sync(self.device)
             t2 = time.perf_counter()
-            out = self.run_model(inputs)
+            out, zoom_inputs = self.infer(batch, inputs)
             sync(self.device)
         t3 = time.perf_counter()
-        action = decode_output(out, self.renderer)[0]
+        action = self.decode(out)[0]
         self.last_timings = {"condition_s": t1 - t0, "render_s": t2 - t1, "model_s": t3 - t2,
                              "decode_s": time.perf_counter() - t3}
-        return sample, inputs, out, action
+        return sample, inputs, out, action, zoom_inputs
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_payload(self) -> dict[str, Any]:
@@ -433,7 +526,16 @@ class KeyframePolicy(nn.Module):
             "language": self.language.spec(), "grounder": self.grounder_spec,  # the config's dict form
             "camera_names": self.camera_names,
             "model": self.model.state_dict(),
+            **({"zoom_model": self.zoom_model.state_dict()} if self.zoom_model is not None else {}),
         }
+
+    def load_networks(self, payload: Mapping[str, Any]) -> None:
+        """Load the network weights of a checkpoint payload (``model``, and ``zoom_model`` for two stages)."""
+        self.model.load_state_dict(payload["model"])
+        if self.zoom_model is not None:
+            if "zoom_model" not in payload:
+                raise ValueError("the checkpoint has no zoomed stage (zoom_model) but the policy config has one")
+            self.zoom_model.load_state_dict(payload["zoom_model"])
 
     def save(self, path: str | Path, **extra: object) -> Path:
         """Write an inference checkpoint (plus ``extra`` entries) atomically; returns the path."""
@@ -468,6 +570,6 @@ class KeyframePolicy(nn.Module):
                         if grounder is not None else None)
             grounder = merge_grounder_configs(stored_config, override)
         policy = cls(config, ckpt["language"], grounder, ckpt.get("camera_names"))
-        policy.model.load_state_dict(ckpt["model"])
+        policy.load_networks(ckpt)
         policy.checkpoint_path = ckpt["path"]
         return policy.to(device).eval()

@@ -44,12 +44,17 @@ class PolicyOutput:
         rotation: ``(B, 3, bins)`` logits of the extrinsic xyz Euler-angle bins.
         gripper: ``(B, 2)`` logits, index 1 = open.
         collision: ``(B, 2)`` logits, index 1 = ignore collisions.
+        coarse_heatmap: two-stage policies: ``(B, V, H1, W1)`` the coarse stage's logits over the workspace
+            (``heatmap`` is then the zoomed stage's, over the zoom cube); ``None`` for one stage.
+        zoom_center: two-stage policies: ``(B, 3)`` world metres, the centre of the zoom cube; ``None`` otherwise.
     """
 
     heatmap: torch.Tensor
     rotation: torch.Tensor
     gripper: torch.Tensor
     collision: torch.Tensor
+    coarse_heatmap: torch.Tensor | None = None
+    zoom_center: torch.Tensor | None = None
 
 
 class Attention(nn.Module):
@@ -89,9 +94,16 @@ class Block(nn.Module):
 
 
 class MultiViewTransformer(nn.Module):
-    """One model class for all variants; the variant in ``config`` decides which inputs it takes."""
+    """One model class for all variants; the variant in ``config`` decides which inputs it takes.
 
-    def __init__(self, config: PolicyConfig) -> None:
+    Args:
+        config: variant and sizes.
+        rotation_head: build the global head (rotation, gripper, collision). The coarse stage of a two-stage
+            policy predicts only the translation heatmap: its outputs then hold zero-width rotation ``(B, 3, 0)``,
+            gripper ``(B, 0)`` and collision ``(B, 0)`` logits.
+    """
+
+    def __init__(self, config: PolicyConfig, rotation_head: bool = True) -> None:
         super().__init__()
         self.config = config
         spec = config.spec
@@ -121,7 +133,8 @@ class MultiViewTransformer(nn.Module):
         self.decode = nn.Sequential(nn.GELU(), nn.Conv2d(dc, dc, 3, padding=1), nn.GELU(), nn.Conv2d(dc, 1, 1))
         out = 3 * config.rotation_bins + 2 + 2
         per_view = 2 * d + (dc if config.local_rotation_features else 0)
-        self.global_head = nn.Sequential(nn.Linear(per_view * v, d), nn.GELU(), nn.Linear(d, out))
+        self.global_head = (nn.Sequential(nn.Linear(per_view * v, d), nn.GELU(), nn.Linear(d, out))
+                            if rotation_head else None)
 
     # ------------------------------------------------------------------ input checks
     def _check(
@@ -234,6 +247,10 @@ class MultiViewTransformer(nn.Module):
         up = F.pixel_shuffle(up, p)  # (B*V, dc, H, W)
         fine = up + self.skip(feat)
         heat = self.decode(fine).view(b, v, h, w)
+        nb = cfg.rotation_bins
+        if self.global_head is None:  # translation only (the coarse stage of a two-stage policy)
+            return PolicyOutput(heatmap=heat, rotation=heat.new_zeros((b, 3, 0)), gripper=heat.new_zeros((b, 0)),
+                                collision=heat.new_zeros((b, 0)))
 
         # global feature: max-pooled tokens + tokens pooled by the (detached) heatmap per view
         # (ground truth in training, prediction at inference)
@@ -250,7 +267,6 @@ class MultiViewTransformer(nn.Module):
             parts.append(torch.einsum("nhw,nchw->nc", prob[:, 0].to(fine.dtype), fine))
         glob = torch.cat(parts, dim=-1).reshape(b, -1)
         out = self.global_head(glob)
-        nb = cfg.rotation_bins
         return PolicyOutput(
             heatmap=heat,
             rotation=out[:, : 3 * nb].reshape(b, 3, nb),

@@ -63,7 +63,7 @@ from abm.types import Episode
 log = logging.getLogger(__name__)
 
 LOG_FIELDS = ("step", "lr", "total", "translation", "rotation", "gripper", "collision", "val_total",
-              "samples_per_s", "elapsed_s")
+              "samples_per_s", "elapsed_s", "zoom_translation")
 VAL_SAMPLES = 64  # held-out keyframes per validation loss (the first ones, the same every time)
 
 
@@ -221,7 +221,7 @@ class _Logger:
             csv.DictWriter(f, LOG_FIELDS).writerow({k: row.get(k, "") for k in LOG_FIELDS})
         if self.tb is not None:
             step = int(row["step"])
-            for k in ("total", "translation", "rotation", "gripper", "collision"):
+            for k in ("total", "translation", "rotation", "gripper", "collision", "zoom_translation"):
                 self.tb.add_scalar(f"loss/{k}", row[k], step)
             self.tb.add_scalar("lr", row["lr"], step)
             self.tb.add_scalar("samples_per_s", row["samples_per_s"], step)
@@ -436,7 +436,7 @@ class Trainer:
 
     def restore(self, ckpt: dict[str, Any]) -> None:
         """Load policy, optimiser, scheduler and RNG states and the step from a checkpoint."""
-        self.policy.model.load_state_dict(ckpt["model"])
+        self.policy.load_networks(ckpt)
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self.scheduler.load_state_dict(ckpt["scheduler"])
         _set_rng_state(ckpt["rng"])
@@ -494,7 +494,7 @@ class Trainer:
         keyframes = len(self.dataset)
         val = (f"; validation: {len(self.val_dataset)} held-out keyframes from {cfg.val_data}"
                if self.val_dataset is not None else "")
-        return (f"abm train: {cfg.method} ({self.policy_config.preset}, {self.policy.model.num_parameters():,} "
+        return (f"abm train: {cfg.method} ({self.policy_config.preset}, {self.policy.num_parameters():,} "
                 f"parameters, {self.policy_config.resolution}² views) on {self.episodes_used} episodes / {keyframes} "
                 f"keyframes{f' of {cfg.data}' if cfg.data else ''}{val}\n"
                 f"abm train: {cfg.steps} steps of batch {cfg.batch} x {self.dinfo.world_size} process(es), "
@@ -551,7 +551,7 @@ class Trainer:
 
     def _summary(self, step: int, last: dict[str, float]) -> dict[str, Any]:
         dinfo = self.dinfo
-        digest = parameter_digest(self.policy.model)
+        digest = parameter_digest(self.policy)  # both networks of a two-stage policy
         digests = [digest]
         if dinfo.enabled:
             gathered: list[Any] = [None] * dinfo.world_size
@@ -559,7 +559,7 @@ class Trainer:
             digests = list(gathered)
         summary = {
             "method": self.cfg.method, "preset": self.policy_config.preset, "steps": step, "final_loss": last,
-            "parameters": self.policy.model.num_parameters(), "world_size": dinfo.world_size,
+            "parameters": self.policy.num_parameters(), "world_size": dinfo.world_size,
             "parameter_digests": digests, "ranks_in_sync": len(set(digests)) == 1,
             "seconds": time.perf_counter() - self._t0, "checkpoint": str(checkpoint_path(self.run, step)),
         }
