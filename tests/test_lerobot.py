@@ -190,7 +190,8 @@ def test_bad_inputs_give_clear_errors(tmp_path, capsys):
     info_path.write_text(json.dumps(info))
     (ds / "data/chunk-000/file-000.parquet").write_bytes(b"garbage")
     assert main(["data", "import", "--format", "lerobot", str(ds), "--out", str(tmp_path / "o")]) == 2
-    assert "not a readable parquet file" in capsys.readouterr().err
+    assert "does not match the checksum the export recorded" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # refused before anything was written
     # exporting into a non-empty folder is refused
     assert main(["data", "export", "--format", "lerobot", "--data", str(data), "--out", str(ds)]) == 2
     assert "not an empty folder" in capsys.readouterr().err

@@ -304,13 +304,22 @@ def load_recipe(name: str | Path) -> dict[str, Any]:
     return data
 
 
+#: options a recipe file may not set, with the reason: a switch that replaces data is given on the command line,
+#: every time, never read from a file that may be reused for another run
+RECIPE_REFUSED: dict[str, str] = {
+    "overwrite": "replacing a run must be asked for on the command line each time (--overwrite), never by a "
+                 "file that may be reused; remove the key from the recipe",
+}
+
+
 def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
     """Make the values of ``--config FILE`` the defaults of the command it is given to, so flags override it.
 
     Only for commands with a ``--config`` option. The file maps option names (``lr``, ``checkpoint_every`` or
     ``checkpoint-every``) to values; a nested mapping fills the options whose destination starts with the
     command's ``config_sections[name]`` prefix (``policy:`` -> the policy flags). Options the file sets are no
-    longer required on the command line. Bad files end the command with a usage error.
+    longer required on the command line. Bad files end the command with a usage error, and so do the keys of
+    :data:`RECIPE_REFUSED` (``overwrite``) and an empty path.
     """
     sub, tokens = parser, list(argv)
     while True:  # descend to the (sub-)command the arguments name
@@ -340,6 +349,10 @@ def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
             if action is None:
                 unknown.append(dest.removeprefix(sections.get(key, "")))
                 continue
+            if action.dest in RECIPE_REFUSED:
+                sub.error(f"recipe {given[-1]}: {key!r} cannot be set in a recipe: {RECIPE_REFUSED[action.dest]}")
+            if action.type is Path and isinstance(v, str) and not v.strip():
+                sub.error(f"recipe {given[-1]}: {key} is an empty path; give a path, or leave the key out")
             if isinstance(action.type, type) and action.type is not str and v is not None:
                 v = [action.type(x) for x in v] if isinstance(v, list) else action.type(v)
             action.default = v

@@ -17,7 +17,7 @@ import os
 import pickle
 import re
 import socket
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -108,6 +108,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         if path.is_dir():
             raise IsADirectoryError(errno.EISDIR, "it is a folder; give a file path", str(path))
         path.parent.mkdir(parents=True, exist_ok=True)
+        if tmp.is_symlink():  # a link planted at the temporary name would send the write elsewhere
+            tmp.unlink()
         yield tmp
         os.replace(tmp, path)
     except BaseException as err:
@@ -148,6 +150,34 @@ class FolderBusyError(ValueError):
     """Another live process writes into the folder."""
 
 
+class LinkError(WriteError):
+    """A path abm would write or delete is a symbolic link: abm never writes or deletes through one."""
+
+
+def refuse_links(folder: str | Path, names: Iterable[str], fix: str = "remove the link") -> None:
+    """Raise :class:`LinkError` if ``FOLDER/NAME`` is a symbolic link for any of ``names``.
+
+    A command that owns a folder (a run folder, a dataset) writes its own files there; a link in their place
+    would make it write (or truncate, or delete) whatever the link points to, outside what the user named.
+
+    Args:
+        names: entries of ``folder`` (relative paths; a ``*`` pattern checks every match, e.g. ``checkpoints/*``).
+        fix: the end of the message (what the user should do).
+    """
+    folder = Path(folder)
+    for name in names:
+        paths = folder.glob(name) if any(c in name for c in "*?[") else [folder / name]
+        for path in paths:
+            if path.is_symlink():
+                raise LinkError(f"{path} is a symbolic link (to {os.readlink(path)}); abm never writes through a "
+                                f"link in a folder it owns: {fix}")
+
+
+def is_inside(path: str | Path, root: str | Path) -> bool:
+    """Whether ``path`` stays inside ``root`` once both are resolved (``..`` and symbolic links followed)."""
+    return Path(path).resolve().is_relative_to(Path(root).resolve())
+
+
 class FolderLock:
     """One writer per folder: an exclusive ``flock`` on ``FOLDER/.abm.lock``, which holds the owner's pid.
 
@@ -179,10 +209,14 @@ class FolderLock:
         except OSError as err:
             raise write_error(self.folder, err) from None
         while True:
-            try:
-                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:  # O_NOFOLLOW: a link in the lock file's place would have its target truncated and written
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
             except OSError as err:
                 self._remove_created_folder()
+                if err.errno == errno.ELOOP or self.path.is_symlink():
+                    raise LinkError(f"{self.path} is a symbolic link (to {os.readlink(self.path)}); abm never "
+                                    f"writes through a link in a folder it owns: remove the link and run "
+                                    f"{self.command} again") from None
                 raise write_error(self.path, err) from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -15,6 +15,7 @@ import logging
 import sys
 import typing
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import abm
 from abm.configuration import apply_config_file
@@ -66,6 +67,14 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> typing.NoReturn:
         self.exit(2, f"abm: error: {message} (see {self.prog} --help)\n")
+
+    def _get_value(self, action: argparse.Action, arg_string: str) -> typing.Any:
+        """An empty path is refused: ``Path('')`` is the current folder, which ``--out ''`` (an unset shell
+        variable) never means, and a command would write (or with ``--overwrite`` replace) files there."""
+        if isinstance(arg_string, str) and not arg_string.strip() and (action.type is Path or action.dest == "out"):
+            raise argparse.ArgumentError(action, "expected a path, got an empty string; give the path (use . to "
+                                                 "mean the current folder)")
+        return super()._get_value(action, arg_string)  # argparse's (private) conversion
 
 
 def build_parser() -> argparse.ArgumentParser:

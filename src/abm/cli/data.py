@@ -60,10 +60,15 @@ def register(subparsers) -> None:
         "import", help="read a LeRobot v3 dataset written by abm data export back into abm episodes",
         description="Rebuild abm episode files (OUT/<task>/<split>/episode_<seed>.h5) from a LeRobot v3.0 "
         "dataset written by `abm data export`: keyframes, dense trajectories, depth, segmentation and "
-        "calibration come back exactly, camera images within the video codec's tolerance.")
+        "calibration come back exactly, camera images within the video codec's tolerance. The dataset's files are "
+        "checked against the checksums the export recorded, and episodes marked failed, of unknown tasks or "
+        "named outside --out are refused, before anything is written.")
     imp.add_argument("dataset", type=Path, help="LeRobot dataset folder")
     imp.add_argument("--format", required=True, choices=["lerobot"], help="dataset format (lerobot: v3.0)")
     imp.add_argument("--out", required=True, type=Path, help="output folder of abm episodes")
+    imp.add_argument("--overwrite", action="store_true",
+                     help="replace episode files --out already holds (and finish an import that did not finish); "
+                     "without it such an import is refused before anything is written")
     imp.set_defaults(func="abm.cli.commands.data:_import")
 
     ground = sub.add_parser(

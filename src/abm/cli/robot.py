@@ -39,7 +39,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--split", default="seen", choices=["seen", "unseen"], help="object split of the scene")
     r.add_argument("--seed", type=seed_int, default=0, help="scene seed")
     r.add_argument("--resolution", type=int_range(16, 1024), default=64, help="camera image side in pixels")
-    r.add_argument("--out", type=Path, required=True, help="recording folder to write")
+    r.add_argument("--out", type=Path, required=True, help="recording folder to write (new or empty)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace the recording --out already holds (its meta.json and step_*.npz; other files "
+                   "are left alone)")
     r.set_defaults(func="abm.cli.commands.robot:run_record")
 
     c = subparsers.add_parser(

@@ -142,6 +142,8 @@ def save_episode(episode: Episode, path: str | os.PathLike[str]) -> None:
             if episode.trajectory is not None:
                 _write_trajectory(f.create_group("trajectory"), episode.trajectory, camera_names)
             f.visititems(_store_checksum)
+        if tmp.is_symlink():  # a link planted at the temporary name would send the write elsewhere
+            tmp.unlink()
         tmp.write_bytes(buffer.getbuffer())
         os.replace(tmp, path)
     except OSError as err:  # a full disk: one clear error, and the temporary file goes (finally)
@@ -415,15 +417,79 @@ def find_episode_files(root: str | os.PathLike[str]) -> list[Path]:
     return sorted(p for p in root.rglob(f"*{EPISODE_SUFFIX}") if p.is_file() and not p.name.startswith("."))
 
 
+IMPORT_MARKER = ".import-incomplete"
+"""Left in an episode folder while ``abm data import`` writes into it (and after it failed or was stopped):
+its first line is the command that finishes the import."""
+
+
+class IncompleteStoreError(EpisodeFormatError):
+    """An episode folder whose import did not finish (it holds :data:`IMPORT_MARKER`)."""
+
+
+def check_complete(root: str | os.PathLike[str]) -> None:
+    """Raise :class:`IncompleteStoreError` if an ``abm data import`` into ``root`` (or into a folder above or
+    below it) did not finish: such a folder holds only part of the dataset, so nothing may use it as a store."""
+    root = Path(root)
+    markers = [d / IMPORT_MARKER for d in (root, *root.resolve().parents) if (d / IMPORT_MARKER).is_file()]
+    markers += sorted(root.rglob(IMPORT_MARKER)) if not markers and root.is_dir() else []
+    if not markers:
+        return
+    marker = markers[0]
+    try:
+        command = marker.read_text(encoding="utf-8").splitlines()[0].strip()
+    except (OSError, UnicodeDecodeError, IndexError):
+        command = ""
+    finish = f"run `{command}` again to finish it" if command.startswith("abm ") else "run the import again"
+    raise IncompleteStoreError(
+        f"{marker.parent}: an abm data import into this folder did not finish ({marker} is there), so it holds "
+        f"only part of the dataset; {finish} (with --overwrite, which replaces the episodes it already wrote), "
+        "or delete the folder and import again")
+
+
+def held_out_overlap(data: str | os.PathLike[str], val_data: str | os.PathLike[str]) -> str | None:
+    """Why ``val_data`` is not held out from ``data`` (``None`` when it is): the same folder, one inside the
+    other, the same episode files (links included), or episodes of the same scenes (the same
+    ``task/split/episode_<seed>.h5`` under both)."""
+    train_root, val_root = Path(data).resolve(), Path(val_data).resolve()
+    if train_root == val_root:
+        return f"--val-data {val_data} is the same folder as --data {data}"
+    if val_root.is_relative_to(train_root):
+        return f"--val-data {val_data} is inside --data {data}, so its episodes are training episodes"
+    if train_root.is_relative_to(val_root):
+        return f"--data {data} is inside --val-data {val_data}, so the training episodes are validation episodes"
+    if not train_root.is_dir() or not val_root.is_dir():
+        return None
+    train_files = find_episode_files(train_root)
+    identities = {}
+    for p in train_files:
+        stat = p.stat()
+        identities[(stat.st_dev, stat.st_ino)] = p
+    names = {p.relative_to(train_root) for p in train_files}
+    for p in find_episode_files(val_root):
+        stat = p.stat()
+        same = identities.get((stat.st_dev, stat.st_ino))
+        if same is not None:
+            return f"--val-data {val_data} holds the same episode files as --data {data} (e.g. {p} is {same})"
+        if p.relative_to(val_root) in names:
+            return (f"--val-data {val_data} holds episodes of the same scenes as --data {data} (e.g. "
+                    f"{p.relative_to(val_root)} in both)")
+    return None
+
+
 class EpisodeStore:
     """All episodes under a directory, indexed by their metadata.
 
     Args:
         root: directory scanned recursively for ``*.h5`` episode files.
+
+    Raises:
+        IncompleteStoreError: an ``abm data import`` into ``root`` did not finish (:func:`check_complete`).
     """
 
     def __init__(self, root: str | os.PathLike[str]) -> None:
         self.root = Path(root)
+        if self.root.is_dir():
+            check_complete(self.root)
         self.episodes: list[EpisodeInfo] = [read_info(p) for p in find_episode_files(self.root)]
 
     def __len__(self) -> int:

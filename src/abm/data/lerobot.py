@@ -16,23 +16,42 @@ into the parquet as float32 / int32 ``(H, W)`` arrays (lossless; mp4 codecs are 
 calibration as float64 ``(3, 3)`` intrinsics and ``(4, 4)`` camera-to-world extrinsics per frame, so the
 point cloud can be rebuilt. RGB is H.264 (yuv420p) and therefore lossy: an import gives the images back
 within codec tolerance and everything else exactly (actions of dense frames are float32).
+
+Integrity and containment: the export checks every episode's checksums before it writes anything, records
+the sha256 of its parquet and video files in ``meta/info.json`` (``abm.sha256``), and on failure removes only
+what it created. The import checks those sha256, refuses episodes marked failed, unknown tasks and file names
+that leave ``--out``, replaces existing episodes only with ``overwrite``, and marks ``--out`` with
+``.import-incomplete`` until the last episode is written.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
+import shlex
 import shutil
 from dataclasses import dataclass
 from fractions import Fraction
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from numpy.typing import DTypeLike, NDArray
 
-from abm.data.episode_store import EpisodeStore, load_episode, load_metadata, save_episode
+from abm.configuration import SPLITS
+from abm.data.episode_store import (
+    IMPORT_MARKER,
+    EpisodeFormatError,
+    EpisodeStore,
+    check_episodes,
+    load_episode,
+    load_metadata,
+    save_episode,
+)
+from abm.files import is_inside, sha256_file, write_text_atomic
 from abm.geometry.rotations import matrix_to_quat
+from abm.sim.tasks import TASKS
 from abm.types import CameraFrame, Episode, KeyframeAction, Observation, Trajectory
 
 if TYPE_CHECKING:  # pyarrow is imported where datasets are written or read
@@ -48,6 +67,8 @@ STATE_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open"]
 JOINT_NAMES = [f"joint{i}" for i in range(1, 8)] + ["finger_left", "finger_right"]
 JOINT_ACTION_NAMES = [f"joint{i}" for i in range(1, 8)] + ["gripper"]
 EE_ACTION_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper"]
+EXPORT_MARKER = ".export-incomplete"  # in a dataset folder while abm data export writes it
+_EXPORT_ENTRIES = ("data", "meta", "videos")  # what an export creates in its --out folder (besides the marker)
 
 
 class LeRobotFormatError(ValueError):
@@ -208,16 +229,13 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
             episode has a trajectory).
         crf: H.264 quality of the camera videos (0 = best, 51 = worst; 18 is visually lossless).
     """
-    import av
+    import av  # noqa: F401 - a missing video library fails here, before anything is written
     import pyarrow as pa
-    import pyarrow.parquet as pq
-    from tqdm import tqdm
 
     data, out = Path(data), Path(out)
     if not data.is_dir():
         raise FileNotFoundError(f"--data {data} is not a folder of abm episodes")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ValueError(f"--out {out} exists and is not an empty folder; give a new folder")
+    _check_export_target(out)
     if frames not in ("auto", "dense", "keyframes"):
         raise ValueError(f"--frames must be auto, dense or keyframes, got {frames!r}")
     if not 0 <= crf <= 51:
@@ -226,6 +244,12 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
     if not len(store):
         raise ValueError(f"no abm episodes (*.h5) under {data}")
     store.check_consistent(range(len(store)))
+    bad = check_episodes([info.path for info in store.episodes], data)  # before a byte of the export is written
+    if bad:
+        shown = "; ".join(reason for _, reason in bad[:3]) + (f"; and {len(bad) - 3} more" if len(bad) > 3 else "")
+        raise EpisodeFormatError(f"{len(bad)} episode file(s) in {data} fail verification, so nothing was exported: "
+                                 f"{shown}. Run abm data generate again with the same arguments (it re-creates "
+                                 "them), then export again")
     first = load_episode(store.episodes[0].path)
     cameras = list(first.steps[0][0].cameras)
     cam0 = first.steps[0][0].cameras[cameras[0]]
@@ -242,8 +266,65 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
     features = _features(cameras, size, dense, segmentation, fps, crf)
     schema = pa.schema([(k, _arrow_type(f)) for k, f in features.items() if f["dtype"] != "video"])
 
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = out / ".export-incomplete"
+    created = _first_missing(out)  # everything from here down is this export's own, removed if it fails
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        return _write_export(store, first, out, cameras, size, segmentation, dense, fps, features, schema, crf,
+                             robot_type, progress)
+    except BaseException:
+        _remove_export(out, created)
+        raise
+
+
+def _check_export_target(out: Path) -> None:
+    """``--out`` must be a new or an empty folder (an export never replaces or mixes with other files)."""
+    if out.is_symlink() and not out.exists():
+        raise ValueError(f"--out {out} is a symbolic link to a missing folder; give a new folder")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not an empty folder (it is a file); give a new folder")
+    if out.is_dir() and any(out.iterdir()):
+        if (out / EXPORT_MARKER).exists():
+            raise ValueError(f"--out {out} exists and is not an empty folder: it holds an export that did not "
+                             f"finish ({out / EXPORT_MARKER}); delete that folder yourself and export again, or "
+                             "give a new folder")
+        raise ValueError(f"--out {out} exists and is not an empty folder; give a new folder")
+
+
+def _first_missing(path: Path) -> Path | None:
+    """The outermost of ``path`` and its parents that does not exist yet (``None`` if ``path`` exists)."""
+    missing = None
+    for p in (path, *path.parents):
+        if p.exists() or p.is_symlink():
+            break
+        missing = p
+    return missing
+
+
+def _remove_export(out: Path, created: Path | None) -> None:
+    """Remove what a failed export wrote: the folders it created, or (in an ``--out`` folder that existed,
+    empty) the entries it made there. Nothing else is ever deleted."""
+    if created is not None:
+        shutil.rmtree(created, ignore_errors=True)
+        return
+    for name in (*_EXPORT_ENTRIES, EXPORT_MARKER):
+        path = out / name
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        elif path.exists() or path.is_symlink():
+            path.unlink(missing_ok=True)
+
+
+def _write_export(store: EpisodeStore, first: Episode, out: Path, cameras: list[str], size: tuple[int, int],
+                  segmentation: bool, dense: bool, fps: float, features: dict[str, dict[str, Any]],
+                  schema: pa.Schema, crf: int, robot_type: str, progress: bool) -> ExportReport:
+    """Write the dataset into the (empty) folder ``out``; see :func:`export_lerobot`."""
+    import av
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from tqdm import tqdm
+
+    data = store.root
+    tmp = out / EXPORT_MARKER
     tmp.write_text("abm data export is writing this dataset\n")
     (out / DATA_FILE).parent.mkdir(parents=True, exist_ok=True)
     writer = pq.ParquetWriter(out / DATA_FILE, schema, compression="zstd")
@@ -365,11 +446,19 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
         "features": features,
         "abm": {"frames": "dense" if dense else "keyframes", "cameras": cameras,
                 "written_by": "abm data export --format lerobot",
+                "sha256": {name: sha256_file(out / name) for name in _checked_files(cameras)},
                 "note": "depth, segmentation and calibration are parquet columns; RGB is H.264 mp4"}}
     (out / "meta" / "info.json").write_text(json.dumps(info_json, indent=2))
     tmp.unlink()
     size_bytes = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
     return ExportReport(len(episode_rows), total, fps, dense, size_bytes)
+
+
+def _checked_files(cameras: list[str]) -> list[str]:
+    """The files of a dataset whose sha256 the export records in ``meta/info.json`` (``abm.sha256``) and the
+    import checks: the frames, the episode and task tables and the videos."""
+    return [DATA_FILE, EPISODES_FILE, "meta/tasks.parquet",
+            *(VIDEO_PATH.format(video_key=_image_key(c), chunk_index=0, file_index=0) for c in cameras)]
 
 
 def _metadata(path: Path) -> dict[str, Any]:
@@ -497,13 +586,30 @@ class _Rows:
         return rows
 
 
-def import_lerobot(dataset: str | os.PathLike[str], out: str | os.PathLike[str], progress: bool = True) -> list[Path]:
+def import_lerobot(dataset: str | os.PathLike[str], out: str | os.PathLike[str], progress: bool = True,
+                   overwrite: bool = False) -> list[Path]:
     """Read a LeRobot v3 dataset written by :func:`export_lerobot` back into abm episode files under ``out``
     (``OUT/<task>/<split>/episode_<seed>.h5``, as ``abm data generate`` lays them out). Returns the files.
-    Frames and videos are read episode by episode, so memory does not grow with the dataset."""
+    Frames and videos are read episode by episode, so memory does not grow with the dataset.
+
+    Nothing is written before the whole dataset has been checked: the files against the sha256 the export
+    recorded, every episode's task (a trainable ABM-Bench task), split and outcome (only successful
+    demonstrations), and every episode's file name, which must stay inside ``out``. While episodes are written
+    ``OUT/.import-incomplete`` marks the folder as partial (:func:`abm.data.episode_store.check_complete`);
+    it is removed when the last episode is written, so an import that fails or is stopped stays marked.
+
+    Args:
+        overwrite: replace episode files that ``out`` already holds (without it such an import is refused).
+
+    Raises:
+        LeRobotFormatError: the dataset is not one abm can import, or fails a check above.
+        ValueError: ``out`` already holds some of the episodes (or an unfinished import) and not ``overwrite``.
+    """
     ds, out = Path(dataset), Path(out)
     if not ds.is_dir():
         raise FileNotFoundError(f"LeRobot dataset folder not found: {ds}")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file; give a folder")
     info = _read_json(ds / "meta" / "info.json", "meta/info.json")
     version = info.get("codebase_version")
     if version != CODEBASE_VERSION:
@@ -522,9 +628,12 @@ def import_lerobot(dataset: str | os.PathLike[str], out: str | os.PathLike[str],
             raise ValueError("camera features must have shape [height, width, 3]")
     except (KeyError, TypeError, ValueError, IndexError) as err:
         raise LeRobotFormatError(f"{ds}: meta/info.json is incomplete ({err!r})") from None
-    if (ds / ".export-incomplete").exists():
+    if (ds / EXPORT_MARKER).exists():
         raise LeRobotFormatError(f"{ds}: the export did not finish (remove the folder and export again)")
+    _verify_dataset_files(ds, abm_info, cameras)
     episodes = sorted(_read_parquet(ds / EPISODES_FILE).to_pylist(), key=lambda r: r.get("dataset_from_index", 0))
+    plan = [_plan_episode(row, ds, out) for row in episodes]
+    _check_targets(plan, out, overwrite)
     table = _Rows(ds / DATA_FILE)
     missing = [k for k, f in features.items() if f.get("dtype") != "video" and k not in table.column_names]
     if missing:
@@ -532,33 +641,114 @@ def import_lerobot(dataset: str | os.PathLike[str], out: str | os.PathLike[str],
     videos = {cam: _VideoFrames(ds / VIDEO_PATH.format(video_key=_image_key(cam), chunk_index=0, file_index=0), fps)
               for cam in cameras}
     try:
-        return _import_episodes(episodes, table, videos, out, cameras, dense, fps, ds, progress)
+        out.mkdir(parents=True, exist_ok=True)
+        marker = out / IMPORT_MARKER
+        redo = f"abm data import --format lerobot {shlex.quote(str(ds))} --out {shlex.quote(str(out))} --overwrite"
+        write_text_atomic(marker, f"{redo}\nabm data import is writing this folder; until it finishes, the folder "
+                                  "holds only part of the dataset\n")
+        written = _import_episodes(plan, table, videos, cameras, dense, fps, progress)
+        marker.unlink()
+        return written
     finally:
         for v in videos.values():
             v.close()
 
 
-def _import_episodes(episodes: list[dict[str, Any]], table: _Rows, videos: dict[str, _VideoFrames], out: Path,
-                     cameras: list[str], dense: bool, fps: float, ds: Path, progress: bool) -> list[Path]:
+def _verify_dataset_files(ds: Path, abm_info: dict[str, Any], cameras: list[str]) -> None:
+    """Compare the dataset's files with the sha256 the export recorded (datasets written before abm recorded
+    them are read as they are, with a warning)."""
+    recorded = abm_info.get("sha256")
+    if recorded is None:
+        logging.getLogger("abm").warning("%s: written by an abm export that recorded no checksums; its files "
+                                         "cannot be verified", ds)
+        return
+    if not isinstance(recorded, dict):
+        raise LeRobotFormatError(f"{ds}: meta/info.json abm.sha256 is not a mapping of file names to checksums")
+    for name in _checked_files(cameras):
+        path = ds / name
+        if name not in recorded:
+            raise LeRobotFormatError(f"{ds}: meta/info.json records no checksum of {name}; export the dataset again")
+        if not path.is_file():
+            raise LeRobotFormatError(f"{path} is missing (the dataset is incomplete)")
+        if sha256_file(path) != recorded[name]:
+            raise LeRobotFormatError(f"{path} does not match the checksum the export recorded; the dataset is "
+                                     "corrupt: export it again from the abm episodes")
+
+
+@dataclass
+class _PlannedEpisode:
+    """One episode row of a dataset, checked, and the file it becomes."""
+
+    row: dict[str, Any]
+    meta: dict[str, Any]
+    instruction: str
+    lo: int
+    hi: int
+    path: Path
+
+
+def _plan_episode(row: dict[str, Any], ds: Path, out: Path) -> _PlannedEpisode:
+    """Check one episode row (task, split, outcome, file name) and name the file it is imported into."""
+    where = f"{ds / EPISODES_FILE}: episode row {row.get('episode_index')}"
+    try:
+        meta = json.loads(row["abm/episode"])
+        lo, hi = int(row["dataset_from_index"]), int(row["dataset_to_index"])
+        instruction = str(row["tasks"][0])
+        task, split, seed = str(meta["task"]), str(meta["split"]), int(meta["seed"])
+        success = meta["success"]
+    except (KeyError, TypeError, ValueError, IndexError) as err:
+        raise LeRobotFormatError(f"{where} is incomplete ({err!r})") from None
+    trainable = sorted(name for name, cls in TASKS.items() if not cls.evaluation_only)
+    if task not in trainable:
+        raise LeRobotFormatError(f"{where}: task {task!r} is not an ABM-Bench task demonstrations exist for (known: "
+                                 f"{', '.join(trainable)}); nothing was imported")
+    if split not in SPLITS:
+        raise LeRobotFormatError(f"{where}: split {split!r} is not one of {', '.join(SPLITS)}; nothing was imported")
+    if success is not True:
+        raise LeRobotFormatError(f"{where} is marked failed (success: {success!r}); abm stores only successful "
+                                 "demonstrations: remove it from the dataset, nothing was imported")
+    source = meta.get("source") or f"{task}/{split}/episode_{seed:06d}.h5"
+    relative = PurePosixPath(str(source))
+    path = out / relative
+    if relative.is_absolute() or ".." in relative.parts or relative.suffix != ".h5" or not is_inside(path, out):
+        raise LeRobotFormatError(f"{where}: its file name {source!r} would be written outside --out {out} (or is "
+                                 "not a .h5 file name); nothing was imported: the dataset was not written by abm "
+                                 "data export, or was edited")
+    return _PlannedEpisode(row, meta, instruction, lo, hi, path)
+
+
+def _check_targets(plan: list[_PlannedEpisode], out: Path, overwrite: bool) -> None:
+    """Refuse an import that would replace episodes (or finish another import) unless ``overwrite``."""
+    seen: dict[Path, int] = {}
+    for i, item in enumerate(plan):
+        if item.path in seen:
+            raise LeRobotFormatError(f"episodes {seen[item.path]} and {i} of the dataset would both be written to "
+                                     f"{item.path}; nothing was imported")
+        seen[item.path] = i
+    if overwrite:
+        return
+    if (out / IMPORT_MARKER).exists():
+        raise ValueError(f"--out {out} holds an import that did not finish ({out / IMPORT_MARKER}); pass "
+                         "--overwrite to import into it again (replacing the episodes it already wrote), or import "
+                         "into a new folder")
+    taken = [item.path for item in plan if item.path.exists() or item.path.is_symlink()]
+    if taken:
+        raise ValueError(f"--out {out} already holds {len(taken)} of the dataset's episodes (e.g. {taken[0]}); pass "
+                         "--overwrite to replace them, or import into a new folder")
+
+
+def _import_episodes(plan: list[_PlannedEpisode], table: _Rows, videos: dict[str, _VideoFrames],
+                     cameras: list[str], dense: bool, fps: float, progress: bool) -> list[Path]:
     from tqdm import tqdm
 
     written: list[Path] = []
-    for row in tqdm(episodes, desc="import", unit="ep", disable=not progress):
-        try:
-            meta = json.loads(row["abm/episode"])
-            lo, hi = int(row["dataset_from_index"]), int(row["dataset_to_index"])
-            instruction = row["tasks"][0]
-        except (KeyError, TypeError, ValueError, IndexError) as err:
-            raise LeRobotFormatError(f"{ds / EPISODES_FILE}: episode row {row.get('episode_index')} is "
-                                     f"incomplete ({err!r})") from None
-        rows = table.take(lo, hi)
+    for item in tqdm(plan, desc="import", unit="ep", disable=not progress):
+        rows = table.take(item.lo, item.hi)
         cols = {k: rows.column(k) for k in rows.column_names}
-        episode = _episode_from_columns(meta, instruction, cols, {c: v.take(lo, hi) for c, v in videos.items()},
-                                        cameras, dense, fps)
-        path = out / meta["source"] if meta.get("source") else \
-            out / episode.task / episode.split / f"episode_{episode.seed:06d}.h5"
-        save_episode(episode, path)
-        written.append(path)
+        episode = _episode_from_columns(item.meta, item.instruction, cols,
+                                        {c: v.take(item.lo, item.hi) for c, v in videos.items()}, cameras, dense, fps)
+        save_episode(episode, item.path)
+        written.append(item.path)
     return written
 
 
@@ -613,9 +803,3 @@ def _episode_from_columns(meta: dict[str, Any], instruction: str, cols: dict[str
                        seed=int(meta["seed"]), metadata=meta.get("metadata", {}), trajectory=trajectory)
     except (KeyError, TypeError, ValueError) as err:
         raise LeRobotFormatError(f"episode {meta.get('source')}: metadata incomplete ({err!r})") from None
-
-
-def remove_partial(out: Path) -> None:
-    """Remove an export folder left incomplete by an error (only if it carries the incomplete marker)."""
-    if (out / ".export-incomplete").exists():
-        shutil.rmtree(out)

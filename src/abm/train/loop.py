@@ -44,7 +44,7 @@ from abm.data.keyframes import (
     ground_keyframes,
     worker_init,
 )
-from abm.files import FolderLock, write_text_atomic
+from abm.files import FolderLock, refuse_links, write_text_atomic
 from abm.grounding.config import GrounderConfig, OracleGrounderConfig, build_grounder, grounder_config_from_dict
 from abm.policy.checkpoint import (
     checkpoint_path,
@@ -256,10 +256,31 @@ def changed_settings(saved: dict[str, Any], cfg: TrainConfig) -> dict[str, tuple
     return changed
 
 
+def _check_same_data(run: Path, saved: dict[str, Any], cfg: TrainConfig) -> None:
+    """``--resume`` continues a run on the episodes it was trained on: another ``--data`` is refused (the
+    sampler's batch order, the verified-episode record and the run's meaning all belong to that store)."""
+    if "data" not in saved:  # a checkpoint written before the options were saved with it
+        return
+    old, new = saved["data"], cfg.data
+    same = (old is None) == (new is None) and (
+        old is None or Path(old).expanduser().resolve() == Path(new).expanduser().resolve())
+    if not same:
+        was = f"--data {old}" if old is not None else "in-memory episodes (no --data)"
+        now = f"--data {new}" if new is not None else "no --data"
+        raise ValueError(f"{run} was trained on {was}; --resume continues a run on the same episodes, not on "
+                         f"{now}: resume with the same --data, or train into a new --out folder")
+
+
 def _grounder_config(saved: dict[str, Any]) -> GrounderConfig:
     if saved.get("grounder", "oracle") == "oracle":
         return OracleGrounderConfig()
     return grounder_config_from_dict({"kind": saved["grounder"], **(saved.get("grounder_options") or {})})
+
+
+# What abm train (and abm train's training curve) writes or deletes in a run folder: none may be a symbolic link,
+# or the write (a truncating ``open``, an ``--overwrite``) would land on the link's target, outside the run.
+RUN_FOLDER_ENTRIES = ("config.json", "recipe.yaml", "log.csv", "summary.json", "training_curve.png", "tb",
+                      "checkpoints", "checkpoints/*", "cache")
 
 
 def _claim_run_folder(run: Path, cfg: TrainConfig, dinfo: DistInfo) -> None:
@@ -303,8 +324,10 @@ class Trainer:
 
     # ------------------------------------------------------------------ build
     def build(self) -> Trainer:
-        """Set everything up; raises ``ValueError`` on bad options before anything is written."""
+        """Set everything up; raises ``ValueError`` on bad options before anything is written (and
+        :class:`abm.files.LinkError` when a file the run writes is a symbolic link, :data:`RUN_FOLDER_ENTRIES`)."""
         cfg = self.cfg
+        refuse_links(self.run, RUN_FOLDER_ENTRIES, fix="remove the link (or train into a new --out folder)")
         self.dinfo = dinfo = _setup_distributed(cfg.device)
         self.device = device = torch.device(cfg.device)
         if device.type == "cuda":
@@ -395,6 +418,7 @@ class Trainer:
         if int(ckpt["step"]) > self.cfg.steps:
             raise ValueError(f"{self.run} is already at step {ckpt['step']}, past --steps {self.cfg.steps}: resume "
                              f"with --steps {ckpt['step']} or more")
+        _check_same_data(self.run, ckpt.get("train_config") or {}, self.cfg)
         self.changed = changed_settings(ckpt.get("train_config") or {}, self.cfg)
         if self.changed:
             flags = {f.name: f.metadata.get("flag", "--" + f.name.replace("_", "-")) for f in fields(TrainConfig)}

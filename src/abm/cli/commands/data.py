@@ -9,7 +9,7 @@ from abm.cli import CommandError
 from abm.data.episode_store import EpisodeFormatError, EpisodeStore, verify_episode
 from abm.data.generate import EvaluationOnlyTaskError, expand_tasks, generate
 from abm.data.keyframes import EpisodeSource, ground_keyframes
-from abm.data.lerobot import export_lerobot, import_lerobot, remove_partial
+from abm.data.lerobot import export_lerobot, import_lerobot
 from abm.geometry import Workspace
 from abm.grounding.config import grounder_config_from_dict
 from abm.policy.config import PolicyConfig
@@ -55,8 +55,7 @@ def _export(args: argparse.Namespace) -> int:
         report = export_lerobot(args.data, args.out, frames=args.frames, crf=args.crf)
     except ImportError as err:
         raise CommandError(f"{err}; install the export dependencies: pip install 'abm[lerobot]'") from None
-    except (EpisodeFormatError, ValueError, FileNotFoundError) as err:
-        remove_partial(args.out)
+    except (EpisodeFormatError, ValueError, FileNotFoundError) as err:  # the export removed what it wrote
         raise CommandError(str(err)) from None
     kind = f"dense frames at {report.fps:g} fps" if report.dense else "keyframes (nominal 1 fps)"
     print(f"{report.episodes} episodes, {report.frames} {kind} -> {args.out} (LeRobot v3.0, "
@@ -68,7 +67,7 @@ def _import(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise CommandError(f"--out {args.out} is a file; give a folder")
     try:
-        written = import_lerobot(args.dataset, args.out)
+        written = import_lerobot(args.dataset, args.out, overwrite=args.overwrite)
     except ImportError as err:
         raise CommandError(f"{err}; install the import dependencies: pip install 'abm[lerobot]'") from None
     except (ValueError, FileNotFoundError) as err:

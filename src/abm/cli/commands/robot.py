@@ -4,8 +4,10 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from abm.cli import CommandError
+from abm.files import LinkError, refuse_links
 from abm.grounding.grounders import override_spec
 from abm.policy import KeyframePolicy
 from abm.robot.calibration import BoardSpec, calibrate_from_recording, load_calibration, save_calibration
@@ -36,11 +38,40 @@ def calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+RECORDING_FILES = ("meta.json", "step_*.npz")  # what abm.robot.record_observations writes into a folder
+
+
+def check_record_target(out: Path, overwrite: bool) -> list[Path]:
+    """The recording files ``abm record --out OUT`` replaces (empty for a new or empty folder).
+
+    Raises:
+        CommandError: ``out`` is a file, a recording file in it is a symbolic link, or ``out`` holds anything
+            and ``overwrite`` is not set (nothing is written before this check).
+    """
+    if out.exists() and not out.is_dir():
+        raise CommandError(f"--out {out} is a file; give a folder")
+    if not out.is_dir():
+        return []
+    try:
+        refuse_links(out, RECORDING_FILES, fix="remove the link, or record into a new --out folder")
+    except LinkError as err:
+        raise CommandError(str(err)) from None
+    old = sorted(p for pattern in RECORDING_FILES for p in out.glob(pattern))
+    if not overwrite and any(out.iterdir()):
+        held = f"a recording ({len(old)} files, e.g. {old[0]})" if old else "other files"
+        raise CommandError(f"--out {out} already holds {held}; pass --overwrite to replace the recording, or "
+                           "record into a new folder")
+    return old
+
+
 def run_record(args: argparse.Namespace) -> int:
     from abm.sim.env import TaskEnv, run_expert  # mujoco (optional `sim` extra): `abm run`/`calibrate` need none
 
+    old = check_record_target(args.out, args.overwrite)  # before the expert runs: it takes a while
     with TaskEnv(args.task, args.split, args.seed, resolution=args.resolution) as env:
         episode = run_expert(env)
+    for path in old:  # --overwrite: the old recording goes (a longer one would leave its last steps behind)
+        path.unlink(missing_ok=True)
     record_observations([obs for obs, _ in episode.steps], args.out, episode.object_names, episode.instruction)
     print(f"abm record: {len(episode.steps)} frames of {episode.instruction!r} -> {args.out} (replay it with "
           f"cameras: {{kind: replay, path: {args.out}}}, e.g. examples/robot_replay.yaml)")

@@ -22,6 +22,7 @@ from abm.configuration import (
     config_from_args,
     overrides_from_args,
 )
+from abm.data.episode_store import held_out_overlap
 from abm.evaluation.report import plot_training_curves
 from abm.files import FolderLock
 from abm.policy.checkpoint import check_export_target, export_checkpoint, resolve_checkpoint
@@ -67,6 +68,12 @@ def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(
         TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
         grounder_options={k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v})
+    if cfg.val_data is not None and cfg.data is not None:
+        overlap = held_out_overlap(cfg.data, cfg.val_data)
+        if overlap:
+            raise CommandError(f"{overlap}: validation episodes must be held out (other scenes, in their own "
+                               "folder: abm data generate --seed with seeds the training data does not use), or "
+                               "leave --val-data out")
     if cfg.grounder == "oracle" and cfg.grounder_options:
         if cfg.language != "clip":
             raise CommandError("--clip-model/--clip-device need --grounder clip or --language clip")
