@@ -180,11 +180,13 @@ def test_ground_command_reports_a_target_the_scene_does_not_hold(tmp_path, capsy
     summary = json.loads((out / "summary.json").read_text())
     held = summary["scene_objects"]
     assert not summary["target_in_scene"] and not summary["found"] and held
-    assert f"target 'purple teapot' is not in the scene; the scene holds: {', '.join(held)}" in err
+    assert f"'purple teapot' is not in the scene (no object has that name) (the scene holds: {', '.join(held)}" in err
+    assert summary["decision"]["found"] is False and summary["decision"]["candidates"] == []
     for name in ("views.png", "topdown.png", "camera_front.png"):
         assert Image.open(out / name).getpixel((1, 1)) == (200, 0, 0)  # the red NOT FOUND caption
     assert main(args + ["--strict"]) == 2
-    assert "abm: error: target 'purple teapot' is not in the scene" in capsys.readouterr().err
+    assert "abm: error: no target to act on for 'put the purple teapot in the plate': 'purple teapot' is not in " \
+        "the scene" in capsys.readouterr().err
     assert main(["ground", "--out", str(tmp_path / "ok"), "--resolution", "32", "--strict",
                  "--instruction", f"put the {held[0]} in the plate"]) == 0
     assert Image.open(tmp_path / "ok" / "views.png").getpixel((1, 1)) != (200, 0, 0)

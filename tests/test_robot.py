@@ -130,7 +130,8 @@ def test_run_refuses_to_move_when_grounding_finds_no_target(recording, checkpoin
     policy = KeyframePolicy.from_checkpoint(checkpoint)
     camera = ReplayCamera(folder)
     arm = DryRunArm(*camera.recorded_gripper())
-    with pytest.raises(NoTargetError, match=f"no target for 'put the ketchup on the target' .*holds: {held[0]}"):
+    with pytest.raises(NoTargetError, match=f"no target to act on for 'put the ketchup on the target': .*holds: "
+                                            f"{held[0]}"):
         run_robot(policy, camera, arm, "put the ketchup on the target", OPEN, 2, tmp_path / "log")
     assert arm.commands == []
     refused = json.loads((tmp_path / "log/steps.jsonl").read_text())
@@ -148,7 +149,8 @@ def test_run_refuses_to_move_when_grounding_finds_no_target(recording, checkpoin
                 "--instruction", "put the ketchup on the target"]
         assert cli_main(base) == 2
         errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("abm: error: ")]
-        assert len(errors) == 1 and "refused before moving: grounding found no target" in errors[0]
+        assert len(errors) == 1 and "refused before moving: no target to act on" in errors[0]
+        assert "'ketchup' is not in the scene" in errors[0]
         assert "the scene holds: " in errors[0] and "block" in errors[0]
         assert cli_main([*base, "--allow-no-target"]) == 0
         status = json.loads((log_dir / "steps.jsonl").read_text().splitlines()[0])["status"]

@@ -179,3 +179,64 @@ def test_training_grounding_cache_entry(tmp_path, marker) -> None:
     np.savez(path, mask=np.array([_Payload(marker)], dtype=object), heatmap=np.zeros(1))
     with pytest.raises(ValueError, match="allow_pickle"):
         ds[0]
+
+
+# ---- duplicate keys: YAML keeps the last one silently, abm refuses ------------------------------------------
+def test_a_key_given_twice_is_refused_in_every_yaml_file(tmp_path, capsys) -> None:
+    """Two ``limits:`` sections (or a key twice inside one) in any file abm reads: one error naming the file, the
+    key and both lines, never a silent choice of the last one."""
+    from abm.files import DuplicateKeyError, load_yaml
+    from abm.grounding.instruction import load_templates
+    from abm.robot.calibration import load_calibration
+    from abm.robot.run import RobotConfig
+    from abm.sim.splits import SplitFileError, load_splits
+
+    robot = tmp_path / "robot.yaml"
+    robot.write_text("limits: {max_step_m: 0.1}\narm: {kind: dry-run}\nlimits: {max_step_m: 2.0}\n")
+    with pytest.raises(DuplicateKeyError, match=r"robot.yaml: the key 'limits' appears twice in one section of the "
+                                                r"robot file \(lines 1 and 3\)"):
+        RobotConfig.load(robot)
+    assert cli_main(["run", "--robot", str(robot), "--run", str(tmp_path), "--instruction", "x"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"abm: error: {robot}: the key 'limits' appears twice")
+    assert "remove or merge one of them" in err[0]
+    robot.write_text("limits:\n  max_step_m: 0.1\n  max_tilt_deg: 30\n  max_step_m: 2.0\n")  # inside a section
+    with pytest.raises(ValueError, match=r"the key 'max_step_m' appears twice .*\(lines 2 and 4\)"):
+        RobotConfig.load(robot)
+    calibration = tmp_path / "calibration.yaml"
+    calibration.write_text("cameras:\n  front: {}\n  front: {}\n")
+    with pytest.raises(ValueError, match="calibration.yaml: the key 'front' appears twice .*calibration file"):
+        load_calibration(calibration)
+    splits = tmp_path / "splits.yaml"
+    splits.write_text("version: 1\ntasks: {}\nversion: 1\n")
+    with pytest.raises(SplitFileError, match="splits.yaml: the key 'version' appears twice .*split file"):
+        load_splits(splits)
+    templates = tmp_path / "templates.yaml"
+    templates.write_text("synonyms: {}\nskills: []\nsynonyms: {}\n")
+    with pytest.raises(ValueError, match="templates.yaml: the key 'synonyms' appears twice .*template file"):
+        load_templates(templates)
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text("steps: 3\nlr: 0.01\nsteps: 300\n")
+    with pytest.raises(SystemExit):
+        cli_main(["train", "--config", str(recipe), "--synthetic", "1", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{recipe}: the key 'steps' appears twice in one section of the recipe (lines 1 and 3)" \
+        in err[0] and not (tmp_path / "run").exists()
+    # still plain YAML: the same key in two sections, repeated list items, and merge keys (an override on purpose)
+    ok = tmp_path / "ok.yaml"
+    ok.write_text("a: {x: 1}\nb: {x: 1}\nc: [{x: 1}, {x: 1}]\nbase: &b {x: 1, y: 2}\nd:\n  <<: *b\n  x: 3\n")
+    assert load_yaml(ok, "file") == {"a": {"x": 1}, "b": {"x": 1}, "c": [{"x": 1}, {"x": 1}],
+                                     "base": {"x": 1, "y": 2}, "d": {"x": 3, "y": 2}}
+
+
+def test_every_yaml_file_is_read_through_the_one_strict_loader() -> None:
+    """No module but abm.files parses YAML itself (so no file escapes the duplicate-key check)."""
+    import abm
+
+    root = Path(abm.__file__).parent
+    for path in root.rglob("*.py"):
+        if path.name == "files.py" and path.parent == root:
+            continue
+        text = path.read_text()
+        for needle in ("safe_load(", "SafeLoader", "yaml.load", "full_load("):
+            assert needle not in text, f"{path.relative_to(root)} parses YAML itself ({needle}): use abm.files"

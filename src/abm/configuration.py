@@ -32,6 +32,8 @@ import typing
 from pathlib import Path
 from typing import Any
 
+from abm.files import load_yaml
+
 # Defaults shared by several commands, defined once here (this module is imported by every command).
 CAMERA_RESOLUTION = 128  #: camera image side (px) of demonstrations, evaluation, the quickstart and rollouts
 MAX_KEYFRAMES = 8  #: keyframes per evaluation rollout (abm eval, abm quickstart, abm view --task, the scripts)
@@ -295,10 +297,8 @@ def recipe_path(name: str | Path) -> Path:
 
 def load_recipe(name: str | Path) -> dict[str, Any]:
     """The mapping of a recipe file (see :func:`recipe_path`); ``ValueError`` when it is not a mapping."""
-    import yaml
-
     path = recipe_path(name)
-    data = yaml.safe_load(path.read_text()) or {}
+    data = load_yaml(path, "recipe") or {}
     if not isinstance(data, dict):
         raise ValueError(f"recipe {path} must be a mapping of option names to values")
     return data

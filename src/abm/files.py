@@ -1,7 +1,7 @@
 """Reading and writing files safely: loaders that never run code, atomic writes, one writer per folder.
 
 Every file abm reads is data: checkpoints go through :func:`load_torch_data` (``torch.load`` with
-``weights_only=True``), YAML through :func:`load_yaml` (``yaml.safe_load``), ``.npz`` through
+``weights_only=True``), YAML through :func:`load_yaml` (a safe loader that refuses duplicate keys), ``.npz`` through
 ``np.load(allow_pickle=False)`` and HDF5 through h5py (which never unpickles).
 
 Writes go through :func:`atomic_path` (a temporary file renamed into place, removed on any failure, a
@@ -48,24 +48,83 @@ def load_torch_data(path: str | Path, what: str, allowed_globals: Sequence[Any] 
         raise ValueError(f"cannot read {what} {path}: {err}") from err
 
 
-def load_yaml(path: str | Path, what: str) -> Any:
-    """``yaml.safe_load`` of a file (plain data only: a ``!!python/...`` tag is refused, never run).
+class DuplicateKeyError(ValueError):
+    """A YAML mapping names one key twice (YAML itself would keep the last value without a word)."""
+
+
+class _Duplicate(Exception):  # noqa: N818 - internal signal: (key, first line, second line), 1-based
+    pass
+
+
+def _strict_loader(text: str) -> Any:
+    """A ``yaml.SafeLoader`` (plain data only) over ``text`` that refuses a mapping naming a key twice."""
+    import yaml
+
+    class StrictSafeLoader(yaml.SafeLoader):
+        def construct_mapping(self, node: Any, deep: bool = False) -> Any:  # noqa: FBT001, FBT002 - PyYAML's
+            if isinstance(node, yaml.MappingNode):
+                seen: dict[Any, int] = {}
+                for key_node, _ in node.value:
+                    if key_node.tag == "tag:yaml.org,2002:merge":  # ``<<: *base`` overrides on purpose
+                        continue
+                    key = self.construct_object(key_node, deep=True)
+                    line = key_node.start_mark.line + 1
+                    try:
+                        if key in seen:
+                            raise _Duplicate(key, seen[key], line)
+                        seen[key] = line
+                    except TypeError:  # an unhashable key: PyYAML's own error below names it
+                        continue
+            return super().construct_mapping(node, deep=deep)
+
+    return StrictSafeLoader(text)
+
+
+def parse_yaml(text: str, source: str | Path, what: str) -> Any:
+    """Safe-load YAML ``text`` as plain data, refusing duplicate keys (``source`` names it in the messages).
 
     Raises:
-        ValueError: naming the file, when it is missing, unreadable or not valid (safe) YAML.
+        DuplicateKeyError: (a ``ValueError``) a mapping names a key twice: the message names ``source``, the
+            key and both line numbers.
+        ValueError: naming ``source``, when the text is not valid (safe) YAML.
     """
     import yaml
 
+    loader = None
+    try:
+        loader = _strict_loader(text)  # its reader already refuses non-printable characters
+        return loader.get_single_data()
+    except _Duplicate as err:
+        key, first, again = err.args
+        raise DuplicateKeyError(
+            f"{source}: the key {key!r} appears twice in one section of the {what} (lines {first} and {again}); "
+            "YAML would silently keep only the last one: remove or merge one of them") from None
+    except yaml.YAMLError as err:
+        detail = " ".join(str(err).split())
+        raise ValueError(f"{source}: not a valid {what} (YAML error: {detail})") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def load_yaml(path: str | Path, what: str) -> Any:
+    """Read a YAML file as plain data (a ``!!python/...`` tag is refused, never run; :func:`parse_yaml`).
+
+    Every YAML file abm reads goes through here (robot, calibration, split, template and recipe files), so a
+    key given twice (two ``limits:`` sections) is an error naming the file, the key and its lines, never a
+    silent choice of the last one.
+
+    Raises:
+        ValueError: naming the file, when it is missing, unreadable, not valid (safe) YAML, or names a key twice.
+    """
     path = Path(path)
     try:
-        return yaml.safe_load(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ValueError(f"{path}: {what} not found") from None
     except (OSError, UnicodeDecodeError) as err:
         raise ValueError(f"{path}: cannot read the {what} ({err})") from None
-    except yaml.YAMLError as err:
-        detail = " ".join(str(err).split())
-        raise ValueError(f"{path}: not a valid {what} (YAML error: {detail})") from None
+    return parse_yaml(text, path, what)
 
 
 class WriteError(ValueError):

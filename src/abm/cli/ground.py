@@ -9,8 +9,9 @@ sample scene (default). Writes to ``--out``:
   re-rendered binary mask;
 * ``summary.json`` — instruction, target, skill, prompt, point counts, mask centre, the scene's objects.
 
-A target that is not in the scene (or that the grounder does not find) is a warning naming the objects the
-scene holds, a red "NOT FOUND" caption on the images, and, with ``--strict``, a non-zero exit.
+A target ``abm run`` would refuse (:func:`abm.grounding.decision.decide_target`: a name the scene does not hold,
+several candidates, not found by the grounder, or found without confidence) is a warning naming the objects the
+scene holds and the candidates, a red "NOT FOUND" caption on the images, and, with ``--strict``, a non-zero exit.
 """
 
 from __future__ import annotations
@@ -56,5 +57,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     p.add_argument("--out", type=Path, default=Path("out/ground"), help="output folder (default out/ground)")
     p.add_argument("--strict", action="store_true",
-                   help="exit non-zero (after writing the images) when the target is not found in the scene")
+                   help="exit non-zero (after writing the images) when abm run would refuse the target: not in "
+                   "the scene, ambiguous, not found by the grounder, or found without confidence")
     p.set_defaults(func="abm.cli.commands.ground:run")

@@ -20,8 +20,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--instruction", help="the instruction (default: the recording's or the scene's)")
     p.add_argument("--dry-run", action="store_true", help="never move the arm: log the commands only")
     p.add_argument("--allow-no-target", action="store_true",
-                   help="move even when grounding finds no point of the instruction's object (by default such a "
-                   "step is refused before anything moves, exit code 2)")
+                   help="act even when the instruction's object is not one the grounder found with confidence "
+                   "(absent from the scene, ambiguous, not found, unsure; by default such a step is refused before "
+                   "anything moves, exit code 2)")
     p.add_argument("--steps", type=int_range(1, 10_000), default=MAX_KEYFRAMES, help="keyframes to run")
     p.add_argument("--grounder", choices=["oracle", "clip", "tracking"], help="override the checkpoint's grounder")
     p.add_argument("--clip-model", help=clip_model_help("of --grounder clip or tracking (default: the "

@@ -31,6 +31,14 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
         tiny_clip,
     )
     from abm.grounding.config import GROUNDERS
+    from abm.grounding.decision import (
+        MIN_CONFIDENCE,
+        GroundingRecorder,
+        TargetDecision,
+        decide_target,
+        normalize_name,
+        target_candidates,
+    )
     from abm.grounding.feature_cloud import (
         FeatureCloud,
         build_feature_cloud,
@@ -57,6 +65,7 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
         decompose_instruction,
         load_templates,
         normalize_instruction,
+        require_instruction,
     )
     from abm.grounding.mask_field import (
         DEFAULT_NEGATIVES,
@@ -66,6 +75,7 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
         MaskField,
         MaskFieldConfig,
         MaskViews,
+        mask_confidence,
         mask_field_from_features,
         mask_views,
         normalize_heatmap,
@@ -75,12 +85,14 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
 __getattr__, __dir__ = lazy_exports(__name__, __file__)
 
 __all__ = [
-    "DEFAULT_MODEL", "DEFAULT_NEGATIVES", "DEFAULT_NORMALIZATION", "DEFAULT_THRESHOLD", "GROUNDERS",
+    "DEFAULT_MODEL", "DEFAULT_NEGATIVES", "MIN_CONFIDENCE", "GroundingRecorder", "TargetDecision", "decide_target",
+    "normalize_name", "target_candidates", "mask_confidence", "DEFAULT_NORMALIZATION", "DEFAULT_THRESHOLD", "GROUNDERS",
     "NORMALIZATIONS", "CLIP_PRESETS", "ClipBackbone", "ClipGrounder", "ClipWeightsNotFoundError", "FeatureCloud",
     "Grounder", "GroundingCache", "InstructionError", "InstructionParser", "MaskField", "MaskFieldConfig",
     "MaskViews", "OracleGrounder", "ParsedInstruction", "RewritingParser", "TemplateParser", "TemplateSet",
     "build_feature_cloud", "clip_prompt", "cloud_key", "content_key", "decompose_instruction", "frame_key",
     "image_key", "lift_patch_features", "load_clip", "load_templates", "make_grounder", "mask_field_from_features",
     "mask_views", "match_object_ids", "model_fingerprint", "nearest_patch_index", "normalize_heatmap",
-    "normalize_instruction", "random_clip", "target_point_mask", "threshold_heatmap", "tiny_clip", "upsample_nearest",
+    "normalize_instruction", "random_clip", "require_instruction",
+    "target_point_mask", "threshold_heatmap", "tiny_clip", "upsample_nearest",
 ]

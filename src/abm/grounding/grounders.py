@@ -42,6 +42,7 @@ from abm.grounding.config import (  # noqa: F401 - the defaults live with the ty
     build_grounder,
     grounder_config_from_dict,
 )
+from abm.grounding.decision import normalize_name
 from abm.grounding.feature_cloud import lift_patch_features
 from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import MaskField, MaskFieldConfig, mask_field_from_features, negative_prompts
@@ -64,12 +65,6 @@ class Grounder(Protocol):
     ) -> MaskField:
         """Mask field over the points of ``cloud`` (a fused cloud of ``observation``) for ``target``."""
         ...
-
-
-def normalize_name(name: str) -> str:
-    """Canonical form for comparing object names: lower case, ``_``/``-`` as spaces, no articles."""
-    words = re.sub(r"[_\-]+", " ", str(name).lower()).split()
-    return " ".join(w for w in words if w not in ("a", "an", "the"))
 
 
 def match_object_ids(target: str, object_names: Mapping[int, str]) -> list[int]:
@@ -122,7 +117,7 @@ class OracleGrounder:
     """Ground truth from simulator segmentation: mask = points whose object is named ``target``.
 
     ``heatmap`` equals ``mask``; ``found`` is False when no object has that name or none of its points
-    is in the cloud (the mask is then empty).
+    is in the cloud (the mask is then empty). ``confidence`` is 1.0 when found, else 0.0.
     """
 
     name = "oracle"
@@ -138,7 +133,8 @@ class OracleGrounder:
         if not object_names:
             raise ValueError("the oracle grounder needs the episode's object_names (segmentation id -> name)")
         mask = target_point_mask(observation, cloud, target, object_names).astype(np.float32)
-        return MaskField(mask, mask.copy(), bool(mask.any()), target, "")
+        found = bool(mask.any())
+        return MaskField(mask, mask.copy(), found, target, "", confidence=float(found))
 
 
 class ClipGrounder:
@@ -314,7 +310,9 @@ class ClipGrounder:
         )
         hit = self.cache.get(key)
         if hit is not None:
-            return MaskField(hit["mask"], hit["heatmap"], bool(hit["found"]), target, prompt, hit.get("similarity"))
+            confidence = float(hit["confidence"]) if "confidence" in hit else None  # older entries: derived
+            return MaskField(hit["mask"], hit["heatmap"], bool(hit["found"]), target, prompt, hit.get("similarity"),
+                             confidence)
         field = self._ground_proposals(observation, cloud, target, prompt) if self.mode == "proposals" else None
         if field is None:
             feats = self.point_features(observation, cloud)
@@ -323,7 +321,8 @@ class ClipGrounder:
             if self.config.normalization == "softmax":
                 negatives = self.text_features(negative_prompts(self.config.negatives))
             field = mask_field_from_features(feats, text, negatives, self.config, target, prompt)
-        entry = {"mask": field.mask, "heatmap": field.heatmap, "found": np.array(field.found)}
+        entry = {"mask": field.mask, "heatmap": field.heatmap, "found": np.array(field.found),
+                 "confidence": np.array(field.confidence, np.float64)}
         if field.similarity is not None:  # None (crop scoring) is left out: np.load refuses object arrays
             entry["similarity"] = field.similarity
         self.cache.put(key, entry)
@@ -388,7 +387,8 @@ class ClipGrounder:
         mask = np.zeros(len(cloud), np.float32)
         mask[chosen] = 1.0
         sim = (feats @ texts[0]).astype(np.float32) if feats is not None else None
-        return MaskField(mask, heat, found, target, prompt, sim)
+        # confidence: the chosen object's probability among all candidates (about 1/k for k look-alikes)
+        return MaskField(mask, heat, found, target, prompt, sim, float(probs[best]))
 
 
 def candidate_crops(observation: Observation, cloud: PointCloud, candidates: Sequence[np.ndarray],

@@ -33,9 +33,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, NamedTuple, NoReturn, Protocol, runtime_checkable
 
-import yaml
-
-from abm.files import load_yaml
+from abm.files import load_yaml, parse_yaml
 
 PLACEHOLDER = "X"
 SECOND_PLACEHOLDER = "Y"  # the second object of a two-target skill ("put X in Y": X is grasped, then placed in Y)
@@ -81,6 +79,21 @@ class ParsedInstruction:
     def prompt(self) -> str:
         """The CLIP text prompt for X: ``"a photo of a X"`` / ``"a photo of an X"``."""
         return clip_prompt(self.target)
+
+
+def require_instruction(instruction: str | None, source: str = "the instruction") -> str:
+    """``instruction`` unchanged, refusing ``None`` and empty or whitespace-only text.
+
+    Args:
+        source: where the text came from, for the message (``"--instruction"``, ``"the recording's instruction"``).
+
+    Raises:
+        InstructionError: (a ``ValueError``) naming ``source`` and the fix.
+    """
+    if instruction is None or not str(instruction).strip():
+        raise InstructionError(f"{source} is empty; give the instruction to carry out, naming one object of the "
+                               "scene, e.g. 'put the red block on the target'")
+    return str(instruction)
 
 
 def clip_prompt(target: str) -> str:
@@ -401,8 +414,9 @@ def parse_templates(data: dict[str, Any], base_synonyms: Synonyms | None = None)
 
 def _builtin_data() -> dict[str, Any]:
     """The parsed YAML of the built-in ``templates.yaml``."""
-    text = resources.files("abm.grounding").joinpath("templates.yaml").read_text(encoding="utf-8")
-    return yaml.safe_load(text) or {}
+    source = resources.files("abm.grounding").joinpath("templates.yaml")
+    data: dict[str, Any] = parse_yaml(source.read_text(encoding="utf-8"), str(source), "template file") or {}
+    return data
 
 
 def load_templates(path: str | Path | None = None, base_synonyms: Synonyms | None = None) -> TemplateSet:

@@ -90,6 +90,12 @@ class MaskField:
         target: the object description X.
         prompt: the text prompt used (empty for the oracle).
         similarity: ``(N,)`` float32 raw cosine similarity, when computed from features.
+        confidence: in ``[0, 1]``, how sure the grounder is that the mask is the target: 0.0 when not
+            ``found``. Every grounder reports one: the oracle 1.0; CLIP's per-point field the mean softmax
+            heatmap over the masked points (1.0 for ``raw`` cosines, which have no probability); CLIP's
+            proposals the best candidate's softmax probability among all candidates (about ``1/k`` when
+            ``k`` objects are equally likely); tracking the first answer's confidence times the share of the
+            target's points still found. Left out (``None``), it is :func:`mask_confidence` of the field.
     """
 
     mask: np.ndarray
@@ -98,6 +104,7 @@ class MaskField:
     target: str = ""
     prompt: str = ""
     similarity: np.ndarray | None = field(default=None, repr=False)
+    confidence: float | None = None
 
     def __post_init__(self) -> None:
         self.mask = np.asarray(self.mask, np.float32)
@@ -105,6 +112,10 @@ class MaskField:
         if self.mask.ndim != 1 or self.mask.shape != self.heatmap.shape:
             raise ValueError(f"mask and heatmap must both be (N,), got {self.mask.shape} and {self.heatmap.shape}")
         self.found = bool(self.found)
+        if self.confidence is None:
+            self.confidence = mask_confidence(self.mask, self.heatmap, self.found)
+        value = float(self.confidence)
+        self.confidence = min(max(value, 0.0), 1.0) if self.found and np.isfinite(value) else 0.0
 
     def __len__(self) -> int:
         return int(self.mask.shape[0])
@@ -113,6 +124,15 @@ class MaskField:
         """``(3,)`` mean position (m) of the masked points of ``xyz`` ``(N, 3)``, or None if the mask is empty."""
         sel = self.mask > 0.5
         return np.asarray(xyz)[sel].mean(0) if sel.any() else None
+
+
+def mask_confidence(mask: np.ndarray, heatmap: np.ndarray, found: bool) -> float:
+    """The default :attr:`MaskField.confidence`: the mean heatmap (clipped to ``[0, 1]``) over the masked points
+    of ``mask`` ``(N,)``, 0.0 when not ``found`` or nothing is masked (the oracle's 0/1 heatmap gives 1.0)."""
+    selected = np.asarray(mask) > 0.5
+    if not found or not selected.any():
+        return 0.0
+    return float(np.clip(np.asarray(heatmap, np.float64)[selected], 0.0, 1.0).mean())
 
 
 def normalize_heatmap(
@@ -199,7 +219,8 @@ def mask_field_from_features(
         neg = feats @ torch.as_tensor(negative_features, dtype=torch.float32).reshape(-1, text.shape[0]).T
     heat = normalize_heatmap(sim, config.normalization, neg, config.logit_scale)
     mask, found = threshold_heatmap(heat, config.threshold, config.fallback, config.fallback_top_k)
-    return MaskField(mask, heat, found, target, prompt, sim.numpy().astype(np.float32))
+    confidence = float(found) if config.normalization == "raw" else None  # raw cosines are no probability
+    return MaskField(mask, heat, found, target, prompt, sim.numpy().astype(np.float32), confidence)
 
 
 @dataclass

@@ -55,6 +55,7 @@ class _Track:
     colors: np.ndarray  # (M, 3) their colours in [0, 1]
     gripper_pose: np.ndarray  # (4, 4) at the last step
     gripper_closed: bool
+    confidence: float  # the inner grounder's confidence in the answer the track started from, in [0, 1]
 
 
 class TrackingGrounder:
@@ -143,8 +144,10 @@ class TrackingGrounder:
                 mask = np.isfinite(near).astype(np.float32)
                 fresh = self._rescore(observation, cloud, target, object_names, mask) if self.reacquire else None
                 if fresh is None:
-                    self._track = _Track(target, predicted, track.colors, pose, closed)
-                    return MaskField(mask, mask.copy(), bool(mask.any()), target, "")
+                    self._track = _Track(target, predicted, track.colors, pose, closed, track.confidence)
+                    # as sure as the first answer, scaled by the share of its points still found
+                    return MaskField(mask, mask.copy(), bool(mask.any()), target, "",
+                                     confidence=track.confidence * share)
                 self.reacquired += 1
                 return self._start(fresh, cloud, target, pose, closed)
         field = self.inner.ground(observation, cloud, target, object_names)
@@ -166,5 +169,6 @@ class TrackingGrounder:
     def _start(self, field: MaskField, cloud: PointCloud, target: str, pose: np.ndarray, closed: bool) -> MaskField:
         """Start a track from a grounder's answer and return it."""
         keep = np.asarray(field.mask) > 0.5
-        self._track = _Track(target, cloud.xyz[keep], cloud.rgb[keep], pose, closed) if keep.any() else None
+        self._track = (_Track(target, cloud.xyz[keep], cloud.rgb[keep], pose, closed, float(field.confidence or 0.0))
+                       if keep.any() else None)
         return field

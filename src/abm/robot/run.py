@@ -27,7 +27,15 @@ from typing import Any
 import numpy as np
 
 from abm.files import load_yaml
-from abm.grounding.instruction import InstructionError, decompose_instruction
+from abm.grounding.conditioning import split_roles
+from abm.grounding.decision import GroundingRecorder, TargetDecision, decide_target
+from abm.grounding.instruction import (
+    InstructionError,
+    MultiStepInstructionError,
+    decompose_instruction,
+    require_instruction,
+)
+from abm.grounding.mask_field import MaskField
 from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot
 from abm.robot.limits import LIMITS_SCHEMA, LimitError, MotionLimits
 from abm.robot.realsense import RealSenseCamera
@@ -151,15 +159,19 @@ class RobotConfig:
 
 
 class NoTargetError(ValueError):
-    """Grounding found no point of the instruction's target object, so the arm would move blind (nothing moved)."""
+    """The instruction's target is not an object the grounder found with confidence (absent, ambiguous, not
+    found or unsure; :func:`abm.grounding.decision.decide_target`), so the arm would act blind; nothing moved.
+
+    Attributes:
+        decision: the refused :class:`~abm.grounding.decision.TargetDecision`.
+    """
+
+    def __init__(self, message: str, decision: TargetDecision) -> None:
+        super().__init__(message)
+        self.decision = decision
 
 
-def no_target_message(instruction: str, object_names: dict[int, str] | None) -> str:
-    """Why a step was refused on an empty mask, naming what the scene holds."""
-    held = sorted(set((object_names or {}).values()))
-    scene = f"the scene holds: {', '.join(held)}" if held else "the camera names no objects"
-    return (f"grounding found no target for {instruction!r} ({scene}); nothing was moved. Name an object in the "
-            "scene, or pass --allow-no-target to move on an empty mask anyway")
+OVERRIDE = "--allow-no-target"
 
 
 def _target_note(instruction: str) -> str:
@@ -170,19 +182,61 @@ def _target_note(instruction: str) -> str:
         return ""
 
 
+def _named_targets(instruction: str, names: dict[int, str] | None) -> tuple[str, ...]:
+    """The objects of the instruction's sub-goals (X, and Y for a two-target skill), or ``()`` when it does not
+    split (the policy then raises its own error, or a variant that reads the whole instruction runs)."""
+    try:
+        return split_roles(instruction, names)[0]
+    except MultiStepInstructionError:
+        raise
+    except ValueError:
+        return ()
+
+
+def _step_decision(recorder: GroundingRecorder, seen: Any, names: dict[int, str] | None) -> TargetDecision | None:
+    """The decision on the mask the policy acted on this step (None for a policy variant without a mask)."""
+    call = recorder.take()
+    if call is not None:
+        return call.decide()
+    sample = seen.sample
+    if "point_mask" not in sample:
+        return None
+    # a mask the recorder did not see (a grounder whose method cannot be wrapped): judged by its points alone
+    mask = np.asarray(sample["point_mask"], np.float32)
+    field = MaskField(mask, np.asarray(sample.get("point_heatmap", mask), np.float32), bool(mask.any()))
+    return decide_target(field, seen.target, names)
+
+
+def _refuse(out: Any, step: int, instruction: str, decision: TargetDecision) -> NoTargetError:
+    """Log a refused step and the error to raise (nothing has moved)."""
+    reason = decision.message(instruction, OVERRIDE) + "; nothing was moved"
+    out.write(json.dumps({"step": step, "status": "refused", "reason": reason,
+                          "grounding": decision.as_record()}) + "\n")
+    out.flush()
+    return NoTargetError(reason, decision)
+
+
 def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path,
               allow_no_target: bool = False) -> list[dict[str, Any]]:
     """Run the loop for ``steps`` keyframes (or until a simulated arm reports success).
 
+    Every step's grounding is judged by :func:`abm.grounding.decision.decide_target` (one line per step in
+    ``steps.jsonl`` holds it under ``grounding``); before the first step, the objects the instruction names are
+    checked against the scene's vocabulary (``camera.object_names``, when the camera names its objects).
+
     Args:
-        allow_no_target: move even when the grounder found no point of the target (an empty mask).
+        instruction: the instruction (empty or whitespace-only is refused).
+        allow_no_target: act even when the target is refused (the refusal is logged as a warning).
 
     Raises:
-        NoTargetError: the mask of the target is empty (and not ``allow_no_target``); nothing is moved (the
-            step is logged).
+        InstructionError: the instruction is empty or whitespace-only (nothing is moved).
+        NoTargetError: the target is not one object of the scene that the grounder found with confidence (a name
+            the scene does not hold, several candidates, not found, unsure; not ``allow_no_target``); nothing is
+            moved (the step is logged).
         LimitError: a predicted keyframe violates ``limits``; the arm is not moved (the step is logged).
         KeyboardInterrupt: Ctrl-C during a motion; the arm's ``stop()`` is called first (the step is logged).
     """
+    instruction = require_instruction(instruction)
     log_dir = Path(log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
     records: list[dict[str, Any]] = []
@@ -191,47 +245,55 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
              log_dir)
     policy.reset()
     with (log_dir / "steps.jsonl").open("w") as out:
-        for k in range(steps):
-            t0 = time.perf_counter()
-            pose, opening = arm.state()
-            obs = Observation(camera.read(), opening, pose, k)
-            seen = policy.explain(obs, instruction, names)  # the action and what the policy saw, in one pass
-            sample = seen.sample
-            arrays = {f"camera/{n}": f.rgb for n, f in obs.cameras.items()}
-            arrays["views"] = seen.view_images[:, :3]
-            if seen.view_mask is not None:
-                arrays["mask"] = seen.view_mask
-            np.savez_compressed(log_dir / f"step_{k:03d}.npz", **arrays)
-            if "point_mask" in sample and not float(sample["point_mask"].sum()) > 0 and not allow_no_target:
-                reason = no_target_message(instruction, names)
-                out.write(json.dumps({"step": k, "status": "refused", "reason": reason}) + "\n")
-                raise NoTargetError(reason)
-            action = seen.action
-            record = {"step": k, **({"instruction": instruction} if k == 0 else {}),
-                      "position": action.position.round(4).tolist(),
-                      "quaternion": action.quaternion.round(4).tolist(), "gripper_open": action.gripper_open,
-                      "ignore_collision": action.ignore_collision, "timings": policy.last_timings}
-            try:
-                limits.check(pose, action)
-            except LimitError as err:
-                record.update(status="refused", reason=str(err))
+        for name in _named_targets(instruction, names):  # every sub-goal's object, before anything moves
+            named = decide_target(None, name, names)
+            if not named.found and not allow_no_target:
+                raise _refuse(out, 0, instruction, named)
+        # policy.grounder builds the grounder (CLIP) only now, once the names passed
+        with GroundingRecorder(getattr(policy, "grounder", None)) as grounding:
+            for k in range(steps):
+                t0 = time.perf_counter()
+                pose, opening = arm.state()
+                obs = Observation(camera.read(), opening, pose, k)
+                seen = policy.explain(obs, instruction, names)  # the action and what the policy saw, in one pass
+                arrays = {f"camera/{n}": f.rgb for n, f in obs.cameras.items()}
+                arrays["views"] = seen.view_images[:, :3]
+                if seen.view_mask is not None:
+                    arrays["mask"] = seen.view_mask
+                np.savez_compressed(log_dir / f"step_{k:03d}.npz", **arrays)
+                decision = _step_decision(grounding, seen, names)
+                if decision is not None and not decision.found:
+                    if not allow_no_target:
+                        raise _refuse(out, k, instruction, decision)
+                    log.warning("step %d: %s (%s: acting anyway)", k, decision.message(instruction), OVERRIDE)
+                action = seen.action
+                record = {"step": k, **({"instruction": instruction} if k == 0 else {}),
+                          "position": action.position.round(4).tolist(),
+                          "quaternion": action.quaternion.round(4).tolist(), "gripper_open": action.gripper_open,
+                          "ignore_collision": action.ignore_collision, "timings": policy.last_timings}
+                if decision is not None:
+                    record["grounding"] = decision.as_record()
+                try:
+                    limits.check(pose, action)
+                except LimitError as err:
+                    record.update(status="refused", reason=str(err))
+                    out.write(json.dumps(record) + "\n")
+                    raise
+                try:
+                    record["status"] = arm.move(action)
+                except KeyboardInterrupt:  # Ctrl-C: stop the arm where it is, keep the log
+                    if hasattr(arm, "stop"):
+                        arm.stop()
+                    record["status"] = "interrupted"
+                    out.write(json.dumps(record) + "\n")
+                    raise
+                record["seconds"] = time.perf_counter() - t0
+                if hasattr(arm, "success"):
+                    record["success"] = bool(arm.success())
                 out.write(json.dumps(record) + "\n")
-                raise
-            try:
-                record["status"] = arm.move(action)
-            except KeyboardInterrupt:  # Ctrl-C: stop the arm where it is, keep the log
-                if hasattr(arm, "stop"):
-                    arm.stop()
-                record["status"] = "interrupted"
-                out.write(json.dumps(record) + "\n")
-                raise
-            record["seconds"] = time.perf_counter() - t0
-            if hasattr(arm, "success"):
-                record["success"] = bool(arm.success())
-            out.write(json.dumps(record) + "\n")
-            out.flush()
-            records.append(record)
-            log.info("step %d: %s -> %s", k, record["position"], record["status"])
-            if record.get("success"):
-                break
+                out.flush()
+                records.append(record)
+                log.info("step %d: %s -> %s", k, record["position"], record["status"])
+                if record.get("success"):
+                    break
     return records

@@ -9,8 +9,9 @@ sample scene (default). Writes to ``--out``:
   re-rendered binary mask;
 * ``summary.json`` — instruction, target, skill, prompt, point counts, mask centre, the scene's objects.
 
-A target that is not in the scene (or that the grounder does not find) is a warning naming the objects the
-scene holds, a red "NOT FOUND" caption on the images, and, with ``--strict``, a non-zero exit.
+A target ``abm run`` would refuse (:func:`abm.grounding.decision.decide_target`: a name the scene does not hold,
+several candidates, not found by the grounder, or found without confidence) is a warning naming the objects the
+scene holds and the candidates, a red "NOT FOUND" caption on the images, and, with ``--strict``, a non-zero exit.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from abm.cli import CommandError
 from abm.data.episode_store import load_episode
 from abm.files import write_text_atomic
 from abm.geometry import Workspace, fuse_cameras
+from abm.grounding.decision import decide_target
 from abm.grounding.grounders import make_grounder
 from abm.grounding.instruction import decompose_instruction
 from abm.grounding.mask_field import mask_views
@@ -126,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
     grounder = make_grounder(args.grounder, **options)
     field = grounder.ground(obs, cloud, target, names)
     scene_objects = sorted(set(names.values()))
-    missing = not field.found or not field.mask.any()
+    decision = decide_target(field, target, names, grounder=args.grounder)  # the one abm run acts on
+    missing = not decision.found
     notice = f"target {target!r} NOT FOUND" if missing else ""
 
     renderer = OrthographicRenderer(workspace, args.resolution, splat_radius=1, device=args.device)
@@ -152,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {
         "scene": where, "instruction": instruction, "target": target, "skill": skill,
         "grounder": args.grounder, "prompt": field.prompt, "found": field.found,
+        "confidence": round(float(field.confidence or 0.0), 4), "decision": decision.as_record(),
         "points": len(cloud), "mask_points": int(field.mask.sum()),
         "mask_center_m": None if center is None else [round(float(c), 4) for c in center],
         "scene_objects": scene_objects, "target_in_scene": target in scene_objects,
@@ -168,13 +172,11 @@ def run(args: argparse.Namespace) -> int:
             summary["scoring"] = grounder.proposal_config.scoring
     write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(f"{where}: {instruction!r} -> target {target!r}, skill {skill!r}")
-    print(f"{args.grounder} grounder: {summary['mask_points']} of {len(cloud)} points masked, found={field.found}")
+    print(f"{args.grounder} grounder: {summary['mask_points']} of {len(cloud)} points masked, found={field.found}, "
+          f"confidence {summary['confidence']:.2f}")
     print(f"wrote camera_*.png, topdown.png, views.png, view_*.png and summary.json to {args.out}/")
     if missing:
-        absent = ("is not in the scene" if target not in scene_objects
-                  else f"was not found by the {args.grounder} grounder")
-        message = (f"target {target!r} {absent}; the scene holds: {', '.join(scene_objects)} "
-                   "(the images are marked NOT FOUND)")
+        message = f"{decision.message(instruction)} (the images are marked NOT FOUND)"
         if args.strict:
             raise CommandError(f"{message}; --strict")
         logging.getLogger("abm").warning("abm ground: WARNING: %s", message)

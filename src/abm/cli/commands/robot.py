@@ -87,11 +87,16 @@ def run(args: argparse.Namespace) -> int:
         grounder = override_spec(args.grounder, args.clip_model)
     except ValueError as err:
         raise CommandError(str(err)) from err
+    if args.instruction is not None and not args.instruction.strip():
+        raise CommandError("--instruction is empty; give the instruction to carry out, naming one object of the "
+                           "scene (e.g. --instruction 'put the red block on the target'), or leave the option out "
+                           "to use the recording's or the scene's")
     config = RobotConfig.load(args.robot)
     camera, arm = config.build(dry_run=args.dry_run)
-    instruction = args.instruction or getattr(camera, "instruction", "")
-    if not instruction:
-        raise CommandError("give --instruction (the camera source has none)")
+    instruction = args.instruction if args.instruction is not None else getattr(camera, "instruction", "")
+    if not instruction or not instruction.strip():
+        raise CommandError(f"give --instruction: the camera source of {args.robot} "
+                           f"(kind {config.cameras.get('kind')}) has no instruction")
     policy = KeyframePolicy.from_checkpoint(args.run, device=args.device, grounder=grounder)
     try:
         records = run_robot(policy, camera, arm, instruction, config.limits, args.steps, args.log,
