@@ -383,30 +383,36 @@ class KeyframePolicy(nn.Module):
     def forward(self, batch: Batch) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Loss of a batch of samples with targets: ``(total loss, detached loss terms)``.
 
-        The rotation/gripper head pools at the ground-truth heatmap (as RVT-2 does in training). A two-stage
-        policy zooms on the label (plus uniform noise of ``zoom_noise`` m per axis in training mode) and adds
-        the zoomed stage's heatmap term (``zoom_translation``).
+        The rotation/gripper head pools at the ground-truth heatmap (as RVT-2 does in training); a two-stage
+        policy adds the zoomed stage's heatmap term (``zoom_translation``). See :meth:`teacher_forced`.
+        """
+        out, target = self.teacher_forced(batch)
+        terms = policy_loss(out, target["heatmap"], target["rotation_bins"], target["gripper"], target["collision"],
+                            coarse_target=target.get("coarse_heatmap"))
+        metrics = {k: getattr(terms, k).detach() for k in LOSS_TERMS}
+        return terms.total, metrics
+
+    def teacher_forced(self, batch: Batch) -> tuple[PolicyOutput, dict[str, torch.Tensor]]:
+        """The network output of a batch with targets as in training, and the targets (:meth:`targets`).
+
+        The rotation/gripper head pools at the label's heatmap. A two-stage policy zooms on the label (plus
+        uniform noise of ``zoom_noise`` m per axis in training mode); its targets' ``heatmap`` is then the
+        zoomed views' and ``coarse_heatmap`` the workspace views'.
         """
         inputs = self.model_inputs(batch)
         target = self.targets(batch)
         if self.zoom_model is None:
-            out = self.run_model(inputs, pool_weights=target["heatmap"])
-            terms = policy_loss(out, target["heatmap"], target["rotation_bins"], target["gripper"],
-                                target["collision"])
-        else:
-            coarse = self.run_model(inputs)
-            position = batch["action_position"].to(self.device, torch.float32)
-            noise = self.config.zoom_noise if self.training else 0.0
-            center = position + (torch.rand_like(position) * 2.0 - 1.0) * noise
-            assert self.zoom_renderer is not None  # built with the zoom model
-            zoom_target = translation_targets(self.zoom_renderer, position - center)
-            fine = self.run_model(self.model_inputs(batch, zoom_center=center), pool_weights=zoom_target, zoom=True)
-            out = PolicyOutput(fine.heatmap, fine.rotation, fine.gripper, fine.collision,
-                               coarse_heatmap=coarse.heatmap, zoom_center=center)
-            terms = policy_loss(out, zoom_target, target["rotation_bins"], target["gripper"], target["collision"],
-                                coarse_target=target["heatmap"])
-        metrics = {k: getattr(terms, k).detach() for k in LOSS_TERMS}
-        return terms.total, metrics
+            return self.run_model(inputs, pool_weights=target["heatmap"]), target
+        coarse = self.run_model(inputs)
+        position = batch["action_position"].to(self.device, torch.float32)
+        noise = self.config.zoom_noise if self.training else 0.0
+        center = position + (torch.rand_like(position) * 2.0 - 1.0) * noise
+        assert self.zoom_renderer is not None  # built with the zoom model
+        zoom_target = translation_targets(self.zoom_renderer, position - center)
+        fine = self.run_model(self.model_inputs(batch, zoom_center=center), pool_weights=zoom_target, zoom=True)
+        out = PolicyOutput(fine.heatmap, fine.rotation, fine.gripper, fine.collision, coarse_heatmap=coarse.heatmap,
+                           zoom_center=center)
+        return out, {**target, "heatmap": zoom_target, "coarse_heatmap": target["heatmap"]}
 
     def compute_loss(self, batch: Batch) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Same as calling the module (so ``DistributedDataParallel`` wrapping works)."""
