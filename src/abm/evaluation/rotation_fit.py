@@ -98,7 +98,8 @@ def rotation_fit(policy: KeyframePolicy, dataset: KeyframeDataset, batch: int = 
                 for j in items:
                     episode, step = dataset.items[j]
                     action = dataset.source.load_step(episode, step)[1]
-                    groups.append((dataset.source.meta[episode].task, action.kind or "unlabelled", int(action.symmetry)))
+                    kind = action.kind or "unlabelled"
+                    groups.append((dataset.source.meta[episode].task, kind, int(action.symmetry)))
     finally:
         policy.train(was_training)
     members: dict[tuple[str, str], list[int]] = defaultdict(list)

@@ -162,38 +162,40 @@ class OrthographicRenderer:
         b, n, _ = points.shape
         v, res = self.num_views, self.resolution
 
-        uv, depth = self.project(points)  # (B, N, V, 2), (B, N, V)
+        # Only the points inside the cube take part: gather them once as a flat list of M (sample, point) pairs,
+        # so no per-view work is spent on the others. The projection is project()'s, op for op.
         inside = valid & (points >= self.center - self.half).all(-1) & (points <= self.center + self.half).all(-1)
-        pix = torch.floor(uv + 0.5).long().clamp_(0, res - 1)
-        key = (depth.clamp(0.0, 2 * self.half) / (2 * self.half) * (_DEPTH_LEVELS - 1)).long() * n
-        key = key + torch.arange(n, device=self.device).view(1, n, 1)
-        base = (torch.arange(b, device=self.device).view(b, 1, 1) * v + torch.arange(v, device=self.device)) * res
+        bi, ni = inside.nonzero(as_tuple=True)  # (M,), (M,)
+        cam = torch.einsum("mk,vjk->mvj", points[bi, ni] - self.center, self.axes)  # (M, V, 3)
+        uv = (cam[..., :2] / self.half + 1.0) * (res / 2.0) - 0.5
+        depth = cam[..., 2] + self.half
+        pix = torch.floor(uv + 0.5).long().clamp_(0, res - 1)  # (M, V, 2)
+        key = (depth.clamp(0.0, 2 * self.half) / (2 * self.half) * (_DEPTH_LEVELS - 1)).long() * n + ni.unsqueeze(1)
+        base = (bi.unsqueeze(1) * v + torch.arange(v, device=self.device)) * res  # (M, V)
         sentinel = torch.iinfo(torch.int64).max
         if self.splat_radius:
             r = self.splat_radius
             offsets = torch.arange(-r, r + 1, device=self.device)
             dv, du = torch.meshgrid(offsets, offsets, indexing="ij")
-            cols = pix[..., 0:1] + du.reshape(-1)  # (B, N, V, K)
+            cols = pix[..., 0:1] + du.reshape(-1)  # (M, V, K)
             rows = pix[..., 1:2] + dv.reshape(-1)
-            keep = (cols >= 0) & (cols < res) & (rows >= 0) & (rows < res) & inside[..., None, None]
+            keep = (cols >= 0) & (cols < res) & (rows >= 0) & (rows < res)
             lin = (base.unsqueeze(-1) + rows.clamp(0, res - 1)) * res + cols.clamp(0, res - 1)
-            key = key.unsqueeze(-1).expand_as(cols)
+            # Splats falling off the view get the sentinel key, which never wins the minimum.
+            key = torch.where(keep, key.unsqueeze(-1), sentinel)
         else:
             lin = (base + pix[..., 1]) * res + pix[..., 0]
-            keep = inside.unsqueeze(-1)
-        # Points that must not show get the sentinel key, which never wins the minimum: no boolean indexing.
-        key = torch.where(keep, key, sentinel)
 
         zbuf = torch.full((b * v * res * res,), sentinel, dtype=torch.int64, device=self.device)
         zbuf.scatter_reduce_(0, lin.reshape(-1), key.reshape(-1), reduce="amin", include_self=True)
         occupied = zbuf != sentinel
-        # Row b * n + i of ``feats`` is point i of batch b; the extra last row (zeros) is the background.
+        # Row b * n + i of a channel is point i of batch b.
         pixel_batch = torch.arange(b, device=self.device).repeat_interleave(v * res * res)
-        source = torch.where(occupied, pixel_batch * n + zbuf % n, b * n)
+        source = torch.where(occupied, pixel_batch * n + zbuf % n, 0)
         channels = [rgb, points] + ([extra] if extra is not None else [])
-        feats = torch.cat(channels, dim=-1).reshape(b * n, -1)
-        feats = torch.cat([feats, feats.new_zeros(1, feats.shape[1])])
-        out = feats.index_select(0, source).view(b, v, res, res, -1).permute(0, 1, 4, 2, 3)
+        gathered = torch.cat([c.reshape(b * n, -1).index_select(0, source) for c in channels], dim=-1)
+        gathered = torch.where(occupied.unsqueeze(1), gathered, 0.0)  # background 0
+        out = gathered.view(b, v, res, res, -1).permute(0, 1, 4, 2, 3)
         occupied = occupied.view(b, v, res, res)
 
         xyz = out[:, :, 3:6]
