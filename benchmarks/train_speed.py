@@ -12,14 +12,27 @@ backward and optimiser. ``render_s_per_step`` is the rendering part of forward, 
 
 ``cpu_s_per_step`` (process CPU time per timed step, including the timed rendering pass) stays meaningful on a
 shared machine where wall-clock ``s_per_step`` does not; with one thread it is the step's compute time.
+
+Side by side with another commit (``--against REF``): the same benchmark runs at the same time from a temporary
+``git worktree`` of REF and from this tree, one process each (use ``--threads 1``), so both see the same machine;
+the ratio of samples/s is printed and ``--record FILE`` appends both rows to a JSON list
+(``docs/results/train_speed.json``: commit, config, threads, samples_per_s, forward_s, backward_s)::
+
+    python benchmarks/train_speed.py --threads 1 --optimizer adamw --set resolution=64 --set patch_size=8 \
+        --steps 20 --against ecf079f --record docs/results/train_speed.json
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import subprocess
+import sys
+import tempfile
 import time
 from collections import defaultdict
+from pathlib import Path
 
 import torch
 
@@ -50,7 +63,14 @@ def main() -> None:
     p.add_argument("--compile", action="store_true", help="run the network through torch.compile (compile time "
                    "falls in the untimed warm-up steps and is reported as compile_s)")
     p.add_argument("--bf16", default="off", choices=["auto", "on", "off"], help="bf16 autocast on CPU (default off)")
+    p.add_argument("--against", default=None, metavar="REF", help="also run the benchmark from a git worktree of REF, "
+                   "at the same time, and compare")
+    p.add_argument("--record", type=Path, default=None, metavar="FILE", help="with --against: append both rows to "
+                   "this JSON list")
     args = p.parse_args()
+    if args.against:
+        compare(args)
+        return
     if args.threads:
         torch.set_num_threads(args.threads)
     device = torch.device(args.device)
@@ -105,7 +125,7 @@ def main() -> None:
     result = {
         "preset": cfg.preset, "method": args.method, "device": str(device), "batch": args.batch,
         "steps": args.steps, "workers": args.workers, "threads": torch.get_num_threads(),
-        "parameters": policy.model.num_parameters(), "samples_per_s": n / total_s,
+        "parameters": policy.num_parameters(), "samples_per_s": n / total_s,
         "s_per_step": total_s / args.steps, "data_share": data_s / total_s,
         "stage_s_per_step": {k: round(v / args.steps, 4) for k, v in stage.items()},
         "render_s_per_step": round(render_s / args.steps, 4),
@@ -116,6 +136,69 @@ def main() -> None:
         "gpu": torch.cuda.get_device_name() if device.type == "cuda" else None,
     }
     print(json.dumps(result))
+
+
+def _commit(tree: Path, ref: str = "HEAD") -> str:
+    out = subprocess.run(["git", "-C", str(tree), "rev-parse", "--short", ref], capture_output=True, text=True,
+                         check=True)
+    return out.stdout.strip()
+
+
+def compare(args: argparse.Namespace) -> None:
+    """Run this benchmark from this tree and from a worktree of ``args.against`` at the same time; print both
+    and the speed-up, and append them to ``args.record``."""
+    here = Path(__file__).resolve().parents[1]
+    argv = [a for a in sys.argv[1:]]
+    i = argv.index("--against")
+    del argv[i:i + 2]
+    if "--record" in argv:
+        i = argv.index("--record")
+        del argv[i:i + 2]
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "baseline"
+        subprocess.run(["git", "-C", str(here), "worktree", "add", "--detach", "-q", str(tree), args.against],
+                       check=True)
+        try:
+            trees = {"baseline": tree, "current": here}
+            procs = {}
+            for name, root in trees.items():
+                env = {**os.environ, "PYTHONPATH": str(root / "src"), "OMP_NUM_THREADS": str(args.threads or 1)}
+                # this tree's script in both: the measurement is the same, only the library differs
+                procs[name] = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), *argv], env=env,
+                                               stdout=subprocess.PIPE, text=True)
+            results = {}
+            for name, proc in procs.items():
+                out, _ = proc.communicate()
+                if proc.returncode:
+                    raise SystemExit(f"the {name} benchmark failed (exit {proc.returncode})")
+                results[name] = json.loads(out.strip().splitlines()[-1])
+            commits = {"baseline": _commit(here, args.against), "current": _commit(here)}
+        finally:
+            subprocess.run(["git", "-C", str(here), "worktree", "remove", "--force", str(tree)], check=False)
+    config = " ".join(argv)
+    rows = []
+    for name, r in results.items():
+        stage = r["stage_s_per_step"]
+        rows.append({"commit": commits[name] + ("+" if name == "current" and _dirty(here) else ""), "config": config,
+                     "threads": r["threads"], "samples_per_s": round(r["samples_per_s"], 3),
+                     "forward_s": round(stage["forward"] - r["render_s_per_step"], 4),
+                     "render_s": r["render_s_per_step"], "data_s": stage["data"],
+                     "backward_s": stage["backward"], "cpu_s_per_step": r["cpu_s_per_step"], "machine": r["machine"]})
+        print(json.dumps(rows[-1]))
+    speedup = results["current"]["samples_per_s"] / results["baseline"]["samples_per_s"]
+    cpu = results["baseline"]["cpu_s_per_step"] / results["current"]["cpu_s_per_step"]
+    print(f"speed-up {commits['baseline']} -> {commits['current']}: {speedup:.2f}x samples/s "
+          f"({cpu:.2f}x CPU s per step)")
+    if args.record is not None:
+        old = json.loads(args.record.read_text()) if args.record.exists() else []
+        args.record.parent.mkdir(parents=True, exist_ok=True)
+        args.record.write_text(json.dumps(old + rows, indent=1) + "\n")
+
+
+def _dirty(tree: Path) -> bool:
+    """Whether the tree's library has uncommitted changes (the row's commit then gets a ``+``)."""
+    out = subprocess.run(["git", "-C", str(tree), "status", "--porcelain", "src"], capture_output=True, text=True)
+    return bool(out.stdout.strip())
 
 
 if __name__ == "__main__":

