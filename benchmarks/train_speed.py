@@ -125,7 +125,7 @@ def main() -> None:
     result = {
         "preset": cfg.preset, "method": args.method, "device": str(device), "batch": args.batch,
         "steps": args.steps, "workers": args.workers, "threads": torch.get_num_threads(),
-        "parameters": policy.num_parameters(), "samples_per_s": n / total_s,
+        "parameters": sum(p.numel() for p in policy.parameters()), "samples_per_s": n / total_s,
         "s_per_step": total_s / args.steps, "data_share": data_s / total_s,
         "stage_s_per_step": {k: round(v / args.steps, 4) for k, v in stage.items()},
         "render_s_per_step": round(render_s / args.steps, 4),
