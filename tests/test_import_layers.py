@@ -1,8 +1,8 @@
 """Imports flow one way: types (and the small helpers machine, workers, configuration, files,
 schema, lazy, progress, ray_pool) -> geometry
 -> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot / viewer / zoo
--> clip_training (the benchmark CLIP's trainer) -> cli (the command line: parsers in ``abm.cli.<group>``,
-command functions in ``abm.cli.commands.<group>``).
+-> clip_training (the benchmark CLIP's trainer) -> experiments (the experiment engine) -> cli (the command line:
+parsers in ``abm.cli.<group>``, command functions in ``abm.cli.commands.<group>``).
 
 Checked on the source text (every ``import`` statement, at module level or inside functions), so a
 backwards import cannot hide in a function body. Also checked: no library module imports the command line or
@@ -31,6 +31,7 @@ LAYERS = [
     ("train",),
     ("evaluation", "robot", "viewer", "zoo"),
     ("clip_training",),  # uses sim, grounding and render; only the command line, tests and benchmarks use it
+    ("experiments",),  # the experiment engine: runs the command line as subprocesses, writes the reports
     ("cli",),
 ]
 RANK = {name: i for i, names in enumerate(LAYERS) for name in names}

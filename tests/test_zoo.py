@@ -57,8 +57,10 @@ def test_missing_or_malformed_index_is_one_clear_error(tmp_path: Path, capsys: p
 def test_pick_needs_the_clip_of_clip_models(tmp_path: Path) -> None:
     entries = read_index(_zoo(tmp_path, ("abm_oracle", "abm_clip", "rvt_clip")))
     # without the benchmark CLIP in the zoo, the CLIP-grounded models cannot run: fall back to the oracle row
-    assert pick(entries, ("abm_clip", "abm_oracle"))["name"] == "abm_oracle"
-    assert pick(entries, ("rvt_clip",)) is None
+    assert pick(entries, "abm")["name"] == "abm_oracle"
+    assert pick(entries, "rvt") is None
     entries.append({"name": "benchmark-clip", "file": "benchmark-clip/", "method": "clip"})
-    assert pick(entries, ("abm_clip", "abm_oracle"))["name"] == "abm_clip"
-    assert pick(entries, ("rvt_clip",))["name"] == "rvt_clip"
+    # with it, the CLIP-grounded abm model comes first although the index lists the oracle one before it
+    assert pick(entries, "abm")["name"] == "abm_clip"
+    assert pick(entries, "rvt")["name"] == "rvt_clip"
+    assert pick(entries, "ifd") is None

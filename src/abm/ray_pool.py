@@ -1,4 +1,5 @@
-"""Ray backend of ``abm data generate`` and ``abm eval`` (``--backend ray``; ``pip install 'abm[ray]'``).
+"""Ray backend of ``abm data generate``, ``abm eval`` and ``abm experiment run`` (``--backend ray``;
+``pip install 'abm[ray]'``).
 
 :class:`RayActorPool` is a drop-in for :class:`concurrent.futures.ProcessPoolExecutor` as the two commands
 use it (``submit`` returning a :class:`concurrent.futures.Future`, a context manager): ``workers`` Ray
@@ -103,12 +104,14 @@ class RayActorPool:
         address: Ray cluster address; ``None`` starts a local Ray with ``workers`` CPUs.
         initializer: called once in every actor before its first job (default: torch to one thread, as the
             local evaluation pool does).
+        cpus_per_worker: CPUs Ray reserves for each actor (a job that runs a multi-threaded command, such as
+            one training of ``abm experiment run --backend ray``, asks for its threads).
     """
 
     def __init__(self, workers: int, address: str | None = None,
-                 initializer: Callable[[], None] | None = _single_thread) -> None:
-        ray = init_ray(address, workers)
-        actor = ray.remote(num_cpus=1, max_restarts=0)(_Worker)
+                 initializer: Callable[[], None] | None = _single_thread, cpus_per_worker: int = 1) -> None:
+        ray = init_ray(address, max(1, workers) * cpus_per_worker)
+        actor = ray.remote(num_cpus=cpus_per_worker, max_restarts=0)(_Worker)
         self._actors = [actor.remote(initializer) for _ in range(max(1, workers))]
         self._idle = deque(self._actors)
         self._queue: deque[tuple[Future, Callable[..., Any], tuple]] = deque()

@@ -1,5 +1,6 @@
-"""The committed model zoo (``models/``): its index (``models/index.json``), the sha256 checks of its files and
-the choice of the entries ``abm zoo eval`` compares. The ``abm zoo`` command is :mod:`abm.cli.zoo`.
+"""The committed model zoo (``models/``): its index (``models/index.json``, written by the report of
+``abm experiment run paper_tables``), the sha256 checks of its files and the choice of the entries
+``abm zoo eval`` compares. The ``abm zoo`` command is :mod:`abm.cli.zoo`.
 """
 
 from __future__ import annotations
@@ -11,9 +12,8 @@ from typing import Any
 from abm.files import sha256_file
 
 DEFAULT_ZOO = Path("models")
-#: preference order of the abm and rvt entries ``abm zoo eval`` compares
-ABM_ENTRIES = ("abm_clip", "abm_oracle")
-RVT_ENTRIES = ("rvt_clip",)
+#: the methods ``abm zoo eval`` compares, one model of each (:func:`pick`)
+COMPARED_METHODS = ("abm", "rvt")
 
 
 class ZooError(ValueError):
@@ -24,8 +24,8 @@ def read_index(zoo: Path) -> list[dict[str, Any]]:
     """The zoo's entries (``ZOO/index.json``)."""
     path = zoo / "index.json"
     if not path.is_file():
-        raise ZooError(f"no model zoo index at {path}: run scripts/paper_tables.sh (it exports the models and "
-                       "writes the index) or pass --zoo DIR")
+        raise ZooError(f"no model zoo index at {path}: run `abm experiment run paper_tables` (it exports the "
+                       "models and writes the index) or pass --zoo DIR")
     try:
         entries = json.loads(path.read_text())
     except json.JSONDecodeError as err:
@@ -55,15 +55,17 @@ def verify(zoo: Path, entry: dict[str, Any]) -> Path:
     return path
 
 
-def pick(entries: list[dict[str, Any]], names: tuple[str, ...]) -> dict[str, Any] | None:
-    """The first entry of ``names`` in the zoo whose CLIP (when it needs one) is there too."""
-    by_name = {e["name"]: e for e in entries}
-    for name in names:
-        e = by_name.get(name)
-        if e is None:
-            continue
-        if e.get("grounder") == "clip" or e.get("language") == "clip":
-            if "benchmark-clip" not in by_name:
-                continue
-        return e
-    return None
+def needs_clip(entry: dict[str, Any]) -> bool:
+    """Whether a model grounds or words its instruction with the benchmark CLIP."""
+    return entry.get("grounder") == "clip" or entry.get("language") == "clip"
+
+
+def pick(entries: list[dict[str, Any]], method: str) -> dict[str, Any] | None:
+    """The model of ``method`` that ``abm zoo eval`` runs: a CLIP-grounded one when the benchmark CLIP is in the
+    zoo too, else one that needs no CLIP; the first such in the index (the experiment report's order).
+    ``None`` when the zoo has no runnable model of that method."""
+    has_clip = any(e.get("name") == "benchmark-clip" for e in entries)
+    mine = [e for e in entries if e.get("method") == method]
+    runnable = [e for e in mine if has_clip or not needs_clip(e)]
+    grounded = [e for e in runnable if e.get("grounder") == "clip"]
+    return (grounded or runnable or [None])[0]

@@ -34,6 +34,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "abm.cli.viewer",
     "abm.cli.quickstart",
     "abm.cli.zoo",
+    "abm.cli.experiment",
 )
 
 

@@ -1,14 +1,15 @@
 """``abm zoo``: the committed model zoo (``models/``) — list it, verify it, and see the paper's finding without
 training.
 
-* ``abm zoo list`` prints the index (``models/index.json``, written by ``benchmarks/paper_tables_report.py``)
+* ``abm zoo list`` prints the index (``models/index.json``, written by ``abm experiment run paper_tables``)
   and checks every file against its recorded sha256;
 * ``abm zoo eval`` evaluates the zoo's abm and rvt models on seen and unseen objects of a few tasks through
   the full pipeline (simulator, grounding, policy, executor) and prints one table: about 5 minutes on 2 CPU
   cores with the defaults.
 
-The abm model is the CLIP-grounded one (``abm_clip``) when it and the benchmark CLIP are in the zoo, else
-the oracle-grounded one (``abm_oracle``); rvt is ``rvt_clip``.
+Of each method (abm, rvt) it runs the first model of the index that the zoo can run: a CLIP-grounded one when
+the benchmark CLIP is in the zoo too (abm_clip, rvt_clip in the committed zoo), else one that needs no CLIP
+(abm_oracle).
 """
 
 from __future__ import annotations

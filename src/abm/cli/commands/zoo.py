@@ -6,7 +6,7 @@ import argparse
 
 from abm.evaluation.results import markdown_table
 from abm.evaluation.runner import EvalSettings, evaluate
-from abm.zoo import ABM_ENTRIES, RVT_ENTRIES, ZooError, pick, read_index, verify
+from abm.zoo import COMPARED_METHODS, ZooError, pick, read_index, verify
 
 
 def list_zoo(args: argparse.Namespace) -> int:
@@ -28,10 +28,10 @@ def list_zoo(args: argparse.Namespace) -> int:
 
 def evaluate_zoo(args: argparse.Namespace) -> int:
     entries = read_index(args.zoo)
-    chosen = [e for e in (pick(entries, ABM_ENTRIES), pick(entries, RVT_ENTRIES)) if e]
+    chosen = [e for e in (pick(entries, method) for method in COMPARED_METHODS) if e]
     if not chosen:
-        raise ZooError(f"{args.zoo} holds neither an abm ({', '.join(ABM_ENTRIES)}) nor an rvt model "
-                       f"({', '.join(RVT_ENTRIES)})")
+        raise ZooError(f"{args.zoo} holds no runnable {' or '.join(COMPARED_METHODS)} model (a CLIP-grounded one "
+                       "needs the benchmark CLIP in the zoo too)")
     runs = [verify(args.zoo, e) for e in chosen]
     clip = next((e for e in entries if e["name"] == "benchmark-clip"), None)
     if clip is not None:

@@ -1,0 +1,707 @@
+"""Every generated block of an experiment, from its spec and its outcomes (never typed by hand).
+
+:func:`write_report` reads the outcomes of an experiment (OUT after :func:`abm.experiments.state.restore`, so
+the committed ones count) and writes
+
+* the document (``report.document``, e.g. ``docs/results/paper_tables.md``): the summary sections, then the
+  detail sections;
+* the README block between ``<!-- BLOCK:start -->`` and ``<!-- BLOCK:end -->`` (the summary sections and a
+  link to the document);
+* the records (``report.records``, e.g. ``docs/results/paper_tables.json``): one record per (table, run,
+  task, split) cell with ``successes`` and ``episodes`` (plus mean, std and per-repeat rates);
+* the zoo's index and README (``ZOO/index.json``, ``ZOO/README.md``) when the spec exports into a zoo:
+  every exported model (method, grounding, recipe, data, steps, minutes, size, sha256) and the benchmark CLIP;
+* the run summaries (``KEPT/runs.json``) and compact loss curves (``KEPT/training_RUN.csv``) of an
+  experiment without a zoo, and its figures (``report.figures``), drawn from the kept files only.
+
+A report is a list of paragraphs (blocks) joined by blank lines; each section of the spec
+(:data:`abm.experiments.spec.SECTION_KEYS`) adds zero or more. Cells not evaluated yet show "–", so tables fill
+in stages. Links in the summary are written relative to the repository root (the README's folder) and
+rewritten relative to the document's folder in the document.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from abm.experiments.spec import SPECS, ExperimentSpec, Section
+from abm.experiments.state import Layout, machines, stage_minutes
+from abm.files import sha256_file
+
+Rate = Mapping[str, Any]  #: one evaluation cell (a record of ``abm eval``'s results.json)
+Cells = dict[tuple[str, str, str], dict[str, Any]]  #: (run, task, split) -> its rate
+LOSS_COLUMNS = ("step", "total", "translation", "rotation", "gripper")
+STAGE_ORDER = ("data", "ground", "train", "export", "eval", "diagnose")
+_WORDS = ("no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten")
+_LINK = re.compile(r"\]\(([^)\s]+)\)")
+
+
+@dataclass
+class Outcomes:
+    """What the report is written from.
+
+    Attributes:
+        cells: every evaluated cell, keyed by (run or variant, task, split).
+        summaries: keyframe-accuracy summary rows per diagnosis name (``RUN``, ``RUN@oracle``), in spec order.
+        entries: the trained runs' summaries (the zoo index's entries, or ``KEPT/runs.json``), in spec order.
+        stages: minutes per stage, every session added up.
+        machines: every machine that ran a stage.
+        zoo_eval: the timed ``abm zoo eval``: its table and seconds, or ``None`` before it ran.
+    """
+
+    cells: Cells
+    summaries: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    entries: list[dict[str, Any]] = field(default_factory=list)
+    stages: dict[str, float] = field(default_factory=dict)
+    machines: list[str] = field(default_factory=list)
+    zoo_eval: tuple[str, int] | None = None
+
+
+# -------------------------------------------------------------------------------------------------- reading
+def collect_cells(spec: ExperimentSpec, layout: Layout) -> Cells:
+    """``(run, task, split) -> rate`` from every evaluation JSON of the spec's runs and variants under OUT."""
+    cells: Cells = {}
+    for name in [*spec.runs, *(v.name for v in spec.evaluation.variants)]:
+        for split in spec.evaluation.splits:
+            path = layout.eval_dir(name, split.split) / "results.json"
+            if path.is_file():
+                for rate in json.loads(path.read_text()):
+                    cells[(name, rate["task"], rate["split"])] = rate
+    return cells
+
+
+def keyframe_summaries(spec: ExperimentSpec, layout: Layout) -> dict[str, list[dict[str, Any]]]:
+    """Diagnosis name -> its summary rows (``OUT/keyframe_accuracy/NAME.json``), in spec order."""
+    found = {}
+    for name in spec.diagnoses():
+        path = layout.diagnosis(name)
+        if path.is_file():
+            found[name] = json.loads(path.read_text())["summary"]
+    return found
+
+
+def training_summary(run_dir: Path) -> dict[str, float] | None:
+    """Steps, minutes and mean samples/s of a run folder's log (``None`` before its first row)."""
+    log = run_dir / "log.csv"
+    if not log.is_file():
+        return None
+    with log.open() as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return None
+    last = rows[-1]
+    sps = [float(r["samples_per_s"]) for r in rows[1:]] or [float(last["samples_per_s"])]
+    return {"steps": int(last["step"]), "elapsed_min": float(last["elapsed_s"]) / 60,
+            "samples_per_s": sum(sps) / len(sps)}
+
+
+def describe_run(run_dir: Path) -> dict[str, Any]:
+    """What only a run folder knows (``config.json``, ``log.csv``): tasks, data, steps, recipe, language,
+    grounder and training minutes; ``{}`` when the folder is gone (a fresh clone)."""
+    cfg_path = run_dir / "config.json"
+    if not cfg_path.is_file():
+        return {}
+    cfg = json.loads(cfg_path.read_text())
+    train = cfg["train"]
+    entry: dict[str, Any] = {
+        "tasks": train["tasks"], "data": str(train["data"]), "steps": train["steps"],
+        "recipe": {k: train[k] for k in ("batch", "optimizer", "warmup", "weight_decay", "seed")}
+        | {"lr": cfg["lr"], "resolution": cfg["policy"]["resolution"], "patch_size": cfg["policy"]["patch_size"],
+           "preset": cfg["policy"]["preset"]},
+        "language": cfg["language"].get("kind"), "grounder_spec": cfg["grounder"],
+    }
+    trained = training_summary(run_dir)
+    if trained is not None:
+        entry["train_minutes"] = round(trained["elapsed_min"], 1)
+    return entry
+
+
+def zoo_index(spec: ExperimentSpec, layout: Layout) -> list[dict[str, Any]]:
+    """Every exported model of the spec (and the benchmark CLIP) as the zoo index describes it.
+
+    A model's entry keeps what the index knew (on a fresh clone the run folder is gone) and is refreshed from
+    its run folder when that is here; the file's size and sha256 are read anew."""
+    assert layout.zoo is not None
+    index_path = layout.zoo / "index.json"
+    known = {e["name"]: e for e in json.loads(index_path.read_text())} if index_path.is_file() else {}
+    entries = []
+    for name, run in spec.runs.items():
+        file = layout.zoo_file(name)
+        if not file.is_file():
+            continue
+        entry = dict(known.get(name, {}))
+        entry.update({"name": name, "file": file.name, "label": run.label, "method": run.method,
+                      "grounder": run.grounding, "tables": spec.tables_of(name), "size_bytes": file.stat().st_size,
+                      "sha256": sha256_file(file)})
+        entry.update(describe_run(layout.run_dir(name)))
+        entries.append(entry)
+    clip = layout.clip
+    if clip is not None and (clip / "model.safetensors").is_file():
+        meta = json.loads((clip / "abm_clip.json").read_text()) if (clip / "abm_clip.json").is_file() else {}
+        entries.append({"name": "benchmark-clip", "file": clip.name + "/", "method": "clip",
+                        "size_bytes": (clip / "model.safetensors").stat().st_size,
+                        "sha256": sha256_file(clip / "model.safetensors"),
+                        "recipe": meta.get("recipe"), "steps": meta.get("steps"),
+                        "train_minutes": round(meta["train_seconds"] / 60, 1) if "train_seconds" in meta else None,
+                        "zero_shot_top1": (meta.get("zero_shot") or {}).get("accuracy"),
+                        "command": spec.clip_command or None})
+    return entries
+
+
+def kept_run_summaries(spec: ExperimentSpec, layout: Layout) -> list[dict[str, Any]]:
+    """The runs' summaries of an experiment without a zoo: ``KEPT/runs.json`` refreshed from the run folders
+    that are here (with ``samples_per_s``)."""
+    path = layout.kept / "runs.json"
+    known = {e["name"]: e for e in json.loads(path.read_text())} if path.is_file() else {}
+    entries = []
+    for name, run in spec.runs.items():
+        entry = dict(known.get(name, {}))
+        fresh = describe_run(layout.run_dir(name))
+        trained = training_summary(layout.run_dir(name))
+        if fresh:
+            entry.update({"name": name, "label": run.label, "method": run.method, "grounder": run.grounding})
+            entry.update(fresh)
+            if trained is not None:
+                entry["samples_per_s"] = round(trained["samples_per_s"], 2)
+        if entry:
+            entries.append(entry)
+    return entries
+
+
+def collect(spec: ExperimentSpec, layout: Layout) -> Outcomes:
+    """Every outcome the report is written from (OUT after the committed ones were restored into it)."""
+    zoo_eval = None
+    folder = layout.zoo_eval
+    if (folder / "results.md").is_file() and (folder / "seconds").is_file():
+        zoo_eval = ((folder / "results.md").read_text().strip(), int((folder / "seconds").read_text()))
+    entries = zoo_index(spec, layout) if layout.zoo is not None else kept_run_summaries(spec, layout)
+    return Outcomes(cells=collect_cells(spec, layout), summaries=keyframe_summaries(spec, layout), entries=entries,
+                    stages=stage_minutes(layout.times), machines=machines(layout.machines), zoo_eval=zoo_eval)
+
+
+# ---------------------------------------------------------------------------------------------- numbers
+def successes(rate: Rate) -> int:
+    """Successful episodes of a cell."""
+    return round(float(rate["mean"]) * int(rate["episodes"]) / 100)
+
+
+def cell(rate: Rate | None) -> str:
+    """``mean ± std (successes/episodes)`` (no ± for one repeat), or "–" when not evaluated."""
+    if rate is None:
+        return "–"
+    std = f" ± {rate['std']:.0f}" if len(rate["per_repeat"]) > 1 else ""
+    return f"{rate['mean']:.0f}{std} ({successes(rate)}/{rate['episodes']})"
+
+
+def average(cells: Cells, run: str, split: str, tasks: Sequence[str]) -> float | None:
+    """Mean success over ``tasks``, or ``None`` until every task of the split is evaluated."""
+    rates = [cells.get((run, t, split)) for t in tasks]
+    if not rates or any(r is None for r in rates):
+        return None
+    return sum(float(r["mean"]) for r in rates if r is not None) / len(rates)
+
+
+def pct(v: float | None, digits: int = 1) -> str:
+    return "–" if v is None else f"{v:.{digits}f}"
+
+
+def ratio(seen: float | None, unseen: float | None) -> str:
+    return "–" if seen is None or unseen is None or seen <= 0 else f"{unseen / seen:.2f}"
+
+
+def _number(n: int) -> str:
+    return _WORDS[n] if 0 <= n < len(_WORDS) else str(n)
+
+
+def _row(values: Sequence[str]) -> str:
+    return "| " + " | ".join(values) + " |"
+
+
+def _head(values: Sequence[str]) -> list[str]:
+    return [_row(values), "|---" * len(values) + "|"]
+
+
+# --------------------------------------------------------------------------------------------- sections
+@dataclass
+class Context:
+    """What every section writer sees: the spec, its outcomes and the split -> tasks map."""
+
+    spec: ExperimentSpec
+    outcomes: Outcomes
+    layout: Layout
+
+    @property
+    def cells(self) -> Cells:
+        return self.outcomes.cells
+
+    def tasks(self, split: str) -> tuple[str, ...]:
+        return self.spec.split_tasks().get(split, ())
+
+    def average(self, run: str, split: str) -> float | None:
+        return average(self.cells, run, split, self.tasks(split))
+
+    def label(self, run: str) -> str:
+        if run in self.spec.runs:
+            return self.spec.runs[run].label
+        return next((v.label for v in self.spec.evaluation.variants if v.name == run), run)
+
+    def task_order(self) -> dict[str, int]:
+        first = self.spec.training.tasks or self.spec.data.tasks
+        return {t: i for i, t in enumerate(first)}
+
+
+def _setup(ctx: Context, section: Section) -> list[str]:
+    spec, out = ctx.spec, ctx.outcomes
+    setup = []
+    if out.machines:
+        setup.append(f"Machine{'s' if len(out.machines) > 1 else ''} (every session that ran a stage): "
+                     f"{'; '.join(out.machines)}.")
+    trained = [e for e in out.entries if e.get("method") != "clip"]
+    recipe = next((e["recipe"] for e in trained if e.get("recipe")), None)
+    if recipe:
+        n, t = spec.resources.trainings_at_a_time, spec.resources.threads_each
+        side = (f"{_number(n)} trainings at a time with {_number(t)} thread{'s' if t != 1 else ''} each" if n > 1
+                else f"one training at a time with {_number(t)} thread{'s' if t != 1 else ''}")
+        setup.append(f"Recipe (every model): `{recipe['preset']}` preset at {recipe['resolution']}² views, patch "
+                     f"{recipe['patch_size']}, {trained[0].get('steps')} steps of batch {recipe['batch']}, "
+                     f"{recipe['optimizer']} lr {recipe['lr']:g}, {side}.")
+    if trained:
+        setup.append("Training minutes: " + ", ".join(f"{e['name']} {e.get('train_minutes', '?')}" for e in trained)
+                     + ".")
+    if out.stages:
+        ranked = sorted(out.stages.items(),
+                        key=lambda kv: STAGE_ORDER.index(kv[0]) if kv[0] in STAGE_ORDER else len(STAGE_ORDER))
+        setup.append("Wall time per stage, every session added up (min): "
+                     + ", ".join(f"{k} {v:.0f}" for k, v in ranked) + ".")
+    n = max((r["episodes"] for r in ctx.cells.values()), default=0)
+    reps = max((len(r["per_repeat"]) for r in ctx.cells.values()), default=0)
+    if n:
+        where = ", evaluated from the zoo files" if spec.evaluation.from_zoo else ""
+        setup.append(f"Evaluation: {n // max(reps, 1)} seeded episodes × {reps} repeats per task and split, the "
+                     f"same scenes for every model{where}.")
+    return [" ".join(setup)] if setup else []
+
+
+def _paper(section: Section, run: str, count: int) -> list[str]:
+    values = section.paper.get(run)
+    return [f"{v}" for v in values] if values else [""] * count
+
+
+def _per_task(ctx: Context, section: Section) -> list[str]:
+    """Rows: the tasks of the first split; columns: every run × split; then averages, unseen / seen and the
+    paper's averages."""
+    runs, splits = section.runs, section.splits
+    head = [section.column or "task"] + [f"{ctx.label(r)} {s}" for r in runs for s in splits]
+    lines = _head(head)
+    for t in ctx.tasks(splits[0]):
+        lines.append(_row([t] + [cell(ctx.cells.get((r, t, s))) for r in runs for s in splits]))
+    avg = [[ctx.average(r, s) for s in splits] for r in runs]
+    lines.append("| **average** | " + " | ".join(f"**{pct(v)}**" for pair in avg for v in pair) + " |")
+    if tuple(splits) == ("seen", "unseen"):
+        lines.append("| unseen / seen | " + " | ".join(x for pair in avg for x in ("", ratio(*pair))) + " |")
+    if section.paper:
+        lines.append("| paper average | " + " | ".join(x for r in runs for x in _paper(section, r, len(splits)))
+                     + " |")
+    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+
+
+def _per_run(ctx: Context, section: Section) -> list[str]:
+    """Rows: the runs; columns: the tasks of one split, the average and the paper's."""
+    split = section.splits[0]
+    tasks = ctx.tasks(split)
+    head = [section.column or "method", *tasks, "average"] + (["paper average"] if section.paper else [])
+    lines = _head(head)
+    for r in section.runs:
+        row = [ctx.label(r)] + [cell(ctx.cells.get((r, t, split))) for t in tasks]
+        row.append(pct(ctx.average(r, split), section.digits))
+        if section.paper:
+            row += _paper(section, r, 1)
+        lines.append(_row(row))
+    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+
+
+def _averages(ctx: Context, section: Section) -> list[str]:
+    """Rows: the runs; columns: seen and unseen averages, their ratio and the paper's."""
+    head = [section.column or "run", "seen avg", "unseen avg", "unseen / seen"]
+    head += ["paper seen", "paper unseen"] if section.paper else []
+    lines = _head(head)
+    for r in section.runs:
+        seen, unseen = ctx.average(r, "seen"), ctx.average(r, "unseen")
+        row = [section.names.get(r, r), pct(seen), pct(unseen), ratio(seen, unseen)]
+        if section.paper:
+            row += _paper(section, r, 2)
+        lines.append(_row(row))
+    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+
+
+def _table(ctx: Context, number: int | None) -> Section:
+    for s in (*ctx.spec.report.summary, *ctx.spec.report.details):
+        if s.table == number:
+            return s
+    raise ValueError(f"{ctx.spec.path}: no report table {number}")
+
+
+def _spread(ctx: Context, section: Section) -> list[str]:
+    """One sentence once every run of a table has both averages: their range beside the paper's."""
+    table = _table(ctx, section.of_table)
+    seen = [ctx.average(r, "seen") for r in table.runs]
+    unseen = [ctx.average(r, "unseen") for r in table.runs]
+    if any(v is None for v in (*seen, *unseen)):
+        return []
+    ours = [f"{min(v):.1f}–{max(v):.1f}" for v in (seen, unseen)]  # type: ignore[type-var]
+    paper = [f"{min(v)}–{max(v)}" for v in zip(*(table.paper[r] for r in table.runs), strict=True)]
+    return [section.text.format(seen=ours[0], unseen=ours[1], paper_seen=paper[0], paper_unseen=paper[1])]
+
+
+def _verdict(text: str, ok: bool | None, value: str) -> str:
+    return f"{text}: not evaluated yet" if ok is None else f"{text}: {'met' if ok else 'not met'} ({value})"
+
+
+def _targets(ctx: Context, section: Section) -> list[str]:
+    """Each target checked against the averages of each row run (measured, not asserted)."""
+    parts = []
+    for run in section.runs:
+        checks = []
+        for check in section.checks:
+            value = ctx.average(run, check.split)
+            if check.kind == "at_least":
+                checks.append(_verdict(check.text, None if value is None else value >= check.value, pct(value)))
+            elif check.kind == "ratio":
+                seen = ctx.average(run, "seen")
+                ok = None if seen is None or value is None or not seen else value / seen >= check.value
+                checks.append(_verdict(check.text, ok, ratio(seen, value)))
+            else:
+                base = ctx.average(check.base, check.split)
+                ok = None if value is None or base is None else value >= base + check.value
+                checks.append(_verdict(check.text, ok, f"{pct(value)} vs {pct(base)}"))
+        parts.append(f"{run}: " + "; ".join(checks))
+    return [f"{section.text}: " + ". ".join(parts) + "."]
+
+
+def _caveats(ctx: Context, section: Section) -> list[str]:
+    """The caveats of the runs that have cells, as one paragraph."""
+    runs = {run for run, _, _ in ctx.cells}
+    notes = [run.caveat for name, run in ctx.spec.runs.items() if run.caveat and name in runs]
+    return [" ".join(notes)] if notes else []
+
+
+def weakest_keyframes(summaries: Mapping[str, Sequence[Mapping[str, Any]]], split: str = "seen") -> str:
+    """One sentence per run: its keyframe kinds by median (over tasks) position error, worst first."""
+    parts = []
+    for run, rows in summaries.items():
+        by_kind: dict[str, list[float]] = {}
+        for row in rows:
+            if row["split"] == split:
+                by_kind.setdefault(row["kind"], []).append(row["position_cm_median"])
+        if by_kind:
+            ranked = sorted(((float(np.median(v)), k) for k, v in by_kind.items() if len(v) > 1), reverse=True)
+            parts.append(f"{run}: " + ", ".join(f"{k} {cm:.1f} cm" for cm, k in ranked))
+    if not parts:
+        return ""
+    return (f"Keyframe position error ({split} objects, teacher-forced on the expert's rollouts, median over the "
+            "tasks that have the keyframe, worst first): " + "; ".join(parts) + ".")
+
+
+def approach_yaw(summaries: Mapping[str, Sequence[Mapping[str, Any]]], split: str = "seen",
+                 task: str = "place_food") -> str:
+    """One sentence: each run's rotation error where it chooses the yaw (the approach keyframe) against the
+    grasp that follows it, median over the tasks, and on ``task``."""
+    parts = []
+    for run, rows in summaries.items():
+        by_kind: dict[str, list[float]] = {}
+        at_task: dict[str, float] = {}
+        for row in rows:
+            if row["split"] == split and row["kind"] in ("approach", "grasp"):
+                by_kind.setdefault(row["kind"], []).append(row["rotation_deg_median"])
+                if row["task"] == task:
+                    at_task[row["kind"]] = row["rotation_deg_median"]
+        if "approach" in by_kind and "grasp" in by_kind:
+            parts.append(f"{run} {np.median(by_kind['approach']):.0f}° / {np.median(by_kind['grasp']):.0f}°"
+                         + (f" ({task} {at_task['approach']:.0f}°)" if "approach" in at_task else ""))
+    if not parts:
+        return ""
+    return (f"Rotation error ({split} objects, symmetry-aware, median over the tasks) at the approach keyframe, "
+            "where the policy chooses the yaw from the scene, against the grasp keyframe that follows it from "
+            "the approach pose: " + "; ".join(parts) + ".")
+
+
+def keyframe_table(summaries: Mapping[str, Sequence[Mapping[str, Any]]], split: str,
+                   order: Mapping[str, int]) -> str:
+    """Median position error (cm) / rotation error (°, symmetry-aware) per task and keyframe kind, one column
+    per diagnosis (tasks in ``order``)."""
+    runs = list(summaries)
+    rows: dict[tuple[str, str], dict[str, Mapping[str, Any]]] = {}
+    for run in runs:
+        for row in summaries[run]:
+            if row["split"] == split:
+                rows.setdefault((row["task"], row["kind"]), {})[run] = row
+    lines = _head(["task", "keyframe", *runs])
+    for (task, kind), by_run in sorted(rows.items(), key=lambda kv: (order.get(kv[0][0], 99), kv[0][0])):
+        cells = [f"{r['position_cm_median']:.1f} / {r['rotation_deg_median']:.0f}" if (r := by_run.get(run))
+                 else "–" for run in runs]
+        lines.append(_row([task, kind, *cells]))
+    return "\n".join(lines)
+
+
+def _weakest(ctx: Context, section: Section) -> list[str]:
+    return [t for s in section.splits or ("seen",) if (t := weakest_keyframes(ctx.outcomes.summaries, s))]
+
+
+def _approach_yaw(ctx: Context, section: Section) -> list[str]:
+    out = []
+    for split in section.splits or ("seen",):
+        text = approach_yaw(ctx.outcomes.summaries, split, section.task or "place_food")
+        if text:
+            out.append(text + (f" {section.note}" if section.note else ""))
+    return out
+
+
+def _zoo_eval(ctx: Context, section: Section) -> list[str]:
+    """The timed ``abm zoo eval``, once it ran."""
+    if ctx.outcomes.zoo_eval is None:
+        return []
+    table, seconds = ctx.outcomes.zoo_eval
+    episodes = max((int(n) for n in re.findall(r"\(\d+/(\d+)\)", table)), default=0)
+    each = f", {episodes} episodes each" if episodes else ""
+    return [f"Without training: `abm zoo eval` evaluates the zoo's abm and rvt models on seen and unseen objects "
+            f"with its defaults (a few tasks{each}) through the full pipeline; it took {seconds / 60:.0f} min "
+            f"on this machine:\n\n{table}"]
+
+
+def _text(ctx: Context, section: Section) -> list[str]:
+    return [section.text] if section.text else []
+
+
+def _detail(ctx: Context, section: Section) -> list[str]:
+    """Every run (or the section's) on every task of the splits."""
+    runs = section.runs or tuple(ctx.spec.runs)
+    splits = section.splits or ("seen", "unseen")
+    lines = _head(["run"] + [f"{t} {s}" for s in splits for t in ctx.tasks(s)])
+    for r in runs:
+        lines.append(_row([r] + [cell(ctx.cells.get((r, t, s))) for s in splits for t in ctx.tasks(s)]))
+    return ["\n".join(lines)]
+
+
+def _keyframe_accuracy(ctx: Context, section: Section) -> list[str]:
+    """Per split with diagnosis rows: a heading, the weakest keyframes, the section's text and the table."""
+    summaries = ctx.outcomes.summaries
+    out = []
+    for split in section.splits or ("seen", "unseen"):
+        if any(row["split"] == split for rows in summaries.values() for row in rows):
+            out += [f"## Keyframe accuracy, {split} objects", weakest_keyframes(summaries, split), section.text,
+                    keyframe_table(summaries, split, ctx.task_order())]
+    return [b for b in out if b]
+
+
+def _figures(ctx: Context, section: Section) -> list[str]:
+    """The spec's figures as markdown images (drawn by :func:`draw_figures`)."""
+    lines = [f"![{f.alt}]({f.file})" for f in ctx.spec.report.figures if (ctx.layout.root / f.file).is_file()]
+    return ["\n".join(lines)] if lines else []
+
+
+def _heading(ctx: Context, section: Section) -> list[str]:
+    return [section.text]
+
+
+WRITERS: dict[str, Callable[[Context, Section], list[str]]] = {
+    "setup": _setup, "per_task": _per_task, "per_run": _per_run, "averages": _averages, "spread": _spread,
+    "targets": _targets, "caveats": _caveats, "weakest_keyframes": _weakest, "approach_yaw": _approach_yaw,
+    "zoo_eval": _zoo_eval, "text": _text, "detail": _detail, "keyframe_accuracy": _keyframe_accuracy,
+    "figures": _figures, "heading": _heading,
+}
+
+
+def blocks(ctx: Context, sections: Sequence[Section]) -> list[str]:
+    """The paragraphs of ``sections``, in order (empty ones left out)."""
+    out = []
+    for section in sections:
+        writer = WRITERS.get(section.kind)
+        if writer is None:
+            raise ValueError(f"{ctx.spec.path}: the report cannot write {section.kind!r} sections yet")
+        out += [b for b in writer(ctx, section) if b]
+    return out
+
+
+def provenance(spec: ExperimentSpec, layout: Layout) -> str:
+    """The report's first line: what wrote it, from which spec, from which kept outcomes."""
+    kept, source = layout.show(layout.kept), spec_name(spec, layout)
+    return (f"Written by `abm experiment run {spec.name}` ([{source}]({source})) from the evaluation JSON kept in "
+            f"[{kept}/]({kept}/); cells not evaluated yet show –.")
+
+
+def relink(text: str, folder: str) -> str:
+    """``text`` with its root-relative markdown links rewritten relative to ``folder`` (both root-relative)."""
+    def fix(match: re.Match[str]) -> str:
+        target = match.group(1)
+        if "://" in target or target.startswith(("#", "/", "mailto:")) or folder in ("", "."):
+            return match.group(0)
+        path, hash_, anchor = target.partition("#")
+        new = Path(os.path.relpath(path, folder)).as_posix() + ("/" if path.endswith("/") else "")
+        return f"]({new}{hash_}{anchor})"
+
+    return _LINK.sub(fix, text)
+
+
+@dataclass
+class Written:
+    """The texts of one report (what :func:`write_report` writes)."""
+
+    summary: str
+    document: str
+    block: str
+    records: list[dict[str, Any]]
+    zoo: list[dict[str, Any]] | None
+    zoo_readme: str
+
+
+def records(spec: ExperimentSpec, cells: Cells) -> list[dict[str, Any]]:
+    """The machine-readable cells: one record per table a cell belongs to (its run and split)."""
+    tables = [s for s in (*spec.report.summary, *spec.report.details) if s.table is not None]
+    out = []
+    for (run, task, split), rate in sorted(cells.items()):
+        spec_run = spec.runs.get(run)
+        for table in sorted(tables, key=lambda s: s.table or 0):
+            if run not in table.runs or split not in table.splits or spec_run is None:
+                continue
+            out.append({"table": table.table, "run": run, "label": spec_run.label, "method": spec_run.method,
+                        "grounder": spec_run.grounding, "task": task, "split": split, "successes": successes(rate),
+                        "episodes": rate["episodes"], "mean": rate["mean"], "std": rate["std"],
+                        "per_repeat": rate["per_repeat"]})
+    return out
+
+
+def spec_name(spec: ExperimentSpec, layout: Layout) -> str:
+    """The spec's file as a reader finds it: ``configs/experiments/NAME.yaml`` for a built-in one."""
+    if spec.path.resolve().parent == SPECS:
+        return f"configs/experiments/{spec.path.name}"
+    return layout.show(spec.path.resolve())
+
+
+def zoo_readme(spec: ExperimentSpec, layout: Layout, entries: Sequence[Mapping[str, Any]]) -> str:
+    """The zoo's README: what wrote it, then one row per model."""
+    source = spec_name(spec, layout)
+    link = relink(f"]({source})", layout.show(layout.zoo or layout.root))[2:-1]
+    lines = ["# Model zoo", "", f"Written by `abm experiment run {spec.name}` ([{source}]({link}))."
+             + (f" {spec.report.zoo_note}" if spec.report.zoo_note else ""), "",
+             *_head(["name", "what", "method", "grounder", "steps", "train min", "MB", "sha256"])]
+    for e in entries:
+        lines.append(f"| {e['name']} | {e.get('label') or '–'} | {e['method']} | {e.get('grounder', '–')} | "
+                     f"{e.get('steps', '–')} | {e.get('train_minutes', '–')} | {e['size_bytes'] / 1e6:.1f} | "
+                     f"`{e['sha256'][:16]}…` |")
+    return "\n".join(lines) + "\n"
+
+
+def compose(spec: ExperimentSpec, layout: Layout, outcomes: Outcomes) -> Written:
+    """Every text of the report (nothing written yet)."""
+    ctx = Context(spec, outcomes, layout)
+    head = [provenance(spec, layout)]
+    summary = "\n\n".join(head + blocks(ctx, spec.report.summary)) + "\n"
+    details = blocks(ctx, spec.report.details)
+    document = relink(f"# {spec.report.title}\n\n" + "\n\n".join([summary.rstrip("\n"), *details]) + "\n",
+                      Path(spec.report.document).parent.as_posix())
+    block = f"{summary}Full report: [{spec.report.document}]({spec.report.document}).\n"
+    zoo = outcomes.entries if layout.zoo is not None else None
+    return Written(summary=summary, document=document, block=block, records=records(spec, outcomes.cells),
+                   zoo=zoo, zoo_readme=zoo_readme(spec, layout, zoo) if zoo is not None else "")
+
+
+# -------------------------------------------------------------------------------------------------- writing
+def replace_block(text: str, name: str, body: str, source: str = "README") -> str:
+    """``text`` with what stands between ``<!-- NAME:start -->`` and ``<!-- NAME:end -->`` replaced by ``body``."""
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    if start not in text or end not in text:
+        raise ValueError(f"{source} has no {start} ... {end} block to replace")
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    return f"{head}{start}\n{body}{end}{tail}"
+
+
+def block_of(text: str, name: str) -> str:
+    """What stands between the markers of block ``name`` (without the newline after the start marker)."""
+    start, end = f"<!-- {name}:start -->\n", f"<!-- {name}:end -->"
+    return text.split(start, 1)[1].split(end, 1)[0]
+
+
+def _write(path: Path, text: str) -> bool:
+    """Write ``text`` when it differs from the file's; returns whether it did."""
+    if path.is_file() and path.read_text() == text:
+        return False
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return True
+
+
+def keep_training_log(run_dir: Path, path: Path, max_rows: int = 200) -> None:
+    """A compact copy of a run's loss curve (at most ``max_rows`` evenly spaced rows and the last one)."""
+    with (run_dir / "log.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    keep = rows[:: max(1, len(rows) // max_rows)] + rows[-1:]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, LOSS_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows({r["step"]: r for r in keep}.values())  # the last row may already be kept
+
+
+def draw_figures(spec: ExperimentSpec, layout: Layout, cells: Cells) -> list[Path]:
+    """Draw the spec's figures from the kept outcomes; returns the PNGs drawn."""
+    if not spec.report.figures:
+        return []
+    from abm.evaluation.plots import keyframe_error_curve, loss_curves, success_chart  # matplotlib: only here
+
+    drawn = []
+    for figure in spec.report.figures:
+        path = layout.root / figure.file
+        names = list(figure.runs) or [*spec.runs, *(v.name for v in spec.evaluation.variants)]
+        if figure.kind == "success":
+            rates = [{**rate, "method": run} for (run, _, _), rate in sorted(cells.items()) if run in names]
+            if rates:
+                drawn.append(success_chart(rates, path, methods=[n for n in names if any(
+                    r["method"] == n for r in rates)]))
+        elif figure.kind == "losses":
+            logs = {n: list(csv.DictReader((layout.kept / f"training_{n}.csv").open())) for n in names
+                    if (layout.kept / f"training_{n}.csv").is_file()}
+            if logs:
+                drawn.append(loss_curves(logs, path))
+        else:
+            files = [layout.kept / f"keyframe_accuracy_{n}.json" for n in names]
+            rows = [row for p in files if p.is_file() for row in json.loads(p.read_text())["summary"]]
+            if rows:
+                drawn.append(keyframe_error_curve(rows, path))
+    return drawn
+
+
+def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> Written:
+    """Write every generated file of the report (see the module docstring); returns their texts."""
+    if layout.zoo is None:  # an experiment without a zoo keeps its runs' summaries and loss curves itself
+        entries = kept_run_summaries(spec, layout)
+        if entries:
+            _write(layout.kept / "runs.json", json.dumps(entries, indent=1) + "\n")
+        if any(f.kind == "losses" for f in spec.report.figures):
+            for name in spec.runs:
+                if (layout.run_dir(name) / "log.csv").is_file():
+                    keep_training_log(layout.run_dir(name), layout.kept / f"training_{name}.csv")
+    outcomes = collect(spec, layout)
+    if figures:
+        draw_figures(spec, layout, outcomes.cells)
+    written = compose(spec, layout, outcomes)
+    if written.zoo is not None and layout.zoo is not None:
+        _write(layout.zoo / "index.json", json.dumps(written.zoo, indent=2) + "\n")
+        if spec.report.zoo_readme:
+            _write(layout.zoo / "README.md", written.zoo_readme)
+    if spec.report.records:
+        _write(layout.root / spec.report.records, json.dumps(written.records, indent=1) + "\n")
+    _write(layout.root / spec.report.document, written.document)
+    if spec.report.readme:
+        readme = layout.root / spec.report.readme
+        _write(readme, replace_block(readme.read_text(), spec.report.block, written.block, spec.report.readme))
+    return written

@@ -1,0 +1,791 @@
+"""An experiment as data: :class:`ExperimentSpec` and its YAML loader (``configs/experiments/NAME.yaml``).
+
+A spec names everything a pipeline driver used to hold in a shell script and a report writer: the
+demonstrations to generate, the runs as typed overrides of the training recipe, the evaluation protocol, the
+diagnosis, the report's tables and figures, and the resources (trainings at a time, threads each). The engine
+(:mod:`abm.experiments.stages`) runs it; :mod:`abm.experiments.report` writes its generated blocks.
+
+Paths in a spec are relative to the root the engine runs in (the repository checkout). :func:`load_spec`
+validates the whole file before any work starts; a mistake is one :class:`SpecError` naming the file and the
+key (``configs/experiments/x.yaml: runs.abm.train.steps: expected a whole number >= 1, got 'many'``).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES, SPLITS, WORKERS, check_overrides
+from abm.files import load_yaml
+from abm.policy.config import PolicyConfig
+from abm.train.config import TrainConfig
+
+#: the built-in specs (``abm experiment run paper_tables``; the repository's configs/experiments/ links here)
+SPECS = Path(__file__).resolve().parent.parent / "configs" / "experiments"
+#: the engine's stages, in order (``abm experiment run --stages``); ``carry`` runs only when asked for
+STAGES: tuple[str, ...] = ("data", "ground", "train", "export", "eval", "diagnose", "report")
+EXTRA_STAGES: tuple[str, ...] = ("carry",)
+#: TrainConfig fields the engine sets itself for every run (a spec may not override them)
+ENGINE_TRAIN_FIELDS = ("out", "data", "resume", "overwrite", "progress", "cache_dir")
+POLICY_FIXED = ("variant", "preset", "extra")  #: PolicyConfig fields set by the run's method and preset
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+_MARKER = re.compile(r"^[a-z0-9][a-z0-9-]*$")
+
+
+class SpecError(ValueError):
+    """An experiment spec that does not load: the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class DataSpec:
+    """The demonstrations to generate (``abm data generate``), one episode store for every task.
+
+    Attributes:
+        tasks: tasks to demonstrate.
+        split: object split of the demonstrations.
+        episodes: successful demonstrations per task.
+        workers: parallel generator processes.
+        seed: first scene seed.
+        resolution: camera image side (pixels).
+        folder: the episode store (relative to the root; default ``OUT/data``).
+    """
+
+    tasks: tuple[str, ...]
+    split: str = "seen"
+    episodes: int = 20
+    workers: int = WORKERS
+    seed: int = 0
+    resolution: int = CAMERA_RESOLUTION
+    folder: str | None = None
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One training run: a name, what the report calls it, and its overrides of the training recipe.
+
+    Attributes:
+        name: the run's folder under OUT and its file in the zoo (``ZOO/NAME.pt``).
+        label: its row label in the report's tables.
+        grounding: what grounds its target, as the report and the zoo index say it (``oracle``,
+            ``clip``, ``none (CLIP text)``, ...).
+        train: overrides of the training recipe (:class:`~abm.train.config.TrainConfig` fields: ``method``,
+            ``grounder``, ``language``, ``seed``, ...), applied after the spec's common ones.
+        policy: overrides of the policy configuration (:class:`~abm.policy.config.PolicyConfig` fields).
+        caveat: a sentence the report prints under the tables while the run has cells.
+    """
+
+    name: str
+    label: str
+    grounding: str
+    train: Mapping[str, Any]
+    policy: Mapping[str, Any] = field(default_factory=dict)
+    caveat: str = ""
+
+    @property
+    def method(self) -> str:
+        """The policy variant (``abm``, ``rvt``, ``ifd``, an ablation)."""
+        return str(self.train["method"])
+
+    @property
+    def grounder(self) -> str:
+        """The training grounder (``oracle`` or ``clip``)."""
+        return str(self.train.get("grounder", "oracle"))
+
+    @property
+    def language(self) -> str:
+        """The language encoder (``hash`` or ``clip``; ``clip`` by default with the clip grounder)."""
+        return str(self.train.get("language") or ("clip" if self.grounder == "clip" else "hash"))
+
+    @property
+    def needs_clip(self) -> bool:
+        """Whether training or evaluating the run needs the benchmark CLIP."""
+        return self.grounder == "clip" or self.language == "clip"
+
+    @property
+    def cache(self) -> str | None:
+        """The grounding cache the run trains from: ``features`` (ifd's CLIP point features), ``masks`` (the
+        CLIP mask field) or ``None`` (oracle masks need none)."""
+        if self.grounder != "clip":
+            return None
+        return "features" if self.method == "ifd" else "masks"
+
+
+@dataclass(frozen=True)
+class TrainingSpec:
+    """What every run shares.
+
+    Attributes:
+        recipe: the training recipe (``abm train --config``: a built-in name or a YAML file).
+        tasks: the tasks every run trains on (default: all in the episode store).
+        steps: optimiser steps of every run (default: the recipe's).
+        train: overrides of the recipe common to every run (TrainConfig fields).
+        policy: policy overrides common to every run (PolicyConfig fields).
+    """
+
+    recipe: str
+    tasks: tuple[str, ...] | None = None
+    steps: int | None = None
+    train: Mapping[str, Any] = field(default_factory=dict)
+    policy: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class EvalSplit:
+    """One object split of the evaluation.
+
+    Attributes:
+        split: ``seen``, ``unseen`` or ``compositional``.
+        tasks: tasks evaluated on it.
+        runs: the runs (and variants) evaluated on it (default: all).
+    """
+
+    split: str
+    tasks: tuple[str, ...]
+    runs: tuple[str, ...] | None = None
+
+
+@dataclass(frozen=True)
+class VariantSpec:
+    """A run evaluated with another grounder than it was trained with (``abm eval --grounder``).
+
+    Attributes:
+        name: its folder under OUT/eval (``RUN@GROUNDER``).
+        run: the trained run.
+        grounder: the grounder at evaluation (``clip``, ``oracle`` or ``tracking``).
+        label: its row label in the report.
+        description: what grounds its target, in the report.
+    """
+
+    name: str
+    run: str
+    grounder: str
+    label: str
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class EvaluationSpec:
+    """The evaluation protocol (``abm eval``): the same seeded scenes for every run.
+
+    Attributes:
+        episodes: seeded episodes per task, split and repeat.
+        repeats: repeats with different scenes.
+        workers: parallel rollout processes per evaluation.
+        max_steps: keyframes per episode.
+        gifs: front-camera GIFs saved per task.
+        from_zoo: evaluate the exported zoo file (``ZOO/RUN.pt``) instead of the run folder.
+        splits: the object splits and their tasks.
+        variants: runs evaluated with another grounder.
+        zoo_eval: time ``abm zoo eval`` once these runs are in the zoo (empty: never).
+    """
+
+    episodes: int = 25
+    repeats: int = 1
+    workers: int = WORKERS
+    max_steps: int = MAX_KEYFRAMES
+    gifs: int = 0
+    from_zoo: bool = False
+    splits: tuple[EvalSplit, ...] = ()
+    variants: tuple[VariantSpec, ...] = ()
+    zoo_eval: tuple[str, ...] = ()
+
+    def split_runs(self, split: EvalSplit, runs: Sequence[str]) -> list[str]:
+        """The runs and variants evaluated on ``split``, in spec order."""
+        names = [*runs, *(v.name for v in self.variants)]
+        return [n for n in names if split.runs is None or n in split.runs]
+
+
+@dataclass(frozen=True)
+class DiagnoseSpec:
+    """Teacher-forced keyframe accuracy of every run on expert scenes (``benchmarks/keyframe_accuracy.py``).
+
+    Attributes:
+        episodes: evaluation scenes per task and split.
+        splits: object splits.
+        tasks: tasks (default: the training tasks).
+        oracle_mask: also score every CLIP-grounded mask run with the simulator's mask (``RUN@oracle``).
+        steps: also score these checkpoint steps of each run (keyframe error against training time).
+        kinds: keyframe kinds to print (all are stored).
+    """
+
+    episodes: int = 5
+    splits: tuple[str, ...] = ("seen", "unseen")
+    tasks: tuple[str, ...] | None = None
+    oracle_mask: bool = False
+    steps: tuple[int, ...] = ()
+    kinds: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Resources:
+    """How the trainings share the machine.
+
+    Attributes:
+        trainings_at_a_time: trainings run side by side.
+        threads_each: torch threads of each training (a training left alone gets the others' too).
+        order: training order (default: the runs' order).
+    """
+
+    trainings_at_a_time: int = 2
+    threads_each: int = 1
+    order: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Section:
+    """One part of the report (see :data:`SECTION_KEYS` for what each kind takes).
+
+    Attributes:
+        kind: what it writes (``setup``, ``per_task``, ``per_run``, ``averages``, ``spread``, ``targets``,
+            ``caveats``, ``weakest_keyframes``, ``approach_yaw``, ``zoo_eval``, ``text``, ``detail``,
+            ``keyframe_accuracy``, ``keyframe_table``, ``figures``, ``heading``, ``outcome_tables``).
+        title: a paragraph before a table.
+        text: the paragraph of ``text`` / ``heading`` or the template of ``spread`` / ``targets``.
+        runs: rows (or columns) of a table, in order.
+        splits: object splits of a table.
+        table: the table's number in the records (``paper_tables.json``).
+        names: row names replacing a run's name.
+        paper: the paper's averages per run (one per split).
+        of_table: the table a ``spread`` sentence summarises.
+        checks: the ``targets`` checks.
+        task: the task an ``approach_yaw`` sentence names.
+        note: a sentence appended to the section.
+        digits: decimals of averages (tables).
+        column: the header of a table's first column.
+    """
+
+    kind: str
+    title: str = ""
+    text: str = ""
+    runs: tuple[str, ...] = ()
+    splits: tuple[str, ...] = ()
+    table: int | None = None
+    names: Mapping[str, str] = field(default_factory=dict)
+    paper: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
+    of_table: int | None = None
+    checks: tuple[TargetCheck, ...] = ()
+    task: str = ""
+    note: str = ""
+    digits: int = 1
+    column: str = ""
+
+
+@dataclass(frozen=True)
+class TargetCheck:
+    """One target of a ``targets`` section, checked on a run's split averages.
+
+    Attributes:
+        text: how the report states it (``seen ≥ 60 %``).
+        kind: ``at_least`` (the split average ≥ ``value``), ``ratio`` (unseen / seen ≥ ``value``) or
+            ``beats`` (the split average ≥ ``base``'s + ``value``).
+        split: the split it is checked on.
+        value: the threshold, ratio or margin.
+        base: the run compared with (``beats``).
+    """
+
+    text: str
+    kind: str
+    split: str
+    value: float
+    base: str = ""
+
+
+@dataclass(frozen=True)
+class FigureSpec:
+    """A figure drawn from the kept outcomes (:mod:`abm.evaluation.plots`).
+
+    Attributes:
+        kind: ``success`` (bar chart per task and split), ``losses`` (training loss curves) or
+            ``keyframe_error`` (grasp keyframe error against training steps).
+        file: the PNG (relative to the root).
+        alt: its alt text.
+        runs: runs (and variants) drawn (default: all).
+    """
+
+    kind: str
+    file: str
+    alt: str
+    runs: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class ReportSpec:
+    """What the report stage writes.
+
+    Attributes:
+        title: the heading of the document.
+        document: the full report (markdown, relative to the root).
+        records: the machine-readable cells (JSON), or "" for none.
+        readme: the file holding the generated block, or "" for none.
+        block: the block's marker name (``<!-- NAME:start -->`` ... ``<!-- NAME:end -->``).
+        summary: sections of the README block and the document's top.
+        details: sections of the document only.
+        figures: figures drawn from the kept outcomes.
+        zoo_readme: also write the zoo's index and README (``ZOO/index.json``, ``ZOO/README.md``).
+        zoo_note: what the zoo's README says about its models after naming what wrote it.
+    """
+
+    title: str
+    document: str
+    records: str = ""
+    readme: str = ""
+    block: str = ""
+    summary: tuple[Section, ...] = ()
+    details: tuple[Section, ...] = ()
+    figures: tuple[FigureSpec, ...] = ()
+    zoo_readme: bool = False
+    zoo_note: str = ""
+
+
+@dataclass(frozen=True)
+class ExperimentSpec:
+    """One experiment (``configs/experiments/NAME.yaml``).
+
+    Attributes:
+        name: the experiment's name (``abm experiment run NAME``).
+        path: the file it was loaded from.
+        about: what it measures (one paragraph).
+        out: the working folder (relative to the root; not committed).
+        kept: the committed outcomes (evaluations, diagnoses, stage times, machines, run summaries): a fresh
+            clone restores them into OUT, so nothing finished runs twice and the report has every row.
+        zoo: export every finished run here (``ZOO/RUN.pt``), or "" for no export.
+        carry: the committed state of unfinished trainings and evaluations (for a continuation elsewhere),
+            or "" for none.
+        clip: the benchmark CLIP folder (for runs that need it).
+        clip_command: how the benchmark CLIP was trained (the zoo index says so).
+        data: the demonstrations.
+        training: what every run shares.
+        runs: the runs, in report order.
+        evaluation: the evaluation protocol.
+        diagnose: the diagnosis (``None``: no diagnosis stage).
+        resources: trainings at a time, threads each.
+        report: what the report writes.
+    """
+
+    name: str
+    path: Path
+    about: str
+    out: str
+    kept: str
+    data: DataSpec
+    training: TrainingSpec
+    runs: Mapping[str, RunSpec]
+    evaluation: EvaluationSpec
+    report: ReportSpec
+    zoo: str = ""
+    carry: str = ""
+    clip: str = ""
+    clip_command: str = ""
+    diagnose: DiagnoseSpec | None = None
+    resources: Resources = field(default_factory=Resources)
+
+    def run_names(self) -> list[str]:
+        """Every run, in report order."""
+        return list(self.runs)
+
+    def training_order(self) -> list[str]:
+        """Every run, in training order (:attr:`Resources.order`, then the rest)."""
+        first = [r for r in self.resources.order if r in self.runs]
+        return first + [r for r in self.runs if r not in first]
+
+    def tables_of(self, run: str) -> list[int]:
+        """The numbers of the report tables ``run`` has a row in."""
+        sections = (*self.report.summary, *self.report.details)
+        return sorted({s.table for s in sections if s.table is not None and run in s.runs})
+
+    def diagnoses(self) -> list[str]:
+        """Names of the diagnosis files: every run, and every CLIP-grounded mask run fed the oracle mask
+        (``RUN@oracle``) when :attr:`DiagnoseSpec.oracle_mask` is set."""
+        if self.diagnose is None:
+            return []
+        names = []
+        for name, run in self.runs.items():
+            names.append(name)
+            if self.diagnose.oracle_mask and run.cache == "masks":
+                names.append(name + ORACLE_MASK)
+        return names
+
+    def split_tasks(self) -> dict[str, tuple[str, ...]]:
+        """The evaluation's tasks per split."""
+        return {s.split: s.tasks for s in self.evaluation.splits}
+
+
+ORACLE_MASK = "@oracle"  #: suffix of a diagnosis with the simulator's mask instead of the run's own
+
+
+# ------------------------------------------------------------------------------------------------ reading
+class _Reader:
+    """Typed access to one mapping of a spec file; every error names the file and the key path."""
+
+    def __init__(self, data: Any, source: Path, where: str) -> None:
+        self.source, self.where = source, where
+        if not isinstance(data, dict):
+            raise self.error(f"expected a mapping, got {_shown(data)}")
+        self.data: dict[str, Any] = data
+        self.used: set[str] = set()
+
+    def error(self, message: str, key: str | None = None) -> SpecError:
+        path = f"{self.where}.{key}" if key and self.where else key or self.where or "(top level)"
+        return SpecError(f"{self.source}: {path}: {message}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = None) -> Any:
+        self.used.add(key)
+        return self.data.get(key, default)
+
+    def sub(self, key: str, default: Any = None) -> _Reader:
+        value = self.raw(key, {} if default is None else default)
+        return _Reader(value, self.source, f"{self.where}.{key}" if self.where else key)
+
+    def text(self, key: str, default: str | None = None) -> str:
+        value = self.raw(key, default)
+        if value is None:
+            raise self.error("is required (a text)", key)
+        if not isinstance(value, str):
+            raise self.error(f"expected a text, got {_shown(value)}", key)
+        return " ".join(value.split()) if "\n" in value else value
+
+    def integer(self, key: str, default: int | None = None, low: int = 1) -> int:
+        value = self.raw(key, default)
+        if value is None:
+            raise self.error(f"is required (a whole number >= {low})", key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise self.error(f"expected a whole number >= {low}, got {_shown(value)}", key)
+        return value
+
+    def optional_integer(self, key: str, low: int = 1) -> int | None:
+        return None if self.raw(key) is None else self.integer(key, low=low)
+
+    def number(self, key: str, default: float | None = None) -> float:
+        value = self.raw(key, default)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.error(f"expected a number, got {_shown(value)}", key)
+        return float(value)
+
+    def flag(self, key: str, default: bool = False) -> bool:
+        value = self.raw(key, default)
+        if not isinstance(value, bool):
+            raise self.error(f"expected true or false, got {_shown(value)}", key)
+        return value
+
+    def names(self, key: str, default: Sequence[str] | None = None, lists: Mapping[str, tuple[str, ...]] | None = None
+              ) -> tuple[str, ...]:
+        """A list of names, or (with ``lists``) the name of one of the spec's named task lists."""
+        value = self.raw(key, default)
+        if isinstance(value, tuple):  # a default
+            value = list(value)
+        if value is None:
+            raise self.error("is required (a list of names)", key)
+        if isinstance(value, str) and lists is not None:
+            if value not in lists:
+                raise self.error(f"{value!r} is no task list of this spec (known: {', '.join(lists) or 'none'})", key)
+            return lists[value]
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+            raise self.error(f"expected a list of names, got {_shown(value)}", key)
+        if len(set(value)) != len(value):
+            raise self.error(f"names a value twice: {value}", key)
+        return tuple(value)
+
+    def choice(self, key: str, choices: Sequence[str], default: str | None = None) -> str:
+        value = self.text(key, default)
+        if value not in choices:
+            raise self.error(f"expected one of {', '.join(choices)}, got {value!r}", key)
+        return value
+
+    def done(self) -> None:
+        """Refuse keys nobody read (a typo would otherwise be silently ignored)."""
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            raise self.error(f"unknown key(s) {', '.join(map(repr, unknown))}; known: {', '.join(sorted(self.used))}")
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _checked(reader: _Reader, key: str, cls: type, forbidden: Sequence[str] = ()) -> dict[str, Any]:
+    """``reader[key]``: overrides of the config dataclass ``cls``, each key a settable field of the right type."""
+    sub = reader.sub(key)
+    for name in forbidden:
+        if sub.has(name):
+            raise sub.error("is set by the engine for every run; remove it from the spec", name)
+    try:
+        out = check_overrides(cls, dict(sub.data), option="")
+    except ValueError as err:
+        raise sub.error(str(err).strip()) from None
+    sub.used |= set(sub.data)
+    return out
+
+
+# --------------------------------------------------------------------------------------------- sections
+#: the keys each report section kind takes (besides ``kind``)
+SECTION_KEYS: dict[str, tuple[str, ...]] = {
+    "setup": (),
+    "per_task": ("title", "runs", "splits", "table", "paper", "column"),
+    "per_run": ("title", "runs", "splits", "table", "paper", "digits", "column"),
+    "averages": ("title", "runs", "splits", "table", "paper", "names", "column"),
+    "spread": ("of_table", "text"),
+    "targets": ("text", "runs", "checks"),
+    "caveats": (),
+    "weakest_keyframes": ("splits",),
+    "approach_yaw": ("splits", "task", "note"),
+    "zoo_eval": (),
+    "text": ("text",),
+    "heading": ("text",),
+    "detail": ("runs", "splits"),
+    "keyframe_accuracy": ("splits", "text"),
+    "keyframe_table": ("title", "runs", "splits", "text"),
+    "figures": (),
+    "outcome_tables": ("splits",),
+    "success_rows": ("title", "runs", "splits", "names", "note"),
+    "comparisons": ("checks", "text"),
+}
+TARGET_KINDS = ("at_least", "ratio", "beats")
+FIGURE_KINDS = ("success", "losses", "keyframe_error")
+
+
+def _section(reader: _Reader, runs: Sequence[str]) -> Section:
+    kind = reader.choice("kind", list(SECTION_KEYS))
+    allowed = SECTION_KEYS[kind]
+    for key in reader.data:
+        if key != "kind" and key not in allowed:
+            raise reader.error(f"a {kind!r} section takes {', '.join(allowed) or 'no other key'}", key)
+    known = set(runs)
+    section_runs = reader.names("runs", ()) if "runs" in allowed else ()
+    for r in section_runs:
+        if r not in known:
+            raise reader.error(f"{r!r} is no run of this spec (known: {', '.join(runs)})", "runs")
+    splits = reader.names("splits", ()) if "splits" in allowed else ()
+    for s in splits:
+        if s not in SPLITS:
+            raise reader.error(f"{s!r} is no object split ({', '.join(SPLITS)})", "splits")
+    paper: dict[str, tuple[float, ...]] = {}
+    if reader.has("paper"):
+        sub = reader.sub("paper")
+        for run, values in sub.data.items():
+            if run not in known:
+                raise sub.error(f"{run!r} is no run of this spec", run)
+            values = values if isinstance(values, list) else [values]
+            if not values or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+                raise sub.error(f"expected a number per split, got {_shown(values)}", run)
+            paper[run] = tuple(float(v) for v in values)
+            sub.used.add(run)
+    names: dict[str, str] = {}
+    if reader.has("names"):
+        sub = reader.sub("names")
+        names = {k: sub.text(k) for k in list(sub.data)}
+    checks: tuple[TargetCheck, ...] = ()
+    if reader.has("checks"):
+        raw = reader.raw("checks")
+        if not isinstance(raw, list):
+            raise reader.error(f"expected a list of checks, got {_shown(raw)}", "checks")
+        items = []
+        for i, item in enumerate(raw):
+            c = _Reader(item, reader.source, f"{reader.where}.checks[{i}]")
+            check = TargetCheck(text=c.text("text"), kind=c.choice("kind", TARGET_KINDS),
+                                split=c.choice("split", SPLITS), value=c.number("value"), base=c.text("base", ""))
+            if check.kind == "beats" and check.base not in known:
+                raise c.error(f"expected a run of this spec, got {check.base!r}", "base")
+            c.done()
+            items.append(check)
+        checks = tuple(items)
+    section = Section(kind=kind, title=reader.text("title", ""), text=reader.text("text", ""), runs=section_runs,
+                      splits=splits, table=reader.optional_integer("table"), names=names, paper=paper,
+                      of_table=reader.optional_integer("of_table"), checks=checks, task=reader.text("task", ""),
+                      note=reader.text("note", ""), digits=reader.integer("digits", 1, low=0),
+                      column=reader.text("column", ""))
+    reader.done()
+    return section
+
+
+def _sections(reader: _Reader, key: str, runs: Sequence[str]) -> tuple[Section, ...]:
+    raw = reader.raw(key, [])
+    if not isinstance(raw, list):
+        raise reader.error(f"expected a list of sections, got {_shown(raw)}", key)
+    return tuple(_section(_Reader(item, reader.source, f"{reader.where}.{key}[{i}]"), runs)
+                 for i, item in enumerate(raw))
+
+
+# ------------------------------------------------------------------------------------------------ the spec
+def spec_path(name: str | Path) -> Path:
+    """A spec file: the path itself when it exists, else the built-in spec of that name
+    (``paper_tables`` -> ``abm/configs/experiments/paper_tables.yaml``)."""
+    path = Path(name)
+    if path.is_file():
+        return path
+    builtin = SPECS / (path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml")
+    if path.parent == Path(".") and builtin.is_file():
+        return builtin
+    known = ", ".join(sorted(p.stem for p in SPECS.glob("*.yaml")))
+    raise FileNotFoundError(f"experiment spec {name} not found (give a YAML file, or a built-in spec: {known})")
+
+
+def builtin_specs() -> list[str]:
+    """Names of the built-in specs."""
+    return sorted(p.stem for p in SPECS.glob("*.yaml"))
+
+
+def load_spec(name: str | Path) -> ExperimentSpec:
+    """Read and validate an experiment spec (a file, or a built-in name; see :func:`spec_path`).
+
+    Raises:
+        SpecError: (a ``ValueError``) naming the file and the key of the first mistake.
+        FileNotFoundError: no such file or built-in spec.
+    """
+    path = spec_path(name)
+    try:
+        data = load_yaml(path, "experiment spec")
+    except ValueError as err:
+        raise SpecError(str(err)) from None
+    return parse_spec(data, path)
+
+
+def parse_spec(data: Any, path: Path) -> ExperimentSpec:
+    """The :class:`ExperimentSpec` of the plain data ``data`` read from ``path`` (see :func:`load_spec`)."""
+    top = _Reader(data, path, "")
+    name = top.text("name")
+    if not _NAME.match(name):
+        raise top.error(f"expected a plain name (letters, digits, _ . -), got {name!r}", "name")
+    lists: dict[str, tuple[str, ...]] = {}
+    task_lists = top.sub("tasks")
+    for key in list(task_lists.data):
+        lists[key] = task_lists.names(key)
+
+    d = top.sub("data")
+    data_spec = DataSpec(tasks=d.names("tasks", lists=lists), split=d.choice("split", SPLITS, "seen"),
+                         episodes=d.integer("episodes", 20), workers=d.integer("workers", WORKERS),
+                         seed=d.integer("seed", 0, low=0), resolution=d.integer("resolution", CAMERA_RESOLUTION),
+                         folder=d.text("folder", "") or None)
+    d.done()
+
+    t = top.sub("training")
+    training = TrainingSpec(recipe=t.text("recipe"),
+                            tasks=t.names("tasks", lists=lists) if t.has("tasks") else None,
+                            steps=t.optional_integer("steps"),
+                            train=_checked(t, "train", TrainConfig, ENGINE_TRAIN_FIELDS + ("tasks", "steps")),
+                            policy=_checked(t, "policy", PolicyConfig, POLICY_FIXED))
+    t.done()
+
+    runs: dict[str, RunSpec] = {}
+    r = top.sub("runs")
+    if not r.data:
+        raise r.error("is required: at least one run")
+    for run_name in list(r.data):
+        if not isinstance(run_name, str) or not _NAME.match(run_name) or "@" in run_name:
+            raise r.error(f"expected a plain run name (letters, digits, _ . -), got {run_name!r}")
+        one = r.sub(run_name)
+        train = _checked(one, "train", TrainConfig, ENGINE_TRAIN_FIELDS + ("tasks", "steps"))
+        if "method" not in train and "method" not in training.train:
+            raise one.error("needs a method (train: {method: abm|rvt|ifd|...})", "train")
+        merged = {**training.train, **train}
+        runs[run_name] = RunSpec(name=run_name, label=one.text("label", run_name),
+                                 grounding=one.text("grounding", str(merged.get("grounder", "oracle"))),
+                                 train=merged,
+                                 policy={**training.policy, **_checked(one, "policy", PolicyConfig, POLICY_FIXED)},
+                                 caveat=one.text("caveat", ""))
+        one.done()
+    r.used |= set(r.data)
+    names = list(runs)
+
+    e = top.sub("evaluation")
+    splits = []
+    s = e.sub("splits")
+    for split in list(s.data):
+        if split not in SPLITS:
+            raise s.error(f"{split!r} is no object split ({', '.join(SPLITS)})")
+        one = s.sub(split)
+        split_runs = one.names("runs") if one.has("runs") else None
+        splits.append(EvalSplit(split=split, tasks=one.names("tasks", lists=lists), runs=split_runs))
+        one.done()
+    variants = []
+    v = e.sub("variants")
+    for variant in list(v.data):
+        one = v.sub(variant)
+        base = one.text("run")
+        if base not in runs:
+            raise one.error(f"{base!r} is no run of this spec (known: {', '.join(names)})", "run")
+        grounder = one.choice("grounder", ("clip", "oracle", "tracking"))
+        if variant != f"{base}@{grounder}":
+            raise v.error(f"a variant is named RUN@GROUNDER ({base}@{grounder}), got {variant!r}")
+        variants.append(VariantSpec(name=variant, run=base, grounder=grounder, label=one.text("label", variant),
+                                    description=one.text("description", "")))
+        one.done()
+    evaluation = EvaluationSpec(episodes=e.integer("episodes", 25), repeats=e.integer("repeats", 1),
+                                workers=e.integer("workers", WORKERS), max_steps=e.integer("max_steps", MAX_KEYFRAMES),
+                                gifs=e.integer("gifs", 0, low=0), from_zoo=e.flag("from_zoo"), splits=tuple(splits),
+                                variants=tuple(variants), zoo_eval=e.names("zoo_eval", ()))
+    e.done()
+    if not evaluation.splits:
+        raise e.error("is required: at least one split", "splits")
+    evaluated = set(names) | {v.name for v in variants}
+    for one_split in evaluation.splits:
+        for run in one_split.runs or ():
+            if run not in evaluated:
+                raise e.error(f"{run!r} is no run or variant of this spec", f"splits.{one_split.split}.runs")
+    for run in evaluation.zoo_eval:
+        if run not in runs:
+            raise e.error(f"{run!r} is no run of this spec", "zoo_eval")
+
+    diagnose = None
+    if top.has("diagnose"):
+        g = top.sub("diagnose")
+        diagnose = DiagnoseSpec(episodes=g.integer("episodes", 5), splits=g.names("splits", ("seen", "unseen")),
+                                tasks=g.names("tasks", lists=lists) if g.has("tasks") else None,
+                                oracle_mask=g.flag("oracle_mask"),
+                                steps=tuple(_steps(g)), kinds=g.names("kinds", ()))
+        g.done()
+
+    res = top.sub("resources")
+    resources = Resources(trainings_at_a_time=res.integer("trainings_at_a_time", 2),
+                          threads_each=res.integer("threads_each", 1), order=res.names("order", ()))
+    for run in resources.order:
+        if run not in runs:
+            raise res.error(f"{run!r} is no run of this spec", "order")
+    res.done()
+
+    rep = top.sub("report")
+    figures = []
+    raw_figures = rep.raw("figures", [])
+    if not isinstance(raw_figures, list):
+        raise rep.error(f"expected a list of figures, got {_shown(raw_figures)}", "figures")
+    for i, item in enumerate(raw_figures):
+        f = _Reader(item, path, f"report.figures[{i}]")
+        figures.append(FigureSpec(kind=f.choice("kind", FIGURE_KINDS), file=f.text("file"), alt=f.text("alt"),
+                                  runs=f.names("runs", ())))
+        f.done()
+    report = ReportSpec(title=rep.text("title"), document=rep.text("document"), records=rep.text("records", ""),
+                        readme=rep.text("readme", ""), block=rep.text("block", ""),
+                        summary=_sections(rep, "summary", names), details=_sections(rep, "details", names),
+                        figures=tuple(figures), zoo_readme=rep.flag("zoo_readme"), zoo_note=rep.text("zoo_note", ""))
+    if report.readme and not _MARKER.match(report.block):
+        raise rep.error(f"a README block needs a marker name (lower case, digits, -), got {report.block!r}", "block")
+    rep.done()
+
+    spec = ExperimentSpec(
+        name=name, path=path, about=top.text("about", ""), out=top.text("out", f"runs/{name}"),
+        kept=top.text("kept", f"docs/results/{name}"), data=data_spec, training=training, runs=runs,
+        evaluation=evaluation, report=report, zoo=top.text("zoo", ""), carry=top.text("carry", ""),
+        clip=top.text("clip", ""), clip_command=top.text("clip_command", ""), diagnose=diagnose,
+        resources=resources)
+    top.done()
+    if any(run.needs_clip for run in runs.values()) and not spec.clip:
+        raise top.error("runs need the benchmark CLIP (grounder or language clip): give its folder", "clip")
+    if evaluation.from_zoo and not spec.zoo:
+        raise top.error("evaluation.from_zoo needs a zoo folder to export into", "zoo")
+    if report.zoo_readme and not spec.zoo:
+        raise top.error("report.zoo_readme needs a zoo folder", "zoo")
+    return spec
+
+
+def _steps(reader: _Reader) -> list[int]:
+    value = reader.raw("steps", [])
+    if not isinstance(value, list) or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0
+                                              for v in value):
+        raise reader.error(f"expected a list of positive step numbers, got {_shown(value)}", "steps")
+    return list(value)

@@ -1,0 +1,555 @@
+"""The experiment engine: idempotent stages data → ground → train → export → eval → diagnose → report.
+
+Each stage is a list of :class:`Job` s planned from the spec and the files on disk: a job whose outputs exist
+is done and never runs again (a resumed run, a rerun, a fresh clone after :func:`~abm.experiments.state.restore`);
+a job that cannot run yet says why (no benchmark CLIP, not trained yet). Trainings run N at a time × T threads
+(:mod:`abm.experiments.scheduler`), each continuing from its last checkpoint (``abm train --resume``) or, on a
+fresh clone, from the committed carry; evaluations skip finished episodes (``abm eval`` resumes by itself).
+
+::
+
+    engine = Engine(load_spec("paper_tables"), root=Path("."))
+    engine.run(["train", "export"])        # what is left of those stages
+    for job in engine.status(): ...       # done / running / left / blocked, with times
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import socket
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from abm.configuration import load_recipe
+from abm.experiments.report import write_report, zoo_index
+from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Runner, Source
+from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, ExperimentSpec
+from abm.experiments.state import (
+    Layout,
+    carry_unfinished,
+    checkpoints,
+    drop_carry,
+    folder_busy,
+    job_events,
+    keep,
+    kept_pairs,
+    last_logged_step,
+    log_job,
+    pid_alive,
+    record_machine,
+    restore,
+    restore_evaluation,
+    restore_training,
+    stamp,
+)
+from abm.train.config import TrainConfig
+
+LOG = logging.getLogger("abm")
+DONE, RUNNING, LEFT, BLOCKED, FAILED = "done", "running", "left", "blocked", "failed"
+
+
+@dataclass
+class Job:
+    """One unit of work of a stage.
+
+    Attributes:
+        id: ``STAGE/NAME[/SPLIT]`` (``train/abm_oracle``, ``eval/abm_clip/seen``).
+        stage: its stage.
+        argv: its command (``None``: done in the engine's process).
+        state: ``done``, ``left``, ``blocked`` (cannot run yet: see ``note``), ``running`` or ``failed``.
+        note: progress or the reason it is blocked.
+        threads: torch threads (trainings).
+        folder: the folder it writes (a live lock on it means it is running).
+        before: called right before it starts (restores carried state, writes its recipe).
+        after: called with its exit code once it ended.
+        minutes: how long it ran (done) or runs (running), when known.
+    """
+
+    id: str
+    stage: str
+    argv: list[str] | None = None
+    state: str = LEFT
+    note: str = ""
+    threads: int | None = None
+    folder: Path | None = None
+    before: Callable[[], None] | None = field(default=None, repr=False)
+    after: Callable[[int], None] | None = field(default=None, repr=False)
+    minutes: float | None = None
+
+
+class ExperimentError(RuntimeError):
+    """A job failed: the message names it and its log."""
+
+
+def training_steps(spec: ExperimentSpec) -> int:
+    """Optimiser steps of every run: the spec's, else its recipe's, else the training default."""
+    if spec.training.steps is not None:
+        return spec.training.steps
+    steps = load_recipe(spec.training.recipe).get("steps")
+    return int(steps) if steps is not None else TrainConfig().steps
+
+
+class Engine:
+    """Plans and runs the stages of one experiment.
+
+    Args:
+        spec: the experiment.
+        root: the folder the spec's paths start from (the checkout); commands run there.
+        out: the working folder (default: the spec's, under ``root``).
+        source: the code the jobs run (default: this checkout, :meth:`Source.here`).
+        runs: only these runs (and their variants and diagnoses); default all.
+        backend: ``local`` (subprocesses) or ``ray`` (trainings and evaluations on a Ray cluster).
+        ray_address: the cluster (``None``: a local Ray).
+        runner: the runner of the trainings and evaluations (default: from ``backend``; tests pass their own).
+    """
+
+    def __init__(self, spec: ExperimentSpec, root: Path, out: Path | None = None, source: Source | None = None,
+                 runs: Sequence[str] | None = None, backend: str = "local", ray_address: str | None = None,
+                 runner: Runner | None = None) -> None:
+        unknown = [r for r in runs or () if r not in spec.runs]
+        if unknown:
+            raise ValueError(f"--runs {' '.join(unknown)}: not a run of {spec.name} (its runs: "
+                             f"{', '.join(spec.runs)})")
+        self.spec, self.root = spec, root
+        self.layout = Layout.of(spec, root, out)
+        self.source = source or Source.here()
+        self.selected = [r for r in spec.run_names() if not runs or r in runs]
+        self.backend, self.ray_address = backend, ray_address
+        self.runner = runner
+        self.steps = training_steps(spec)
+        self._events: dict[str, list[dict[str, Any]]] = {}
+        self._kept = dict(kept_pairs(spec, self.layout))
+
+    # ------------------------------------------------------------------------------------------- helpers
+    def rel(self, path: Path) -> str:
+        """A path as the commands name it: relative to the root (they run there), so no machine's folder
+        enters a run's config.json or a report."""
+        return self.layout.show(path)
+
+    def have(self, path: Path) -> bool:
+        """Whether a result file is in OUT, or committed in KEPT (a run restores it before it plans)."""
+        copy = self._kept.get(path)
+        return path.is_file() or (copy is not None and copy.is_file())
+
+    def has_clip(self) -> bool:
+        clip = self.layout.clip
+        return clip is not None and (clip / "config.json").is_file()
+
+    def exported(self, run: str) -> bool:
+        return self.layout.zoo is not None and self.layout.zoo_file(run).is_file()
+
+    def trained(self, run: str) -> bool:
+        """Finished: exported, or a checkpoint at the last step."""
+        found = checkpoints(self.layout.run_dir(run))
+        return self.exported(run) or bool(found and found[-1][0] >= self.steps)
+
+    def model(self, run: str) -> Path | None:
+        """What evaluations load: the zoo file (``from_zoo``) or the run folder, once it is finished."""
+        if self.spec.evaluation.from_zoo:
+            return self.layout.zoo_file(run) if self.exported(run) else None
+        return self.layout.run_dir(run) if self.trained(run) else None
+
+    def needs_clip(self, run: str) -> bool:
+        return self.spec.runs[run].needs_clip
+
+    def _ran(self, job: Job) -> bool:
+        """Whether the job log has a successful end of ``job`` (jobs without an output file to check)."""
+        return any(e["event"] == "end" and e.get("rc") == 0 for e in self._events.get(job.id, []))
+
+    # ---------------------------------------------------------------------------------------------- plans
+    def plan(self, stage: str) -> list[Job]:
+        """The jobs of ``stage`` as the files on disk stand now."""
+        self._events = job_events(self.layout)
+        planner = {"data": self._data, "ground": self._ground, "train": self._train, "export": self._export,
+                   "eval": self._eval, "diagnose": self._diagnose, "report": self._report,
+                   "carry": self._carry}[stage]
+        return planner()
+
+    def _data(self) -> list[Job]:
+        d = self.spec.data
+        folder = self.layout.data
+        have = {t: len(list((folder / t / d.split).glob("*.h5"))) if (folder / t / d.split).is_dir() else 0
+                for t in d.tasks}
+        short = {t: n for t, n in have.items() if n < d.episodes}
+        needed = any(not self.trained(r) for r in self.selected)
+        argv = self.source.cli("data", "generate", "--task", ",".join(d.tasks), "--split", d.split, "--episodes",
+                               str(d.episodes), "--out", self.rel(folder), "--workers", str(d.workers), "--seed",
+                               str(d.seed), "--resolution", str(d.resolution), *self._backend_flags())
+        job = Job("data", "data", argv, folder=None)
+        if not short:
+            job.state, job.note = DONE, f"{sum(have.values())} demonstrations"
+        elif not needed:
+            job.state, job.note = DONE, "not needed: every selected run is trained"
+        else:
+            job.note = f"{sum(min(n, d.episodes) for n in have.values())}/{d.episodes * len(d.tasks)} demonstrations"
+        return [job]
+
+    def _backend_flags(self) -> list[str]:
+        if self.backend != "ray":
+            return []
+        return ["--backend", "ray", *(["--ray-address", self.ray_address] if self.ray_address else [])]
+
+    def _policy(self) -> dict[str, Any]:
+        recipe = load_recipe(self._recipe_name())
+        return {**(recipe.get("policy") or {}), **self.spec.training.policy}
+
+    def _recipe_name(self) -> str | Path:
+        name = self.spec.training.recipe
+        return self.root / name if (self.root / name).is_file() else name
+
+    def _ground(self) -> list[Job]:
+        jobs = []
+        tasks = self.spec.training.tasks or self.spec.data.tasks
+        policy = self._policy()
+        cube = []
+        if policy.get("workspace_center") is not None:
+            cube += ["--workspace-center", *(str(v) for v in policy["workspace_center"])]
+        if policy.get("workspace_size") is not None:
+            cube += ["--workspace-size", str(policy["workspace_size"])]
+        for kind in ("masks", "features"):
+            users = [r for r in self.selected if self.spec.runs[r].cache == kind]
+            if not users:
+                continue
+            cache = self.layout.cache(kind)
+            argv = self.source.cli("data", "ground", "--data", self.rel(self.layout.data), "--cache", self.rel(cache),
+                                   "--clip-model", self.rel(self.layout.clip) if self.layout.clip else "",
+                                   *(["--features"] if kind == "features" else []), "--tasks", *tasks, *cube)
+            job = Job(f"ground/{kind}", "ground", argv, folder=cache)
+            if all(self.trained(r) for r in users):
+                job.state, job.note = DONE, "not needed: its runs are trained"
+            elif self._ran(job) and cache.is_dir():
+                job.state = DONE
+            elif not self.has_clip():
+                job.state, job.note = BLOCKED, f"no benchmark CLIP in {self.rel(self.layout.clip or self.root)}"
+            jobs.append(job)
+        return jobs
+
+    def recipe(self, run: str) -> dict[str, Any]:
+        """The run's whole recipe (``abm train --config``): the spec's recipe file, the run's overrides, and the
+        engine's data, tasks, steps, grounding cache and CLIP."""
+        spec_run = self.spec.runs[run]
+        base = load_recipe(self._recipe_name())
+        recipe = {k: v for k, v in base.items() if k != "policy"}
+        recipe.update(spec_run.train)
+        recipe.update({"data": self.rel(self.layout.data), "steps": self.steps})
+        tasks = self.spec.training.tasks
+        if tasks:
+            recipe["tasks"] = list(tasks)
+        if spec_run.cache:
+            recipe["cache_dir"] = self.rel(self.layout.cache(spec_run.cache))
+        if spec_run.needs_clip and self.layout.clip is not None:
+            recipe["clip_model"] = self.rel(self.layout.clip)
+        policy = {**(base.get("policy") or {}), **spec_run.policy}
+        if policy:
+            recipe["policy"] = policy
+        return recipe
+
+    def _train(self) -> list[Job]:
+        jobs = []
+        for run in self.spec.training_order():
+            if run not in self.selected:
+                continue
+            folder = self.layout.run_dir(run)
+            recipe_file = self.layout.recipe(run)
+            job = Job(f"train/{run}", "train", self.source.cli(
+                "train", "--config", self.rel(recipe_file), "--out", self.rel(folder), "--resume", "--no-progress"),
+                threads=self.spec.resources.threads_each, folder=folder)
+            step = last_logged_step(folder)
+            if self.trained(run):
+                job.state = DONE
+                job.note = "exported" if self.exported(run) else f"{self.steps} steps"
+            elif self.needs_clip(run) and not self.has_clip():
+                job.state, job.note = BLOCKED, f"no benchmark CLIP in {self.rel(self.layout.clip or self.root)}"
+            else:
+                job.note = f"step {step}/{self.steps}" if step is not None else (
+                    "continues from the carry" if self.layout.carry and (self.layout.carry / run).is_dir() else "")
+
+                def before(run: str = run, recipe_file: Path = recipe_file) -> None:
+                    if restore_training(self.layout, run):
+                        LOG.info("%s: continuing from the checkpoint carried in %s", run,
+                                 self.rel(self.layout.carry or self.root))
+                    recipe_file.parent.mkdir(parents=True, exist_ok=True)
+                    recipe_file.write_text(f"# abm experiment run {self.spec.name}: the recipe of run {run}\n"
+                                           + yaml.safe_dump(self.recipe(run), sort_keys=False))
+
+                job.before = before
+            jobs.append(job)
+        return jobs
+
+    def _export(self) -> list[Job]:
+        if self.layout.zoo is None:
+            return []
+        jobs = []
+        for run in self.selected:
+            target = self.layout.zoo_file(run)
+            job = Job(f"export/{run}", "export", self.source.cli(
+                "export", "--run", self.rel(self.layout.run_dir(run)), "--out", self.rel(target), "--dtype",
+                "bfloat16"))
+            if target.is_file():
+                job.state = DONE
+            elif not self.trained(run):
+                job.state, job.note = BLOCKED, "not trained yet"
+            else:
+                def after(code: int, run: str = run) -> None:
+                    if code == 0:
+                        drop_carry(self.layout, run)
+                        self.write_zoo_index()
+
+                job.after = after
+            jobs.append(job)
+        return jobs
+
+    def write_zoo_index(self) -> None:
+        """(Re)write ``ZOO/index.json`` (every exported model of the spec and the benchmark CLIP)."""
+        if self.layout.zoo is not None:
+            entries = zoo_index(self.spec, self.layout)
+            (self.layout.zoo / "index.json").write_text(json.dumps(entries, indent=2) + "\n")
+
+    def _variant_base(self, name: str) -> str:
+        return next((v.run for v in self.spec.evaluation.variants if v.name == name), name)
+
+    def _eval(self) -> list[Job]:
+        ev = self.spec.evaluation
+        jobs = []
+        names = [*self.selected, *(v.name for v in ev.variants if v.run in self.selected)]
+        for name in names:
+            base = self._variant_base(name)
+            variant = next((v for v in ev.variants if v.name == name), None)
+            for split in ev.splits:
+                if split.runs is not None and name not in split.runs:
+                    continue
+                folder = self.layout.eval_dir(name, split.split)
+                model = self.model(base)
+                argv = self.source.cli(
+                    "eval", "--run", self.rel(model) if model else "?", "--tasks", *split.tasks, "--split",
+                    split.split, "--episodes", str(ev.episodes), "--repeats", str(ev.repeats), "--workers",
+                    str(ev.workers), "--max-steps", str(ev.max_steps), "--out", self.rel(folder),
+                    *(["--gifs", str(ev.gifs)] if ev.gifs else []))
+                if variant is not None:
+                    argv += ["--grounder", variant.grounder]
+                    if variant.grounder in ("clip", "tracking") and self.layout.clip is not None:
+                        argv += ["--clip-model", self.rel(self.layout.clip)]
+                job = Job(f"eval/{name}/{split.split}", "eval", argv, folder=folder)
+                if self.have(folder / "results.json"):
+                    job.state = DONE
+                elif model is None:
+                    job.state, job.note = BLOCKED, "not exported yet" if ev.from_zoo else "not trained yet"
+                elif (self.needs_clip(base) or (variant and variant.grounder != "oracle")) and not self.has_clip():
+                    job.state, job.note = BLOCKED, "no benchmark CLIP"
+                else:
+                    outcomes = folder / "outcomes.jsonl"
+                    if outcomes.is_file():
+                        job.note = f"{len(outcomes.read_text().splitlines())} outcomes so far"
+
+                    def before(name: str = name, split: str = split.split) -> None:
+                        restore_evaluation(self.layout, name, split)
+
+                    def after(code: int, name: str = name) -> None:
+                        if code == 0 and all((f / "results.json").is_file()
+                                             for f in (self.layout.out / "eval" / name).iterdir() if f.is_dir()):
+                            drop_carry(self.layout, "eval", name)
+
+                    job.before, job.after = before, after
+                jobs.append(job)
+        if ev.zoo_eval and self.layout.zoo is not None:
+            jobs.append(self._zoo_eval())
+        return jobs
+
+    def _zoo_eval(self) -> Job:
+        folder = self.layout.zoo_eval
+        assert self.layout.zoo is not None
+        job = Job("eval/zoo", "eval", self.source.cli("zoo", "eval", "--zoo", self.rel(self.layout.zoo), "--out",
+                                                      self.rel(folder)), folder=folder / "seen")
+        missing = [r for r in self.spec.evaluation.zoo_eval if not self.exported(r)]
+        if self.have(folder / "seconds"):
+            job.state = DONE
+        elif missing:
+            job.state, job.note = BLOCKED, f"waits for {', '.join(missing)} in the zoo"
+        else:
+            started: list[float] = []
+            job.before = lambda: started.append(time.time())
+
+            def after(code: int) -> None:
+                if code == 0 and started:
+                    (folder / "seconds").write_text(f"{round(time.time() - started[0])}\n")
+
+            job.after = after
+        return job
+
+    def _diagnose(self) -> list[Job]:
+        d = self.spec.diagnose
+        if d is None:
+            return []
+        jobs = []
+        tasks = d.tasks or self.spec.training.tasks or self.spec.data.tasks
+        for name in self.spec.diagnoses():
+            base = name.removesuffix(ORACLE_MASK)
+            if base not in self.selected:
+                continue
+            out = self.layout.diagnosis(name)
+            model = self.layout.run_dir(base) if d.steps and self.trained(base) else self.model(base)
+            try:
+                argv = self.source.script(
+                    "keyframe_accuracy.py", "--run", self.rel(model) if model else "?", "--tasks", *tasks, "--splits",
+                    *d.splits, "--episodes", str(d.episodes), *(["--steps", *map(str, d.steps)] if d.steps else []),
+                    *(["--kinds", *d.kinds] if d.kinds else []),
+                    *(["--grounder", "oracle"] if name.endswith(ORACLE_MASK) else []), "--out", self.rel(out))
+                blocked = ""
+            except ValueError as err:
+                argv, blocked = None, str(err)
+            job = Job(f"diagnose/{name}", "diagnose", argv)
+            if self.have(out):
+                job.state = DONE
+            elif model is None:
+                job.state = BLOCKED
+                job.note = "not exported yet" if self.spec.evaluation.from_zoo else "not trained yet"
+            elif self.needs_clip(base) and not name.endswith(ORACLE_MASK) and not self.has_clip():
+                job.state, job.note = BLOCKED, "no benchmark CLIP"
+            elif blocked:
+                job.state, job.note = BLOCKED, blocked
+            else:
+                job.before = lambda out=out: out.parent.mkdir(parents=True, exist_ok=True)
+            jobs.append(job)
+        return jobs
+
+    def _report(self) -> list[Job]:
+        return [Job("report", "report", note=f"writes {self.spec.report.document}")]
+
+    def _carry(self) -> list[Job]:
+        return [Job("carry", "carry", note=f"unfinished work into {self.rel(self.layout.carry)}"
+                    if self.layout.carry else "this experiment keeps no carry")]
+
+    # ------------------------------------------------------------------------------------------- running
+    def _runner(self, cpus: int) -> Runner:
+        if self.runner is not None:
+            return self.runner
+        return RayRunner(self.ray_address, cpus) if self.backend == "ray" else LocalRunner()
+
+    def _commands(self, jobs: Iterable[Job]) -> list[Command]:
+        commands = []
+        for job in jobs:
+            assert job.argv is not None
+
+            def after(code: int, job: Job = job) -> None:
+                log_job(self.layout, job.id, "end", rc=code)
+                if job.after is not None:
+                    job.after(code)
+                job.state = DONE if code == 0 else FAILED
+
+            commands.append(Command(job.id, job.argv, self.layout.log(job.id), self.root, job.threads, after))
+        return commands
+
+    def _start(self, command: Command, pid: int | None) -> None:
+        log_job(self.layout, command.job, "start", pid=pid, backend=self.backend)
+        LOG.info("  %s  (log: %s)", command.job, self.rel(command.log))
+
+    def run(self, stages: Sequence[str] = STAGES, dry_run: bool = False) -> int:
+        """Run what is left of ``stages`` (in the engine's order); returns 0, or 1 when a job failed (the stages
+        after a failed one are not run). An interrupt carries the unfinished work and re-raises."""
+        unknown = [s for s in stages if s not in STAGES + EXTRA_STAGES]
+        if unknown:
+            raise ValueError(f"--stages {' '.join(unknown)}: unknown (stages: {', '.join(STAGES + EXTRA_STAGES)})")
+        order = [s for s in (*STAGES, *EXTRA_STAGES) if s in stages]
+        if not dry_run:
+            copied = restore(self.spec, self.layout)
+            if copied:
+                LOG.info("restored %d finished result file(s) from %s", copied, self.rel(self.layout.kept))
+        try:
+            for stage in order:
+                if not self._run_stage(stage, dry_run):
+                    self.carry()
+                    return 1
+        except BaseException:
+            if not dry_run:
+                self.carry()
+            raise
+        return 0
+
+    def carry(self) -> list[str]:
+        """Carry the unfinished trainings and evaluations (see :func:`carry_unfinished`)."""
+        copied = carry_unfinished(self.spec, self.layout, self.steps)
+        if copied:
+            LOG.info("carried %s into %s (commit it to continue elsewhere)", ", ".join(copied),
+                     self.rel(self.layout.carry or self.root))
+        return copied
+
+    def _run_stage(self, stage: str, dry_run: bool) -> bool:
+        jobs = self.plan(stage)
+        if stage == "report":
+            if dry_run:
+                LOG.info("report: would write %s", self.spec.report.document)
+                return True
+            keep(self.spec, self.layout)
+            write_report(self.spec, self.layout)
+            LOG.info("report: wrote %s", self.spec.report.document + (
+                f" and the {self.spec.report.block} block of {self.spec.report.readme}" if self.spec.report.readme
+                else ""))
+            return True
+        if stage == "carry":
+            if not dry_run:
+                self.carry()
+            return True
+        todo = [j for j in jobs if j.state == LEFT]
+        for job in jobs:
+            if job.state == BLOCKED:
+                LOG.info("%s: skipped (%s)", job.id, job.note)
+        if not todo:
+            return True
+        LOG.info("%s: %d job(s)", stage, len(todo))
+        if dry_run:
+            for job in todo:
+                LOG.info("  %s: %s", job.id, " ".join(job.argv or []))
+            return True
+        stamp(self.layout, f"{stage}_start")
+        record_machine(self.layout)
+        for job in todo:
+            if job.before is not None:
+                job.before()
+        if stage == "train":
+            slots, cpus = self.spec.resources.trainings_at_a_time, self.spec.resources.threads_each
+        elif stage == "eval" and self.backend == "ray":
+            slots, cpus = self.spec.resources.trainings_at_a_time, self.spec.evaluation.workers
+        else:
+            slots, cpus = 1, 1
+        runner = self._runner(cpus) if stage in ("train", "eval") else LocalRunner()
+        codes = runner.run(self._commands(todo), self.source, slots, on_start=self._start)
+        stamp(self.layout, f"{stage}_end")
+        failed = [job for job in todo if codes.get(job.id, 1) != 0]
+        for job in failed:
+            LOG.error("%s failed (exit code %s): see %s", job.id, codes.get(job.id), self.rel(self.layout.log(job.id)))
+        return not failed
+
+    # -------------------------------------------------------------------------------------------- status
+    def status(self) -> list[Job]:
+        """Every job of every stage: done, running, left or blocked, with its minutes when known."""
+        jobs = []
+        for stage in STAGES:
+            for job in self.plan(stage):
+                events = self._events.get(job.id, [])
+                starts = [e for e in events if e["event"] == "start"]
+                ends = [e for e in events if e["event"] == "end"]
+                if job.state != DONE and (
+                        (job.folder is not None and folder_busy(job.folder)) or self._live(starts, ends)):
+                    job.state = RUNNING
+                if job.state == RUNNING and starts:
+                    job.minutes = (time.time() - starts[-1]["time"]) / 60
+                elif job.state == DONE and starts and ends and ends[-1]["time"] >= starts[-1]["time"]:
+                    job.minutes = (ends[-1]["time"] - starts[-1]["time"]) / 60
+                elif job.state != DONE and ends and ends[-1].get("rc") not in (0, None) and job.state == LEFT:
+                    job.state, job.note = FAILED, f"exit code {ends[-1]['rc']}: see {self.rel(self.layout.log(job.id))}"
+                jobs.append(job)
+        return jobs
+
+    @staticmethod
+    def _live(starts: list[dict[str, Any]], ends: list[dict[str, Any]]) -> bool:
+        if not starts or (ends and ends[-1]["time"] >= starts[-1]["time"]):
+            return False
+        last = starts[-1]
+        return last.get("host") == socket.gethostname() and isinstance(last.get("pid"), int) and pid_alive(last["pid"])
+

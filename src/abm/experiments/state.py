@@ -1,0 +1,357 @@
+"""Where an experiment's files live and what survives a session: :class:`Layout`, the kept outcomes, the carry.
+
+The working folder OUT (``runs/NAME``, never committed) holds the data, run folders, evaluations and
+diagnoses. What is finished is kept in the committed folder KEPT (``docs/results/NAME``): evaluation JSON
+(``RUN_SPLIT.json``), keyframe accuracy (``keyframe_accuracy_NAME.json``), the timed zoo evaluation, the stage
+times (``times.txt``) and the machines that ran a stage (``machines.txt``). On a fresh clone :func:`restore`
+copies them back into OUT, so nothing finished runs twice and the report has every row.
+
+Unfinished work crosses machines through CARRY (``models/carry``, committed): :func:`carry_unfinished`
+copies each unfinished training's latest checkpoint and log (``CARRY/RUN/``) and each unfinished evaluation's
+outcomes (``CARRY/eval/RUN/SPLIT/``); the next session continues from them (:func:`restore_training`,
+:func:`restore_evaluation`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import socket
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from abm.experiments.spec import ExperimentSpec
+from abm.machine import describe_machine
+
+_STEP_FILE = re.compile(r"^step_(\d+)\.pt$")
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The paths of one experiment, resolved against the root it runs in.
+
+    Attributes:
+        root: the folder every relative path of the spec starts from (the repository checkout).
+        out: the working folder.
+        kept: the committed outcomes.
+        zoo: where finished runs are exported (``None``: no export).
+        carry: the committed state of unfinished work (``None``: none kept).
+        clip: the benchmark CLIP folder (``None``: no run needs it).
+        data: the episode store.
+    """
+
+    root: Path
+    out: Path
+    kept: Path
+    zoo: Path | None
+    carry: Path | None
+    clip: Path | None
+    data: Path
+
+    @classmethod
+    def of(cls, spec: ExperimentSpec, root: Path, out: Path | None = None) -> Layout:
+        """The layout of ``spec`` under ``root`` (``out`` replaces the spec's working folder)."""
+        work = out if out is not None else root / spec.out
+        return cls(root=root, out=work, kept=root / spec.kept, zoo=root / spec.zoo if spec.zoo else None,
+                   carry=root / spec.carry if spec.carry else None, clip=root / spec.clip if spec.clip else None,
+                   data=root / spec.data.folder if spec.data.folder else work / "data")
+
+    def run_dir(self, run: str) -> Path:
+        return self.out / run
+
+    def zoo_file(self, run: str) -> Path:
+        if self.zoo is None:
+            raise ValueError("this experiment exports no model (no zoo in its spec)")
+        return self.zoo / f"{run}.pt"
+
+    def eval_dir(self, name: str, split: str) -> Path:
+        return self.out / "eval" / name / split
+
+    def diagnosis(self, name: str) -> Path:
+        return self.out / "keyframe_accuracy" / f"{name}.json"
+
+    def cache(self, kind: str) -> Path:
+        return self.out / f"cache_{kind}"
+
+    def recipe(self, run: str) -> Path:
+        return self.out / "recipes" / f"{run}.yaml"
+
+    def log(self, job: str) -> Path:
+        return self.out / "logs" / (job.replace("/", "_") + ".log")
+
+    @property
+    def times(self) -> Path:
+        return self.out / "times.txt"
+
+    @property
+    def machines(self) -> Path:
+        return self.out / "machines.txt"
+
+    @property
+    def jobs(self) -> Path:
+        return self.out / "jobs.jsonl"
+
+    @property
+    def zoo_eval(self) -> Path:
+        return self.out / "zoo_eval"
+
+    def show(self, path: Path) -> str:
+        """``path`` relative to the root when it is inside (as commands and reports name it)."""
+        try:
+            return path.relative_to(self.root).as_posix()
+        except ValueError:
+            return str(path)
+
+
+# ------------------------------------------------------------------------------------------ kept outcomes
+def kept_pairs(spec: ExperimentSpec, layout: Layout) -> list[tuple[Path, Path]]:
+    """``(file under OUT, its committed copy under KEPT)`` of every finished result the spec can produce."""
+    kept, pairs = layout.kept, []
+    names = [*spec.runs, *(v.name for v in spec.evaluation.variants)]
+    for name in names:
+        for split in spec.evaluation.splits:
+            if split.runs is None or name in split.runs:
+                pairs.append((layout.eval_dir(name, split.split) / "results.json",
+                              kept / f"{name}_{split.split}.json"))
+    for name in spec.diagnoses():
+        pairs.append((layout.diagnosis(name), kept / f"keyframe_accuracy_{name}.json"))
+    if spec.evaluation.zoo_eval:
+        pairs += [(layout.zoo_eval / "results.md", kept / "zoo_eval.md"),
+                  (layout.zoo_eval / "seconds", kept / "zoo_eval_seconds.txt")]
+    pairs += [(layout.times, kept / "times.txt"),  # the stage times of every session, added up
+              (layout.machines, kept / "machines.txt")]  # every machine that ran a stage
+    return pairs
+
+
+def restore(spec: ExperimentSpec, layout: Layout) -> int:
+    """Copy the committed results into OUT where OUT lacks them; returns how many were copied."""
+    copied = 0
+    for made, copy in kept_pairs(spec, layout):
+        if copy.is_file() and not made.exists():
+            made.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(copy, made)
+            copied += 1
+    return copied
+
+
+def keep(spec: ExperimentSpec, layout: Layout) -> int:
+    """Copy every finished result of OUT into KEPT (the committed copy); returns how many changed."""
+    changed = 0
+    for made, copy in kept_pairs(spec, layout):
+        if made.is_file():
+            data = made.read_bytes()
+            if not copy.is_file() or copy.read_bytes() != data:
+                copy.parent.mkdir(parents=True, exist_ok=True)
+                copy.write_bytes(data)
+                changed += 1
+    return changed
+
+
+# ------------------------------------------------------------------------------------------ times, machines
+def stamp(layout: Layout, event: str, when: float | None = None) -> None:
+    """Append ``EVENT SECONDS`` (``train_start 1795665961``) to OUT/times.txt."""
+    layout.out.mkdir(parents=True, exist_ok=True)
+    with layout.times.open("a") as f:
+        f.write(f"{event} {int(time.time() if when is None else when)}\n")
+
+
+def stage_minutes(times: Path) -> dict[str, float]:
+    """Minutes per stage, summed over every (start, end) pair: a resumed stage counts all its sessions.
+
+    A line ``STAGE_minutes M`` adds ``M`` minutes measured elsewhere (the totals of earlier sessions whose
+    run folders did not survive)."""
+    total: dict[str, float] = {}
+    open_at: dict[str, int] = {}
+    if times.is_file():
+        for line in times.read_text().split("\n"):
+            if not line.strip():
+                continue
+            key, value = line.split()
+            stage, _, edge = key.rpartition("_")
+            if edge == "start":
+                open_at[stage] = int(value)
+            elif edge == "minutes":
+                total[stage] = total.get(stage, 0.0) + float(value)
+            elif edge == "end" and stage in open_at:
+                total[stage] = total.get(stage, 0.0) + (int(value) - open_at.pop(stage)) / 60
+    return total
+
+
+def machine() -> str:
+    """This machine without the process's own thread count (training threads are stated apart)."""
+    text = describe_machine()
+    head, _, last = text.rpartition(", ")
+    return head if last.endswith("threads") else text
+
+
+def machines(path: Path) -> list[str]:
+    """The machines recorded in ``path``, one per line."""
+    return [line for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
+
+
+def record_machine(layout: Layout) -> None:
+    """Add this machine to OUT/machines.txt (once): it ran a stage."""
+    known = machines(layout.machines)
+    here = machine()
+    if here not in known:
+        layout.out.mkdir(parents=True, exist_ok=True)
+        layout.machines.write_text("\n".join([*known, here]) + "\n")
+
+
+# ------------------------------------------------------------------------------------------------ job log
+def log_job(layout: Layout, job: str, event: str, **extra: Any) -> None:
+    """Append one event of a job (``start`` / ``end``) with the time, host and pid to OUT/jobs.jsonl."""
+    layout.out.mkdir(parents=True, exist_ok=True)
+    record = {"job": job, "event": event, "time": round(time.time(), 1), "host": socket.gethostname(), **extra}
+    with layout.jobs.open("a") as f:
+        f.write(json.dumps(record) + "\n")
+
+
+def job_events(layout: Layout) -> dict[str, list[dict[str, Any]]]:
+    """Job -> its events in OUT/jobs.jsonl (a torn last line is skipped)."""
+    events: dict[str, list[dict[str, Any]]] = {}
+    if layout.jobs.is_file():
+        for line in layout.jobs.read_text().splitlines():
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            events.setdefault(record["job"], []).append(record)
+    return events
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this id runs on this host."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def folder_busy(folder: Path) -> bool:
+    """Whether a live abm command holds the folder's lock (``FOLDER/.abm.lock``, :class:`abm.files.FolderLock`)."""
+    import fcntl
+
+    path = folder / ".abm.lock"
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+    return False
+
+
+# ---------------------------------------------------------------------------------------------- run folders
+def checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
+    """``(step, file)`` of a run folder's checkpoints, by step."""
+    folder = run_dir / "checkpoints"
+    found = [(int(m.group(1)), p) for p in folder.glob("step_*.pt") if (m := _STEP_FILE.match(p.name))] \
+        if folder.is_dir() else []
+    return sorted(found)
+
+
+def last_logged_step(run_dir: Path) -> int | None:
+    """The step of the last row of RUN/log.csv (``None`` before the first)."""
+    log = run_dir / "log.csv"
+    if not log.is_file():
+        return None
+    lines = [line for line in log.read_text().splitlines() if line.strip()]
+    if len(lines) < 2:
+        return None
+    try:
+        return int(lines[-1].split(",", 1)[0])
+    except ValueError:
+        return None
+
+
+# ---------------------------------------------------------------------------------------------------- carry
+def _eval_folders(layout: Layout) -> Iterator[tuple[str, Path]]:
+    root = layout.out / "eval"
+    for folder in sorted(root.glob("*/*")) if root.is_dir() else []:
+        if folder.is_dir():
+            yield folder.relative_to(root).as_posix(), folder
+
+
+def carry_unfinished(spec: ExperimentSpec, layout: Layout, steps: int) -> list[str]:
+    """Copy what a continuation on another machine needs into CARRY (then commit it); returns what was copied.
+
+    Unfinished evaluations leave their outcomes so far (``CARRY/eval/RUN/SPLIT/outcomes.jsonl`` and
+    ``evaluation.json``); unfinished trainings (no zoo file yet and fewer than ``steps`` steps) their latest
+    checkpoint and log (``CARRY/RUN/``)."""
+    if layout.carry is None:
+        return []
+    copied = []
+    for name, folder in _eval_folders(layout):
+        if not (folder / "outcomes.jsonl").is_file() or (folder / "results.json").is_file():
+            continue
+        target = layout.carry / "eval" / name
+        shutil.rmtree(target, ignore_errors=True)
+        target.mkdir(parents=True)
+        for file in ("outcomes.jsonl", "evaluation.json"):
+            if (folder / file).is_file():
+                shutil.copyfile(folder / file, target / file)
+        copied.append(f"eval/{name}")
+    for run in spec.runs:
+        if layout.zoo is not None and layout.zoo_file(run).is_file():
+            continue
+        found = checkpoints(layout.run_dir(run))
+        if not found or found[-1][0] >= steps:
+            continue
+        target = layout.carry / run
+        shutil.rmtree(target, ignore_errors=True)
+        target.mkdir(parents=True)
+        shutil.copyfile(found[-1][1], target / found[-1][1].name)
+        if (layout.run_dir(run) / "log.csv").is_file():
+            shutil.copyfile(layout.run_dir(run) / "log.csv", target / "log.csv")
+        copied.append(run)
+    return copied
+
+
+def restore_training(layout: Layout, run: str) -> bool:
+    """On a fresh clone, continue a training from its carried checkpoint (when OUT has no checkpoint of it)."""
+    if layout.carry is None:
+        return False
+    carried = layout.carry / run
+    ckpts = sorted(carried.glob("step_*.pt")) if carried.is_dir() else []
+    if not ckpts or checkpoints(layout.run_dir(run)):
+        return False
+    target = layout.run_dir(run) / "checkpoints"
+    target.mkdir(parents=True, exist_ok=True)
+    for ckpt in ckpts:
+        shutil.copyfile(ckpt, target / ckpt.name)
+    if (carried / "log.csv").is_file():
+        shutil.copyfile(carried / "log.csv", layout.run_dir(run) / "log.csv")
+    return True
+
+
+def restore_evaluation(layout: Layout, name: str, split: str) -> bool:
+    """On a fresh clone, continue an evaluation from its carried outcomes (when OUT has none)."""
+    if layout.carry is None:
+        return False
+    carried = layout.carry / "eval" / name / split
+    folder = layout.eval_dir(name, split)
+    if not carried.is_dir() or (folder / "outcomes.jsonl").exists():
+        return False
+    folder.mkdir(parents=True, exist_ok=True)
+    for file in carried.iterdir():
+        shutil.copyfile(file, folder / file.name)
+    return True
+
+
+def drop_carry(layout: Layout, *parts: str) -> None:
+    """Remove a carried state that is no longer needed (``run`` or ``eval, run``)."""
+    if layout.carry is not None:
+        shutil.rmtree(layout.carry.joinpath(*parts), ignore_errors=True)

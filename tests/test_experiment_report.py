@@ -1,0 +1,274 @@
+"""The report module (abm.experiments.report) on the paper-tables spec: the committed report regenerates from
+the committed outcomes byte for byte, and its tables, records, targets, diagnosis sentences, zoo index and kept
+outcomes behave as the tables fill in stages.
+
+The regenerated blocks equal the ones the deleted ``benchmarks/paper_tables_report.py`` wrote, after one
+documented normalisation: the provenance line names ``abm experiment run paper_tables`` and its spec instead of
+the script, and the stage times say "Wall time per stage," instead of "... of the script's runs,".
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from abm.experiments import report as rep
+from abm.experiments.spec import load_spec
+from abm.experiments.stages import Engine
+from abm.experiments.state import Layout, keep, kept_pairs, restore, stage_minutes
+
+REPO = Path(__file__).resolve().parents[1]
+SPEC = load_spec("paper_tables")
+TASKS = SPEC.split_tasks()["seen"]
+COMPOSITIONAL = SPEC.split_tasks()["compositional"]
+
+
+def _committed_root(tmp_path: Path) -> Path:
+    """A scratch root holding copies of what the paper-tables report reads and writes (the model files and
+    the benchmark CLIP linked, read only)."""
+    root = tmp_path / "root"
+    shutil.copytree(REPO / SPEC.kept, root / SPEC.kept)
+    for name in ("docs/results/paper_tables.json", "docs/results/paper_tables.md", "README.md", "models/index.json",
+                 "models/README.md"):
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(REPO / name, root / name)
+    for model in (REPO / "models").iterdir():
+        if model.suffix == ".pt" or model.name == "benchmark-clip":
+            (root / "models" / model.name).symlink_to(model)
+    return root
+
+
+def test_the_committed_paper_tables_report_regenerates_from_the_committed_outcomes(tmp_path: Path) -> None:
+    root = _committed_root(tmp_path)
+    engine = Engine(SPEC, root=root)
+    assert engine.run(["report"]) == 0  # a fresh clone: OUT is empty, the kept outcomes are restored first
+    assert (root / "runs/paper/eval/abm_clip/seen/results.json").is_file()
+    for name in ("README.md", "docs/results/paper_tables.json", "docs/results/paper_tables.md", "models/index.json",
+                 "models/README.md"):
+        assert (root / name).read_bytes() == (REPO / name).read_bytes(), f"{name} differs from its regeneration"
+    block = rep.block_of((REPO / "README.md").read_text(), "paper-tables")
+    assert "| **average** | **21.2** | **9.5** |" in block and "| stack | 27.2 | 14.8 | 0.54 | 72.8 | 54.9 |" in block
+    assert block.startswith("Written by `abm experiment run paper_tables` ([configs/experiments/paper_tables.yaml]")
+    # the report stage adds no machine: only stages that ran work record one
+    assert (root / SPEC.kept / "machines.txt").read_bytes() == (REPO / SPEC.kept / "machines.txt").read_bytes()
+
+
+def _rate(task: str, split: str, per_repeat: list[float]) -> dict:
+    mean = sum(per_repeat) / len(per_repeat)
+    return {"method": "abm", "task": task, "split": split, "per_repeat": per_repeat,
+            "episodes": 25 * len(per_repeat), "errors": 0, "mean": mean, "std": 0.0}
+
+
+def _layout(tmp_path: Path) -> Layout:
+    return Layout.of(SPEC, tmp_path, tmp_path / "paper")
+
+
+def _write_eval(layout: Layout, run: str, split: str, rates: list[dict]) -> None:
+    folder = layout.eval_dir(run, split)
+    folder.mkdir(parents=True)
+    (folder / "results.json").write_text(json.dumps(rates))
+
+
+def _ctx(layout: Layout) -> rep.Context:
+    return rep.Context(SPEC, rep.Outcomes(cells=rep.collect_cells(SPEC, layout)), layout)
+
+
+def _section(table: int):
+    return next(s for s in SPEC.report.summary if s.table == table)
+
+
+def _kind(kind: str):
+    return next(s for s in SPEC.report.summary if s.kind == kind)
+
+
+def test_records_averages_and_tables_fill_in_stages(tmp_path: Path) -> None:
+    layout = _layout(tmp_path)
+    _write_eval(layout, "abm_clip", "seen", [_rate(t, "seen", [80.0, 60.0]) for t in TASKS])
+    _write_eval(layout, "abm_clip", "unseen", [_rate(t, "unseen", [40.0, 60.0]) for t in TASKS[:-1]])  # one missing
+    _write_eval(layout, "abm_clip", "compositional", [_rate(t, "compositional", [20.0, 20.0]) for t in COMPOSITIONAL])
+    ctx = _ctx(layout)
+    recs = rep.records(SPEC, ctx.cells)
+    # abm_clip belongs to table 1 (seen/unseen cells) and table 2 (compositional cells); table 3's center-pixel
+    # row is abm_clip_hash, worded like the ablations
+    assert {r["table"] for r in recs if r["split"] == "compositional"} == {2}
+    assert {r["table"] for r in recs if r["split"] != "compositional"} == {1}
+    cell = next(r for r in recs if r["table"] == 1 and r["task"] == "close_jar" and r["split"] == "seen")
+    assert (cell["successes"], cell["episodes"], cell["grounder"]) == (35, 50, "clip")
+    assert ctx.average("abm_clip", "seen") == 70.0
+    assert ctx.average("abm_clip", "unseen") is None  # water_plants not evaluated yet
+    title, t1 = rep._per_task(ctx, _section(1))
+    assert title.startswith("**Table 1**")
+    assert "| close_jar | – | – | – | – | 70 ± 0 (35/50) | 50 ± 0 (25/50) | – | – | – | – |" in t1
+    assert "**70.0**" in t1 and "74.2" in t1  # ours beside the paper's
+    t2 = rep._per_run(ctx, _section(2))[1]
+    assert "| ABM (CLIP mask field, CLIP skill text) | 20 ± 0 (10/50) | 20 ± 0 (10/50) | 20.0 | 53.2 |" in t2
+    assert "| center-pixel (abm_clip_hash) | – | – | – | 70.0 | 57.5 |" in rep._averages(ctx, _section(3))[1]
+    _write_eval(layout, "abm_clip_hash", "seen", [_rate(t, "seen", [40.0, 40.0]) for t in TASKS])
+    ctx = _ctx(layout)
+    assert "| center-pixel (abm_clip_hash) | 40.0 | – | – | 70.0 | 57.5 |" in rep._averages(ctx, _section(3))[1]
+    (goals,) = rep._targets(ctx, _kind("targets"))
+    assert "abm_clip: seen ≥ 60 %: met (70.0); unseen ≥ 0.85 × seen: not evaluated yet" in goals
+    assert "abm_clip_hash: seen ≥ 60 %: not met (40.0)" in goals
+    assert rep._spread(ctx, _kind("spread")) == []  # only once every fusion has both averages
+    for run, rate in (("stack", 20.0), ("concat-rerendered", 30.0), ("concat-full", 50.0)):
+        for split in ("seen", "unseen"):
+            _write_eval(layout, run, split, [_rate(t, split, [rate, rate]) for t in TASKS])
+    _write_eval(layout, "abm_clip_hash", "unseen", [_rate(t, "unseen", [10.0, 10.0]) for t in TASKS])
+    (spread,) = rep._spread(_ctx(layout), _kind("spread"))
+    assert "span 20.0–50.0 % seen and 10.0–50.0 % unseen (the paper's: 70.0–72.8 and 54.7–57.5)" in spread
+
+
+def test_zoo_index_describes_exported_models(tmp_path: Path) -> None:
+    layout = Layout.of(SPEC, tmp_path, tmp_path / "paper")
+    assert layout.zoo is not None
+    layout.zoo.mkdir()
+    (layout.zoo / "abm_oracle.pt").write_bytes(b"weights")
+    run = layout.run_dir("abm_oracle")
+    run.mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({
+        "train": {"tasks": list(TASKS), "data": "runs/paper/data", "steps": 5000, "batch": 8, "optimizer": "adamw",
+                  "warmup": 50, "weight_decay": 1e-4, "seed": 0},
+        "lr": 1e-3, "policy": {"resolution": 64, "patch_size": 8, "preset": "small+custom"},
+        "language": {"kind": "hash"}, "grounder": {"kind": "oracle"}}))
+    (run / "log.csv").write_text("step,lr,total,translation,rotation,gripper,collision,samples_per_s,elapsed_s\n"
+                                 "10,0.001,1,1,1,1,1,6.5,60\n5000,0,0.2,0.1,0.1,0,0,6.9,7200\n")
+    entries = rep.zoo_index(SPEC, layout)
+    assert [e["name"] for e in entries] == ["abm_oracle"]
+    e = entries[0]
+    assert e["sha256"] == hashlib.sha256(b"weights").hexdigest() and e["size_bytes"] == 7
+    assert (e["steps"], e["train_minutes"], e["recipe"]["resolution"], e["grounder"]) == (5000, 120.0, 64, "oracle")
+    assert e["tables"] == [1, 2]
+    Engine(SPEC, root=tmp_path, out=tmp_path / "paper").write_zoo_index()
+    assert json.loads((layout.zoo / "index.json").read_text()) == entries
+    # on a fresh clone the run folder is gone: the index keeps what it knew, and re-hashes the file
+    (layout.zoo / "abm_oracle.pt").write_bytes(b"other")
+    again = rep.zoo_index(SPEC, Layout.of(SPEC, tmp_path, tmp_path / "gone"))
+    assert again[0]["train_minutes"] == 120.0 and again[0]["sha256"] == hashlib.sha256(b"other").hexdigest()
+    row = "| abm_oracle | ABM, oracle mask (upper bound) | abm | oracle | 5000 | 120.0 |"
+    text = rep.zoo_readme(SPEC, layout, again)
+    assert row in text and "([configs/experiments/paper_tables.yaml](../configs/experiments/paper_tables.yaml))" in text
+
+
+def _kf_row(task: str, kind: str, split: str, cm: float, deg: float) -> dict:
+    return {"method": "abm", "task": task, "split": split, "kind": kind, "n": 5, "position_cm_median": cm,
+            "within_grasp_tolerance": 1.0, "rotation_deg_median": deg, "gripper_agrees": 1.0}
+
+
+def test_keyframe_accuracy_table_puts_runs_side_by_side_per_task_and_kind(tmp_path: Path) -> None:
+    layout = _layout(tmp_path)
+    layout.diagnosis("x").parent.mkdir(parents=True)
+    files = {"abm_oracle": [_kf_row("place_food", "grasp", "seen", 0.44, 5.2),
+                            _kf_row("close_jar", "grasp", "seen", 0.5, 7.0),
+                            _kf_row("close_jar", "grasp", "unseen", 9.0, 90.0)],
+             "rvt_clip": [_kf_row("close_jar", "grasp", "seen", 3.0, 40.0)],
+             # a CLIP-grounded mask run is also scored with the oracle mask (RUN@oracle), in the column beside it
+             "abm_clip@oracle": [_kf_row("close_jar", "grasp", "seen", 1.0, 10.0)],
+             "abm_clip": [_kf_row("close_jar", "grasp", "seen", 2.0, 20.0)]}
+    for name, rows in files.items():
+        layout.diagnosis(name).write_text(json.dumps({"summary": rows}))
+    summaries = rep.keyframe_summaries(SPEC, layout)
+    assert list(summaries) == ["rvt_clip", "abm_clip", "abm_clip@oracle", "abm_oracle"]  # the report's run order
+    order = {t: i for i, t in enumerate(TASKS)}
+    table = rep.keyframe_table(summaries, "seen", order).splitlines()
+    assert table[0] == "| task | keyframe | rvt_clip | abm_clip | abm_clip@oracle | abm_oracle |"
+    # tasks in the paper's order, a run without that keyframe shows –
+    assert table[2:] == ["| close_jar | grasp | 3.0 / 40 | 2.0 / 20 | 1.0 / 10 | 0.5 / 7 |",
+                         "| place_food | grasp | – | – | – | 0.4 / 5 |"]
+    # the committed copies include the oracle-mask diagnosis, so a fresh clone restores it
+    kept = [copy.name for _, copy in kept_pairs(SPEC, layout)]
+    assert "keyframe_accuracy_abm_clip@oracle.json" in kept and "keyframe_accuracy_rvt_clip@oracle.json" not in kept
+    assert "9.0 / 90" in rep.keyframe_table(summaries, "unseen", order)
+
+
+def test_the_timed_zoo_eval_enters_the_report_once_it_ran(tmp_path: Path) -> None:
+    layout = _layout(tmp_path)
+    assert rep.collect(SPEC, layout).zoo_eval is None
+    layout.zoo_eval.mkdir(parents=True)
+    (layout.zoo_eval / "results.md").write_text("| method | pick_block |\n|---|---|\n| abm_clip | 60.0 (3/5) |\n")
+    assert rep.collect(SPEC, layout).zoo_eval is None  # still running: no time yet
+    (layout.zoo_eval / "seconds").write_text("545\n")
+    ctx = rep.Context(SPEC, rep.collect(SPEC, layout), layout)
+    (text,) = rep._zoo_eval(ctx, _kind("zoo_eval"))
+    assert "took 9 min" in text and "| abm_clip | 60.0 (3/5) |" in text and "5 episodes each" in text
+
+
+def test_weakest_keyframes_ranks_kinds_by_their_median_error_over_tasks() -> None:
+    def row(task: str, kind: str, cm: float) -> dict:
+        return {"task": task, "split": "seen", "kind": kind, "position_cm_median": cm, "rotation_deg_median": 0.0}
+
+    rows = [row("a", "grasp", 0.5), row("b", "grasp", 0.7), row("c", "grasp", 9.0),
+            row("a", "move", 12.0), row("b", "move", 4.0), row("a", "pour", 30.0)]  # pour: one task only
+    text = rep.weakest_keyframes({"abm_oracle": rows})
+    assert "abm_oracle: move 8.0 cm, grasp 0.7 cm." in text
+    assert rep.weakest_keyframes({"abm_oracle": rows}, "unseen") == ""
+
+
+def test_approach_yaw_sets_the_approach_against_the_grasp_per_run() -> None:
+    def row(task: str, kind: str, deg: float, split: str = "seen") -> dict:
+        return {"task": task, "split": split, "kind": kind, "position_cm_median": 1.0, "rotation_deg_median": deg}
+
+    rows = [row("place_food", "approach", 80.0), row("pick_block", "approach", 20.0),
+            row("close_jar", "approach", 30.0), row("place_food", "grasp", 4.0), row("pick_block", "grasp", 6.0),
+            row("close_jar", "move", 90.0), row("place_food", "approach", 10.0, "unseen")]
+    text = rep.approach_yaw({"abm_oracle": rows, "rvt_clip": [row("a", "approach", 50.0)]})
+    assert "abm_oracle 30° / 5° (place_food 80°)." in text  # medians over tasks; move and unseen left out
+    assert "rvt_clip" not in text  # no grasp keyframe to compare with
+    assert rep.approach_yaw({"abm_oracle": rows}, "unseen") == ""
+
+
+def test_finished_results_are_kept_and_restored_into_a_fresh_out(tmp_path: Path) -> None:
+    layout = _layout(tmp_path)
+    _write_eval(layout, "rvt_clip", "seen", [_rate(t, "seen", [20.0, 40.0]) for t in TASKS])
+    # stage times: this session's stamps plus the totals carried from sessions whose folders are gone
+    layout.times.write_text("train_minutes 100\ntrain_start 0\ntrain_end 600\neval_start 600\n")
+    assert stage_minutes(layout.times) == {"train": 110.0}
+    layout.zoo_eval.mkdir(parents=True)
+    (layout.zoo_eval / "results.md").write_text("| method |\n")  # still running: no seconds yet
+    assert keep(SPEC, layout) == 3
+    assert keep(SPEC, layout) == 0  # unchanged: nothing rewritten
+    kept = layout.kept
+    assert (kept / "rvt_clip_seen.json").is_file() and (kept / "zoo_eval.md").is_file()
+    assert not (kept / "zoo_eval_seconds.txt").exists()
+    # a fresh clone: nothing under OUT; the engine restores first, the report then has the row again
+    fresh = Layout.of(SPEC, tmp_path, tmp_path / "fresh")
+    assert restore(SPEC, fresh) == 3
+    assert json.loads(fresh.eval_dir("rvt_clip", "seen").joinpath("results.json").read_text())[0]["mean"] == 30.0
+    assert stage_minutes(fresh.times) == {"train": 110.0}
+    assert _ctx(fresh).average("rvt_clip", "seen") == 30.0
+    # what OUT has is never overwritten by an older kept copy
+    (fresh.zoo_eval / "results.md").write_text("newer\n")
+    assert restore(SPEC, fresh) == 0
+    assert (fresh.zoo_eval / "results.md").read_text() == "newer\n"
+
+
+def test_caveats_appear_only_for_runs_with_cells(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    runs = dict(SPEC.runs)
+    runs["abm_clip"] = replace(runs["abm_clip"], caveat="Rerun pending.")
+    runs["stack"] = replace(runs["stack"], caveat="Other.")
+    spec = replace(SPEC, runs=runs)
+    layout = _layout(tmp_path)
+    assert rep._caveats(rep.Context(spec, rep.Outcomes(cells={}), layout), _kind("caveats")) == []
+    cells = {("abm_clip", "close_jar", "seen"): _rate("close_jar", "seen", [50.0])}
+    assert rep._caveats(rep.Context(spec, rep.Outcomes(cells=cells), layout), _kind("caveats")) == ["Rerun pending."]
+    text = rep.compose(spec, layout, rep.Outcomes(cells=cells)).summary
+    assert "Rerun pending." in text and "Other." not in text
+
+
+def test_links_are_rewritten_relative_to_the_document() -> None:
+    text = "see [a](docs/results/x.md#top), [b](https://x.org/a), [c](#here) and [d](docs/results/paper_tables/)"
+    assert rep.relink(text, "docs/results") == ("see [a](x.md#top), [b](https://x.org/a), [c](#here) and "
+                                                "[d](paper_tables/)")
+    assert rep.relink(text, ".") == text
+
+
+def test_a_readme_without_the_block_is_a_clear_error() -> None:
+    with pytest.raises(ValueError, match="has no <!-- paper-tables:start -->"):
+        rep.replace_block("# readme\n", "paper-tables", "x\n")
+    assert rep.replace_block("a\n<!-- b:start -->\nold\n<!-- b:end -->\nz", "b", "new\n") == \
+        "a\n<!-- b:start -->\nnew\n<!-- b:end -->\nz"

@@ -1,0 +1,369 @@
+"""The experiment engine (abm.experiments): specs load and fail with the file and key, stages plan what is left
+from the files on disk, the scheduler runs N commands at a time × T threads, unfinished work is carried across
+machines, and ``abm experiment run|status|list`` drive it."""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from abm.cli import main
+from abm.experiments import scheduler
+from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Source
+from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
+from abm.experiments.stages import BLOCKED, DONE, LEFT, Engine
+from abm.experiments.state import Layout, carry_unfinished, restore_evaluation, restore_training
+
+TINY: dict = {
+    "name": "tiny",
+    "out": "runs/tiny",
+    "kept": "docs/results/tiny",
+    "zoo": "models",
+    "carry": "models/carry",
+    "clip": "models/benchmark-clip",
+    "tasks": {"two": ["pick_block", "place_food"]},
+    "data": {"tasks": "two", "episodes": 1, "workers": 1, "resolution": 64},
+    "training": {"recipe": "quickstart", "tasks": "two", "steps": 3, "train": {"batch": 2, "checkpoint_every": 3},
+                 "policy": {"resolution": 32, "patch_size": 8}},
+    "runs": {"abm_oracle": {"label": "ABM, oracle mask", "train": {"method": "abm", "grounder": "oracle"}},
+             "rvt_clip": {"label": "RVT (CLIP text)", "train": {"method": "rvt", "language": "clip"}}},
+    "evaluation": {"from_zoo": True, "episodes": 1, "repeats": 1, "workers": 1, "max_steps": 2,
+                   "splits": {"seen": {"tasks": "two"}}},
+    "resources": {"trainings_at_a_time": 2, "threads_each": 1},
+    "report": {"title": "Tiny", "document": "docs/results/tiny.md", "records": "docs/results/tiny.json",
+               "summary": [{"kind": "setup"}, {"kind": "per_task", "table": 1, "runs": ["abm_oracle", "rvt_clip"],
+                                                "splits": ["seen"], "title": "Success:"}]},
+}
+
+
+def _spec(tmp_path: Path, data: dict | None = None, name: str = "tiny.yaml"):
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data or TINY, sort_keys=False, allow_unicode=True))
+    return load_spec(path), path
+
+
+def _with(**changes) -> dict:
+    data = json.loads(json.dumps(TINY))
+    for dotted, value in changes.items():
+        node = data
+        *parents, last = dotted.split("__")
+        for key in parents:
+            node = node[key]
+        node[last] = value
+    return data
+
+
+def test_every_builtin_spec_loads() -> None:
+    names = builtin_specs()
+    assert {"paper_tables"} <= set(names)
+    for name in names:
+        spec = load_spec(name)
+        assert spec.runs and spec.evaluation.splits and spec.report.document
+    paper = load_spec("paper_tables")
+    assert paper.evaluation.episodes == 25 and paper.evaluation.repeats == 2 and paper.resources.threads_each == 1
+    assert paper.runs["abm_clip_hash"].train == {"method": "abm", "grounder": "clip", "language": "hash"}
+    assert paper.runs["ifd_clip"].cache == "features" and paper.runs["stack"].cache == "masks"
+    assert paper.runs["abm_oracle"].cache is None and not paper.runs["abm_oracle"].needs_clip
+    assert paper.training_order()[0] == "abm_oracle" and paper.run_names()[0] == "rvt_clip"
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"data__episodes": "many"}, r"data\.episodes: expected a whole number >= 1, got 'many'"),
+    ({"data__tasks": "three"}, r"data\.tasks: 'three' is no task list of this spec"),
+    ({"evaluation__repeat": 2}, r"evaluation: unknown key\(s\) 'repeat'"),
+    ({"runs__abm_oracle__train": {"method": "abm", "stepz": 3}}, r"runs\.abm_oracle\.train: stepz=\.\.\.: TrainConfig "
+                                                                  r"has no settable field 'stepz'"),
+    ({"runs__abm_oracle__train": {"method": "abm", "batch": 0}}, r"runs\.abm_oracle\.train: batch=0"),
+    ({"runs__abm_oracle__train": {"method": "abm", "out": "x"}}, r"runs\.abm_oracle\.train\.out: is set by the engine"),
+    ({"runs__abm_oracle__policy": {"resolution": "big"}}, r"runs\.abm_oracle\.policy: resolution='big'"),
+    ({"runs__abm_oracle__train": {"grounder": "oracle"}}, r"runs\.abm_oracle\.train: needs a method"),
+    ({"clip": ""}, r"clip: runs need the benchmark CLIP"),
+    ({"report__summary": [{"kind": "per_task", "runs": ["nope"]}]}, r"report\.summary\[0\]\.runs: 'nope' is no run"),
+    ({"report__summary": [{"kind": "setup", "title": "x"}]},
+     r"report\.summary\[0\]\.title: a 'setup' section takes no other key"),
+    ({"report__summary": [{"kind": "tables"}]}, r"report\.summary\[0\]\.kind: expected one of setup, "),
+    ({"evaluation__splits": {"seen": {"tasks": "two", "runs": ["ghost"]}}}, r"evaluation\.splits\.seen\.runs: 'ghost'"),
+    ({"resources__order": ["ghost"]}, r"resources\.order: 'ghost' is no run"),
+])
+def test_a_spec_mistake_names_the_file_and_the_key(tmp_path: Path, changes: dict, message: str) -> None:
+    with pytest.raises(SpecError, match=r"tiny\.yaml: " + message):
+        _spec(tmp_path, _with(**changes))
+
+
+def test_a_duplicate_key_or_a_missing_spec_is_a_clear_error(tmp_path: Path) -> None:
+    path = tmp_path / "dup.yaml"
+    path.write_text("name: a\nname: b\n")
+    with pytest.raises(SpecError, match="dup.yaml: the key 'name' appears twice"):
+        load_spec(path)
+    with pytest.raises(FileNotFoundError, match="built-in spec: .*paper_tables"):
+        load_spec("no_such_spec")
+    with pytest.raises(SpecError, match="x.yaml: \\(top level\\): expected a mapping"):
+        parse_spec([1, 2], Path("x.yaml"))
+
+
+def _touch_checkpoint(layout: Layout, run: str, step: int) -> None:
+    folder = layout.run_dir(run) / "checkpoints"
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"step_{step:08d}.pt").write_bytes(b"ckpt")
+
+
+def _states(jobs) -> dict[str, str]:
+    return {j.id: j.state for j in jobs}
+
+
+def test_stages_plan_what_is_left_from_the_files_on_disk(tmp_path: Path) -> None:
+    spec, _ = _spec(tmp_path)
+    engine = Engine(spec, root=tmp_path)
+    layout = engine.layout
+    (data,) = engine.plan("data")
+    assert data.state == LEFT and data.note == "0/2 demonstrations"
+    i = data.argv.index("data")
+    assert data.argv[i:i + 12] == ["data", "generate", "--task", "pick_block,place_food", "--split", "seen",
+                                   "--episodes", "1", "--out", "runs/tiny/data", "--workers", "1"]
+    train = {j.id: j for j in engine.plan("train")}
+    assert train["train/abm_oracle"].state == LEFT and train["train/abm_oracle"].threads == 1
+    assert train["train/rvt_clip"].state == BLOCKED and "no benchmark CLIP" in train["train/rvt_clip"].note
+    assert train["train/abm_oracle"].argv[-7:] == ["train", "--config", "runs/tiny/recipes/abm_oracle.yaml", "--out",
+                                                   "runs/tiny/abm_oracle", "--resume", "--no-progress"]
+    recipe = engine.recipe("abm_oracle")  # the recipe file, the common and the run's overrides, the engine's paths
+    assert (recipe["steps"], recipe["batch"], recipe["method"], recipe["data"]) == (3, 2, "abm", "runs/tiny/data")
+    assert recipe["policy"]["resolution"] == 32 and recipe["policy"]["workspace_size"] == 0.6  # quickstart's cube
+    assert recipe["tasks"] == ["pick_block", "place_food"] and "clip_model" not in recipe
+    assert engine.recipe("rvt_clip")["clip_model"] == "models/benchmark-clip"
+    assert _states(engine.plan("export")) == {"export/abm_oracle": BLOCKED, "export/rvt_clip": BLOCKED}
+    assert _states(engine.plan("eval"))["eval/abm_oracle/seen"] == BLOCKED
+    _touch_checkpoint(layout, "abm_oracle", 2)
+    assert _states(engine.plan("train"))["train/abm_oracle"] == LEFT  # step 2 of 3: not finished
+    _touch_checkpoint(layout, "abm_oracle", 3)
+    assert _states(engine.plan("train"))["train/abm_oracle"] == DONE
+    (export,) = [j for j in engine.plan("export") if j.id == "export/abm_oracle"]
+    assert export.state == LEFT and export.argv[-6:] == ["--run", "runs/tiny/abm_oracle", "--out",
+                                                         "models/abm_oracle.pt", "--dtype", "bfloat16"]
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models/abm_oracle.pt").write_bytes(b"model")
+    (ev,) = [j for j in engine.plan("eval") if j.id == "eval/abm_oracle/seen"]
+    assert ev.state == LEFT and ev.argv[ev.argv.index("--run") + 1] == "models/abm_oracle.pt"
+    # a committed result counts as done before it is restored (status on a fresh clone)
+    (tmp_path / "docs/results/tiny").mkdir(parents=True)
+    (tmp_path / "docs/results/tiny/abm_oracle_seen.json").write_text("[]")
+    assert _states(engine.plan("eval"))["eval/abm_oracle/seen"] == DONE
+    # --runs: only those runs
+    assert list(_states(Engine(spec, root=tmp_path, runs=["rvt_clip"]).plan("train"))) == ["train/rvt_clip"]
+    with pytest.raises(ValueError, match="--runs ghost: not a run of tiny"):
+        Engine(spec, root=tmp_path, runs=["ghost"])
+
+
+class FakeRunner:
+    """Runs nothing: records the commands and makes the files each job would write."""
+
+    def __init__(self, engine_root: Path, fail: str = "") -> None:
+        self.root, self.fail, self.ran = engine_root, fail, []
+
+    def run(self, commands, source, slots, on_start=None):
+        codes = {}
+        for cmd in commands:
+            if on_start:
+                on_start(cmd, None)
+            self.ran.append(cmd.job)
+            argv = cmd.argv
+            if cmd.job.startswith("train/") and cmd.job != self.fail:
+                out = self.root / argv[argv.index("--out") + 1] / "checkpoints"
+                out.mkdir(parents=True, exist_ok=True)
+                (out / "step_00000003.pt").write_bytes(b"w")
+            elif cmd.job.startswith("eval/"):
+                out = self.root / argv[argv.index("--out") + 1]
+                out.mkdir(parents=True, exist_ok=True)
+                task = argv[argv.index("--tasks") + 1]
+                (out / "results.json").write_text(json.dumps([{
+                    "method": "abm", "task": task, "split": "seen", "per_repeat": [100.0], "episodes": 1,
+                    "errors": 0, "mean": 100.0, "std": 0.0}]))
+            codes[cmd.job] = 1 if cmd.job == self.fail else 0
+            if cmd.after:
+                cmd.after(codes[cmd.job])
+        return codes
+
+
+def _one_run() -> dict:
+    """The tiny spec with its oracle run only (no CLIP needed)."""
+    data = _with(runs={"abm_oracle": TINY["runs"]["abm_oracle"]},
+                 report__summary=[{"kind": "setup"},
+                                  {"kind": "per_task", "table": 1, "runs": ["abm_oracle"], "splits": ["seen"]}])
+    data.pop("clip")
+    return data
+
+
+def test_a_run_does_what_is_left_and_a_rerun_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    spec, _ = _spec(tmp_path, _one_run())
+    (tmp_path / "README.md").write_text("x")
+    runner = FakeRunner(tmp_path)
+    engine = Engine(spec, root=tmp_path, runner=runner)
+
+    def fake_local(self, commands, source, slots, on_start=None):  # data, ground, export: make their files
+        for cmd in commands:
+            if cmd.job == "export/abm_oracle":
+                (tmp_path / "models").mkdir(exist_ok=True)
+                (tmp_path / "models/abm_oracle.pt").write_bytes(b"model")
+            runner.ran.append(cmd.job)
+            if cmd.after:
+                cmd.after(0)
+        return {cmd.job: 0 for cmd in commands}
+
+    monkeypatch.setattr(LocalRunner, "run", fake_local)
+    assert engine.run(["data", "train", "export", "eval", "report"]) == 0
+    assert runner.ran == ["data", "train/abm_oracle", "export/abm_oracle", "eval/abm_oracle/seen"]
+    text = (tmp_path / "docs/results/tiny.md").read_text()
+    assert "| pick_block | 100 (1/1) |" in text and "Machine (every session that ran a stage): " in text
+    assert json.loads((tmp_path / "models/index.json").read_text())[0]["name"] == "abm_oracle"
+    assert (tmp_path / "docs/results/tiny/abm_oracle_seen.json").is_file()  # kept for a fresh clone
+    times = (tmp_path / "runs/tiny/times.txt").read_text().split()
+    assert times[0::2] == ["data_start", "data_end", "train_start", "train_end", "export_start", "export_end",
+                           "eval_start", "eval_end"]
+    runner.ran.clear()
+    assert Engine(spec, root=tmp_path, runner=runner).run(["data", "train", "export", "eval", "report"]) == 0
+    assert runner.ran == []  # everything is done: nothing runs twice
+    status = {j.id: j for j in Engine(spec, root=tmp_path).status()}
+    assert status["eval/abm_oracle/seen"].state == DONE and status["eval/abm_oracle/seen"].minutes is not None
+
+
+def test_a_failed_training_stops_before_the_next_stage_and_carries_its_state(tmp_path: Path) -> None:
+    spec, _ = _spec(tmp_path, _one_run())
+    runner = FakeRunner(tmp_path, fail="train/abm_oracle")
+    engine = Engine(spec, root=tmp_path, runner=runner)
+    _touch_checkpoint(engine.layout, "abm_oracle", 1)
+    assert engine.run(["train", "export"]) == 1
+    assert runner.ran == ["train/abm_oracle"]  # export never planned: the stage after a failure does not run
+    status = {j.id: j for j in engine.status()}
+    failed = status["train/abm_oracle"]
+    assert failed.state == "failed" and "logs/train_abm_oracle.log" in failed.note
+    assert (tmp_path / "models/carry/abm_oracle/step_00000001.pt").is_file()  # the carry of the unfinished run
+
+
+def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Path) -> None:
+    spec, _ = _spec(tmp_path)
+    layout = Layout.of(spec, tmp_path)
+    _touch_checkpoint(layout, "abm_oracle", 1)
+    _touch_checkpoint(layout, "abm_oracle", 2)
+    (layout.run_dir("abm_oracle") / "log.csv").write_text("step,elapsed_s\n2,60\n")
+    _touch_checkpoint(layout, "rvt_clip", 3)  # finished: nothing to carry
+    ev = layout.eval_dir("abm_oracle", "seen")
+    ev.mkdir(parents=True)
+    (ev / "outcomes.jsonl").write_text('{"episode": 0}\n')
+    done = layout.eval_dir("rvt_clip", "seen")
+    done.mkdir(parents=True)
+    (done / "outcomes.jsonl").write_text("{}\n")
+    (done / "results.json").write_text("[]")
+    assert carry_unfinished(spec, layout, steps=3) == ["eval/abm_oracle/seen", "abm_oracle"]
+    assert sorted(p.name for p in (tmp_path / "models/carry/abm_oracle").iterdir()) == ["log.csv",
+                                                                                       "step_00000002.pt"]
+    fresh = Layout.of(spec, tmp_path, tmp_path / "fresh")
+    assert restore_training(fresh, "abm_oracle") and restore_evaluation(fresh, "abm_oracle", "seen")
+    assert (fresh.run_dir("abm_oracle") / "checkpoints/step_00000002.pt").is_file()
+    assert (fresh.eval_dir("abm_oracle", "seen") / "outcomes.jsonl").read_text() == '{"episode": 0}\n'
+    assert not restore_training(fresh, "abm_oracle")  # it has its own checkpoints now: never overwritten
+    assert not restore_evaluation(fresh, "rvt_clip", "seen")
+
+
+def _sleeper(tmp_path: Path, name: str) -> Command:
+    code = ("import os, sys, time; open(sys.argv[1], 'w').write(os.environ['OMP_NUM_THREADS'] + ' ' "
+            "+ str(time.time())); time.sleep(0.6); open(sys.argv[1], 'a').write(' ' + str(time.time()))")
+    return Command(name, [sys.executable, "-c", code, str(tmp_path / f"{name}.txt")], tmp_path / f"{name}.log",
+                   tmp_path, threads=1)
+
+
+def test_the_local_runner_runs_n_at_a_time_and_gives_a_lone_job_every_thread(tmp_path: Path) -> None:
+    ended = []
+    commands = [_sleeper(tmp_path, n) for n in ("a", "b", "c")]
+    for cmd in commands:
+        cmd.after = lambda code, job=cmd.job: ended.append((job, code))
+    codes = LocalRunner().run(commands, Source(None), slots=2)
+    assert codes == {"a": 0, "b": 0, "c": 0} and sorted(ended) == [("a", 0), ("b", 0), ("c", 0)]
+    spans = {n: (tmp_path / f"{n}.txt").read_text().split() for n in "abc"}
+    threads = {n: s[0] for n, s in spans.items()}
+    assert threads == {"a": "1", "b": "1", "c": "2"}  # c ran alone: both slots' threads
+    a_end, b_end, c_start = float(spans["a"][2]), float(spans["b"][2]), float(spans["c"][1])
+    assert c_start >= min(a_end, b_end) - 0.05  # never three at a time
+
+
+def test_the_local_runner_stops_its_jobs_when_interrupted(tmp_path: Path) -> None:
+    cmd = Command("long", [sys.executable, "-c", "import time; time.sleep(60)"], tmp_path / "long.log", tmp_path)
+    started = []
+
+    def interrupt() -> None:
+        while not started:
+            time.sleep(0.05)
+        import _thread
+
+        _thread.interrupt_main()
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    began = time.time()
+    with pytest.raises(KeyboardInterrupt):
+        LocalRunner().run([cmd], Source(None), 1, on_start=lambda c, pid: started.append(pid))
+    assert time.time() - began < 30
+    import os
+
+    with pytest.raises(ProcessLookupError):
+        os.kill(started[0], 0)
+
+
+def test_the_ray_runner_sends_every_command_through_the_ray_pool(tmp_path: Path, monkeypatch) -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    import abm.ray_pool
+
+    made = {}
+
+    class FakePool:
+        def __init__(self, workers, address=None, initializer=None, cpus_per_worker=1):
+            made.update(workers=workers, address=address, initializer=initializer, cpus=cpus_per_worker)
+            self.pool = ThreadPoolExecutor(workers)
+
+        def submit(self, fn, *args):
+            return self.pool.submit(fn, *args)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.pool.shutdown()
+
+    monkeypatch.setattr(abm.ray_pool, "RayActorPool", FakePool)
+    commands = [_sleeper(tmp_path, n) for n in ("a", "b")]
+    assert RayRunner("10.0.0.1:6379", cpus=2).run(commands, Source(None), slots=2) == {"a": 0, "b": 0}
+    assert made == {"workers": 2, "address": "10.0.0.1:6379", "initializer": None, "cpus": 2}
+    assert (tmp_path / "a.txt").read_text().split()[0] == "1"
+
+
+def test_a_source_tree_goes_first_on_the_jobs_path(tmp_path: Path) -> None:
+    tree = tmp_path / "tree"
+    (tree / "src/abm").mkdir(parents=True)
+    (tree / "src/abm/__init__.py").write_text("")
+    source = Source.at(tree)
+    assert source.env(3)["PYTHONPATH"].split(":")[0] == str(tree.resolve() / "src")
+    assert source.env(3)["OMP_NUM_THREADS"] == "3"
+    assert source.script("keyframe_accuracy.py")[1] == str(tree.resolve() / "benchmarks/keyframe_accuracy.py")
+    with pytest.raises(ValueError, match="not an abm checkout"):
+        Source.at(tmp_path / "nowhere")
+    with pytest.raises(ValueError, match="in the repository checkout only"):
+        Source(None).script("keyframe_accuracy.py")
+    assert scheduler.Source.here().tree is not None  # the tests run from a checkout
+
+
+def test_the_command_line_runs_status_and_lists(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    _, path = _spec(tmp_path)
+    assert main(["experiment", "status", str(path), "--root", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "train/rvt_clip" in out and "blocked" in out and "no benchmark CLIP" in out
+    assert main(["experiment", "run", str(path), "--root", str(tmp_path), "--stages", "data", "--dry-run"]) == 0
+    assert not (tmp_path / "runs").exists()  # a dry run writes nothing
+    assert main(["experiment", "list"]) == 0
+    assert "paper_tables" in capsys.readouterr().out
+    (tmp_path / "bad.yaml").write_text("name: bad\n")
+    assert main(["experiment", "status", str(tmp_path / "bad.yaml")]) == 2
+    assert "bad.yaml: data.tasks: is required (a list of names)" in capsys.readouterr().err
