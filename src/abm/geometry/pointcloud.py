@@ -102,10 +102,16 @@ class PointCloud:
             raise KeyError(f"gather needs values for cameras {missing}; got {sorted(per_camera)}")
         first = np.asarray(per_camera[self.camera_names[0]])
         out = np.zeros((len(self),) + first.shape[2:], dtype=first.dtype)
+        cams = self.camera_index
+        # a fused cloud holds its cameras one after the other: take each camera's run of points as a slice
+        grouped = len(cams) < 2 or bool(np.all(cams[1:] >= cams[:-1]))
+        bounds = np.searchsorted(cams, np.arange(len(self.camera_names) + 1)) if grouped else None
         for ci, name in enumerate(self.camera_names):
-            sel = self.camera_index == ci
             values = np.asarray(per_camera[name])
-            out[sel] = values[self.pixels[sel, 0], self.pixels[sel, 1]]
+            flat = values.reshape(values.shape[0] * values.shape[1], *values.shape[2:])
+            sel: slice | NDArray[np.bool_] = slice(bounds[ci], bounds[ci + 1]) if bounds is not None else cams == ci
+            pixels = self.pixels[sel]
+            out[sel] = flat.take(pixels[:, 0] * values.shape[1] + pixels[:, 1], axis=0)
         return out
 
 
@@ -131,19 +137,25 @@ def fuse_cameras(
     if missing:
         raise KeyError(f"cameras {missing} not in observation; available: {sorted(frames)}")
     xyz, rgb, cam_idx, pix = [], [], [], []
+    valid = 0
     for ci, name in enumerate(names):
         frame = frames[name]
-        points, pixels = depth_to_points(frame.depth, frame.intrinsics, frame.extrinsics)
+        world, pixels = depth_to_points(frame.depth, frame.intrinsics, frame.extrinsics)
+        points = world.astype(np.float32)
+        valid += len(points)
+        if workspace is not None:  # crop each camera before gathering its colours
+            keep = np.flatnonzero(workspace.contains(points))
+            points, pixels = points.take(keep, 0), pixels.take(keep, 0)
+        colors = np.asarray(frame.rgb)
+        flat = colors.reshape(-1, colors.shape[-1])
         xyz.append(points)
-        rgb.append(frame.rgb[pixels[:, 0], pixels[:, 1]].astype(np.float32) / 255.0)
+        rgb.append(flat.take(pixels[:, 0] * colors.shape[1] + pixels[:, 1], axis=0).astype(np.float32) / 255.0)
         cam_idx.append(np.full(len(points), ci, np.int64))
         pix.append(pixels)
-    cloud = PointCloud(np.concatenate(xyz).astype(np.float32), np.concatenate(rgb),
-                       np.concatenate(cam_idx), np.concatenate(pix), names)
-    if len(cloud) == 0:
+    cloud = PointCloud(np.concatenate(xyz), np.concatenate(rgb), np.concatenate(cam_idx), np.concatenate(pix), names)
+    if valid == 0:
         raise ValueError(f"no valid depth pixel in cameras {names}: every depth is 0, NaN or inf")
     if workspace is not None:
-        cloud = cloud.select(workspace.contains(cloud.xyz))
         if len(cloud) == 0:
             raise ValueError(
                 f"no point of cameras {names} lies inside the workspace cube "
