@@ -37,7 +37,7 @@ case "${1:-bench}" in
     # then bring back the logs and a bfloat16 inference checkpoint cut into 15 MiB parts. Here:
     #   cat policy_bf16.pt.part* > policy.pt && abm eval --run policy.pt ...
     shift
-    RUN=${RUN:-/tmp/abm_device_run}
+    RUN=${RUN:-runs/device_run}
     python -m abm.cli train --device cuda "$@" --out "$RUN" 2>&1 | tee "$OUT/train.log"
     cp "$RUN"/*.json "$RUN"/*.csv "$OUT"/ 2>/dev/null || true
     python -m abm.cli export --run "$RUN" --out "$RUN/policy_bf16.pt" --dtype bfloat16

@@ -471,6 +471,21 @@ class Engine:
             raise
         return 0
 
+    def slots(self, stage: str) -> tuple[int, int]:
+        """``(jobs at a time, CPUs each)`` of a stage: trainings as the resources say; evaluations (``workers``
+        processes each) and diagnoses (one each) as many as fit the trainings' CPUs; exports beside each other;
+        the data stage alone (its generator has its own workers)."""
+        res = self.spec.resources
+        cpus = res.trainings_at_a_time * res.threads_each
+        if stage == "train":
+            return res.trainings_at_a_time, res.threads_each
+        if stage == "eval":
+            workers = self.spec.evaluation.workers
+            return max(1, cpus // workers), workers
+        if stage in ("diagnose", "export"):
+            return max(1, cpus), 1
+        return 1, 1
+
     def carry(self) -> list[str]:
         """Carry the unfinished trainings and evaluations (see :func:`carry_unfinished`)."""
         copied = carry_unfinished(self.spec, self.layout, self.steps)
@@ -511,12 +526,7 @@ class Engine:
         for job in todo:
             if job.before is not None:
                 job.before()
-        if stage == "train":
-            slots, cpus = self.spec.resources.trainings_at_a_time, self.spec.resources.threads_each
-        elif stage == "eval" and self.backend == "ray":
-            slots, cpus = self.spec.resources.trainings_at_a_time, self.spec.evaluation.workers
-        else:
-            slots, cpus = 1, 1
+        slots, cpus = self.slots(stage)
         runner = self._runner(cpus) if stage in ("train", "eval") else LocalRunner()
         codes = runner.run(self._commands(todo), self.source, slots, on_start=self._start)
         stamp(self.layout, f"{stage}_end")
@@ -534,6 +544,11 @@ class Engine:
                 events = self._events.get(job.id, [])
                 starts = [e for e in events if e["event"] == "start"]
                 ends = [e for e in events if e["event"] == "end"]
+                if job.id == "report":
+                    others = [j for j in jobs if j.stage != "report"]
+                    document = self.root / self.spec.report.document
+                    if document.is_file() and all(j.state == DONE for j in others):
+                        job.state = DONE
                 if job.state != DONE and (
                         (job.folder is not None and folder_busy(job.folder)) or self._live(starts, ends)):
                     job.state = RUNNING
