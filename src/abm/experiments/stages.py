@@ -538,7 +538,7 @@ class Engine:
     # -------------------------------------------------------------------------------------------- status
     def status(self) -> list[Job]:
         """Every job of every stage: done, running, left or blocked, with its minutes when known."""
-        jobs = []
+        jobs: list[Job] = []
         for stage in STAGES:
             for job in self.plan(stage):
                 events = self._events.get(job.id, [])
