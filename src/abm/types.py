@@ -284,3 +284,22 @@ class Episode:
 
     def __len__(self) -> int:
         return len(self.steps)
+
+
+#: Version of the simulated objects and expert labels of each ABM-Bench task changed since its first version,
+#: with what changed (every other task is at version 1). Episodes recorded in simulation store the version they
+#: were made with as ``metadata["task_version"]`` (none stored = 1); :mod:`abm.data.episode_store` refuses
+#: those of an older version, since they show other objects or teach other labels than the task now has.
+TASK_DATA_VERSIONS: dict[str, tuple[int, str]] = {
+    "close_jar": (2, "the lid's 1.6 cm knob, one pixel of the policy's views, became a 6.4 cm bar handle that "
+                     "the grasp yaw follows"),
+    "water_plants": (2, "containers stand with their handle across the grasp, which is labelled with one fixed "
+                        "yaw instead of the handle's, too small for the policy's views to show"),
+}
+#: Episode metadata key of the task version an episode was recorded with (see :data:`TASK_DATA_VERSIONS`).
+TASK_VERSION_KEY = "task_version"
+
+
+def task_data_version(task: str) -> int:
+    """The current version of ``task``'s simulated objects and expert labels (1 unless it changed since)."""
+    return TASK_DATA_VERSIONS[task][0] if task in TASK_DATA_VERSIONS else 1

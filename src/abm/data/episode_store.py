@@ -35,6 +35,13 @@ Version 2 (labels are the orientation the arm reached, in the canonical member o
 class; see docs/benchmark.md) replaced version 1, whose grasp yaw labels could be the 180-degree flip
 of what was executed. Version 1 files are refused with a message that says to regenerate them.
 
+Besides the file format, each task's simulated objects and expert labels have a version
+(:data:`abm.types.TASK_DATA_VERSIONS`: close_jar and water_plants are at 2, every other task at 1). An episode
+recorded in simulation (its metadata names the ``mujoco`` version) stores the one it was made with as
+``metadata["task_version"]`` (absent = 1); one of an older version than its task's current one is refused
+like a version-1 file, with what changed and the command that regenerates it, while the other tasks'
+episodes load unchanged. Episodes not recorded in simulation (a real robot's) are not versioned.
+
 Writes are atomic (temporary file in the same folder, then :func:`os.replace`), so an interrupted run
 never leaves a complete-looking partial file. Any unreadable, incomplete or wrong-version file raises
 :class:`EpisodeFormatError` naming the file.
@@ -55,7 +62,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from abm.files import WriteError, write_error, write_text_atomic
-from abm.types import CameraFrame, Episode, KeyframeAction, Observation, Trajectory
+from abm.types import (
+    TASK_DATA_VERSIONS,
+    TASK_VERSION_KEY,
+    CameraFrame,
+    Episode,
+    KeyframeAction,
+    Observation,
+    Trajectory,
+    task_data_version,
+)
 
 if TYPE_CHECKING:  # h5py is imported where files are read or written
     import h5py
@@ -325,7 +341,43 @@ def _open(path: Path) -> h5py.File:
                 else " Upgrade abm to read it.")
         raise EpisodeFormatError(f"{path}: episode format version {int(version)} is not supported "
                                  f"(this abm reads version {FORMAT_VERSION}).{hint}")
+    problem = _task_version_problem(f)
+    if problem is not None:
+        f.close()
+        raise EpisodeFormatError(f"{path}: {problem}")
     return f
+
+
+def outdated_task_version(task: str, metadata: object) -> str | None:
+    """Why an episode of ``task`` with this ``metadata`` must be regenerated, or ``None`` if it may be used.
+
+    Only episodes recorded in simulation (metadata with a ``"mujoco"`` entry) are versioned: one whose
+    ``metadata["task_version"]`` (absent = 1) is older than :func:`abm.types.task_data_version` shows other
+    objects or teaches other labels than the task now has.
+    """
+    if not isinstance(metadata, dict) or "mujoco" not in metadata:
+        return None
+    want = task_data_version(task)
+    try:
+        have = int(metadata.get(TASK_VERSION_KEY, 1))
+    except (TypeError, ValueError):
+        return f"its {TASK_VERSION_KEY!r} metadata entry {metadata.get(TASK_VERSION_KEY)!r} is not a version number"
+    if have >= want:
+        return None
+    change = TASK_DATA_VERSIONS[task][1]
+    return (f"this {task} episode was recorded with version {have} of the task's objects and labels, but the "
+            f"{task} task is now version {want} ({change}), so the episode no longer matches the task. "
+            f"Regenerate it with `abm data generate --task {task}` (same arguments, into a new folder).")
+
+
+def _task_version_problem(f: h5py.File) -> str | None:
+    """:func:`outdated_task_version` of an open file (``None`` if its task or metadata cannot be read: the
+    readers report those themselves)."""
+    try:
+        task, metadata = str(f.attrs["task"]), json.loads(f.attrs["metadata"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return outdated_task_version(task, metadata)
 
 
 def _attr(f: h5py.File, path: Path, key: str) -> Any:  # an HDF5 attribute: str, number or array

@@ -47,6 +47,7 @@ from abm.data.episode_store import (
     check_episodes,
     load_episode,
     load_metadata,
+    outdated_task_version,
     save_episode,
 )
 from abm.files import is_inside, sha256_file, write_text_atomic
@@ -707,6 +708,9 @@ def _plan_episode(row: dict[str, Any], ds: Path, out: Path) -> _PlannedEpisode:
     if success is not True:
         raise LeRobotFormatError(f"{where} is marked failed (success: {success!r}); abm stores only successful "
                                  "demonstrations: remove it from the dataset, nothing was imported")
+    outdated = outdated_task_version(task, meta.get("metadata"))
+    if outdated is not None:
+        raise LeRobotFormatError(f"{where}: {outdated} Nothing was imported.")
     source = meta.get("source") or f"{task}/{split}/episode_{seed:06d}.h5"
     relative = PurePosixPath(str(source))
     path = out / relative

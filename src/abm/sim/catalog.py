@@ -122,7 +122,8 @@ _ENTRIES: list[CatalogEntry] = [
     CatalogEntry("moka pot", "mug", "libero", "turbosquid_objects/moka_pot/moka_pot.xml", scale=0.6,
                  grasp_height=0.062),
     CatalogEntry("plant", "plant", "primitive", rgba=props.TERRACOTTA, movable=False),
-    CatalogEntry("jar lid", "lid", "primitive", rgba=props.LID_GREY, grasp_height=0.024, yaw_symmetry=4),
+    # Grasped across its bar handle (close_jar's expert), so only the gripper's own symmetry (2).
+    CatalogEntry("jar lid", "lid", "primitive", rgba=props.LID_GREY, grasp_height=0.024),
     CatalogEntry("ring", "ring", "primitive", rgba=props.RING_GREY),
     CatalogEntry("frypan", "frypan", "libero",
                  "stable_scanned_objects/chefmate_8_frypan/chefmate_8_frypan.xml", movable=False),

@@ -27,7 +27,7 @@ from abm.sim.scene import CAMERA_NAMES
 from abm.sim.simulation import Simulation
 from abm.sim.splits import load_splits
 from abm.sim.tasks import Task, TaskInstance, get_task
-from abm.types import Episode, KeyframeAction, Observation
+from abm.types import TASK_VERSION_KEY, Episode, KeyframeAction, Observation, task_data_version
 
 DEFAULT_MAX_STEPS = 25
 Policy = Callable[[Observation], KeyframeAction]
@@ -130,7 +130,8 @@ def _episode(env: TaskEnv, steps, success: bool, extra: dict[str, Any]) -> Episo
     return Episode(task=env.task.name, variation=env.instance.variation, split=env.split,
                    instruction=env.instruction, object_names=env.object_names,
                    target_names=env.target_names, steps=steps, success=success, seed=env.seed,
-                   metadata={"resolution": env.resolution, "mujoco": mujoco.__version__, **extra})
+                   metadata={"resolution": env.resolution, "mujoco": mujoco.__version__,
+                             TASK_VERSION_KEY: task_data_version(env.task.name), **extra})
 
 
 def executed_action(action: KeyframeAction, flipped: bool) -> KeyframeAction:

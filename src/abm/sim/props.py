@@ -1,5 +1,5 @@
-"""Procedural props of ABM-Bench built from primitives: jars and lids, pegs and a square ring, a stepped
-shelf and a potted plant.
+"""Procedural props of ABM-Bench built from primitives: jars and lids (with a bar handle), pegs and a square
+ring, a stepped shelf and a potted plant.
 
 Every builder adds geoms to the ``root`` body of a fresh :class:`mujoco.MjSpec`; the root body frame has
 its origin at the centre of the footprint (jars, lids, pegs, rings: at the collision box centre) and
@@ -15,7 +15,10 @@ JAR_RADIUS = 0.032
 JAR_HALF_HEIGHT = 0.04
 LID_RADIUS = 0.036
 LID_HALF_THICKNESS = 0.005
-KNOB_HALF = (0.008, 0.008, 0.012)          # knob on the lid (grasped)
+# Bar handle on the lid (grasped across its width), along the lid's local x. 6.4 cm long: 4 pixels of the
+# policy's 64² views over the 1 m workspace (1.56 cm per pixel), so its direction, which sets the grasp yaw,
+# can be read from them; the 1.6 cm knob it replaced (lid version 1) covered one pixel.
+LID_HANDLE_HALF = (0.032, 0.006, 0.012)
 PEG_HALF = (0.008, 0.008, 0.035)           # square peg, 7 cm tall
 RING_OUTER_HALF = 0.056                    # square ring: outer half width
 RING_BAR_HALF_WIDTH = 0.008                # half width of each side bar
@@ -66,11 +69,12 @@ def build_jar(root, rgba: Sequence[float]) -> None:
 
 
 def build_lid(root, rgba: Sequence[float] = LID_GREY) -> None:
-    """A jar lid: a disc with a square knob on top; origin at the centre of its bounding box."""
-    total = LID_HALF_THICKNESS + KNOB_HALF[2]
+    """A jar lid: a disc with a dark bar handle across its top along local x (``LID_HANDLE_HALF``); origin at
+    the centre of its bounding box."""
+    total = LID_HALF_THICKNESS + LID_HANDLE_HALF[2]
     _geom(root, "cylinder", (LID_RADIUS, LID_HALF_THICKNESS), (0, 0, -total + LID_HALF_THICKNESS), rgba,
           mass=0.04)
-    _geom(root, "box", KNOB_HALF, (0, 0, total - KNOB_HALF[2]), (0.3, 0.3, 0.32, 1.0), mass=0.01)
+    _geom(root, "box", LID_HANDLE_HALF, (0, 0, total - LID_HANDLE_HALF[2]), (0.3, 0.3, 0.32, 1.0), mass=0.015)
 
 
 def build_peg(root, rgba: Sequence[float]) -> None:
