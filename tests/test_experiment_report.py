@@ -272,3 +272,118 @@ def test_a_readme_without_the_block_is_a_clear_error() -> None:
         rep.replace_block("# readme\n", "paper-tables", "x\n")
     assert rep.replace_block("a\n<!-- b:start -->\nold\n<!-- b:end -->\nz", "b", "new\n") == \
         "a\n<!-- b:start -->\nnew\n<!-- b:end -->\nz"
+
+
+# ----------------------------------------------------------------------------- the other experiments' reports
+CLIP_SPEC = load_spec("clip_grounder")
+KEPT_SPECS = ("seen_unseen", "clip_grounder", "rotation_probe")
+
+
+@pytest.mark.parametrize("name", KEPT_SPECS)
+def test_the_committed_blocks_regenerate_from_the_committed_outcomes(tmp_path: Path, name: str) -> None:
+    """The README blocks and documents of the experiments without a zoo, from their kept outcomes alone."""
+    spec = load_spec(name)
+    root = tmp_path / "root"
+    shutil.copytree(REPO / spec.kept, root / spec.kept)
+    files = [f for f in (spec.report.readme, spec.report.document, "docs/results/grounding_quality.json") if f]
+    for f in files:
+        (root / f).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(REPO / f, root / f)
+    if spec.clip:
+        (root / spec.clip).parent.mkdir(parents=True, exist_ok=True)
+        (root / spec.clip).symlink_to(REPO / spec.clip)
+    assert Engine(spec, root=root).run(["report"]) == 0
+    for f in files:
+        assert (root / f).read_bytes() == (REPO / f).read_bytes(), f"{f} differs from its regeneration"
+    for figure in spec.report.figures:  # drawn from the kept outcomes: the committed images (when drawn)
+        if (REPO / figure.file).is_file():
+            assert (root / figure.file).is_file(), figure.file
+
+
+def _clip_layout(tmp_path: Path) -> Layout:
+    return Layout.of(CLIP_SPEC, tmp_path, tmp_path / "out")
+
+
+def _clip_ctx(layout: Layout) -> rep.Context:
+    return rep.Context(CLIP_SPEC, rep.collect(CLIP_SPEC, layout), layout)
+
+
+def _clip_section(kind: str):
+    return next(s for s in (*CLIP_SPEC.report.summary, *CLIP_SPEC.report.details) if s.kind == kind)
+
+
+def test_success_rows_name_runs_and_variants_and_leave_out_what_is_not_evaluated(tmp_path: Path) -> None:
+    layout = _clip_layout(tmp_path)
+    for split in ("seen", "unseen"):
+        for run, rate in (("abm_oracle", [80.0, 100.0] if split == "seen" else [60.0, 80.0]),
+                          ("abm_clip", [40.0, 60.0] if split == "seen" else [20.0, 20.0]), ("ifd_clip", [10.0, 0.0])):
+            rates = [{**_rate(t, split, rate), "episodes": 20} for t in ("pick_block", "place_food")]
+            _write_eval(layout, run, split, rates)
+        _write_eval(layout, "abm_oracle@clip", split, [_rate(t, split, [30.0]) for t in ("pick_block", "place_food")])
+    ctx = _clip_ctx(layout)
+    title, table = rep._success_rows(ctx, _clip_section("success_rows"))
+    rows = [line.split(" | ")[0] for line in table.splitlines()[2:]]
+    assert rows == ["| abm_oracle", "| abm_clip", "| ifd_clip", "| abm_oracle → CLIP"]  # rvt runs not evaluated
+    assert "| abm_clip | abm | mask from the benchmark CLIP" in table and "18/20" in table
+    assert table.splitlines()[3].endswith("| 50 | 20 | 0.40 |")
+    assert "| abm_oracle → CLIP | abm | trained on oracle masks, grounded by the benchmark CLIP" in table
+    (sentences,) = rep._sentences(ctx, _clip_section("sentences"))
+    assert sentences.splitlines() == [
+        "abm keeps 20 % / 70 % = 0.29 of the oracle's unseen success with the learned grounder (50 % / 90 % on seen "
+        "objects).",
+        "The oracle-trained policy grounded by CLIP only at evaluation reaches 30 % / 30 % (seen / unseen), the "
+        "CLIP-trained one 50 % / 20 %."]  # no rvt sentence: rvt_hash and rvt_clip are not evaluated
+    assert rep._missing(ctx, _clip_section("missing")) == ["Not evaluated in this run: rvt_hash, rvt_clip."]
+
+
+def test_grounding_quality_rows_of_the_evaluated_tasks(tmp_path: Path) -> None:
+    layout = _clip_layout(tmp_path)
+    record = {"config": "proposals (combined, no split)", "task": "pick_block", "split": "unseen", "iou": 0.81,
+              "hit_rate": 0.9, "top1": 0.7, "n": 10}
+    quality = {"records": [record, {**record, "config": "field (maskclip)", "iou": 0.1},
+                           {**record, "task": "close_jar"}]}  # not a task of this experiment
+    (tmp_path / "docs/results").mkdir(parents=True)
+    (tmp_path / "docs/results/grounding_quality.json").write_text(json.dumps(quality))
+    title, table = rep._grounding_quality(_clip_ctx(layout), _clip_section("grounding_quality"))
+    assert "`proposals (combined, no split)`" in title
+    assert table.splitlines()[2:] == ["| pick_block | unseen | 10 | 0.81 | 90 % | 70 % |"]
+
+
+def test_the_setup_states_what_the_spec_asks_in_its_order(tmp_path: Path) -> None:
+    layout = _clip_layout(tmp_path)
+    entries = [{"name": "abm_clip", "method": "abm", "steps": 20, "train_minutes": 2.0, "samples_per_s": 8.04,
+                "recipe": {"preset": "small+custom", "resolution": 48, "patch_size": 6, "batch": 8,
+                           "optimizer": "adamw", "lr": 0.001, "workspace_size": 0.6}}]
+    cells = {("abm_clip", "pick_block", "seen"): {**_rate("pick_block", "seen", [50.0, 50.0, 50.0]), "episodes": 30}}
+    ctx = rep.Context(CLIP_SPEC, rep.Outcomes(cells=cells, entries=entries, machines=["m1", "m2"]), layout)
+    (text,) = rep._setup(ctx, _clip_section("setup"))
+    assert text.startswith("Machines (every session that ran a stage): m1; m2. Data: 20 seen demonstrations per task "
+                           "(pick_block, place_food). CLIP: the benchmark CLIP in `models/benchmark-clip` (`abm clip "
+                           "train`: trained on simulator renders")  # no folder here: its size is not stated
+    assert ("Recipe (every model): `small+custom` preset at 48² views over a 0.6 m cube, patch 6, 20 steps of batch "
+            "8, adamw lr 0.001, two trainings at a time with one thread each.") in text
+    assert "Training minutes: abm_clip 2.0. Training samples/s: abm_clip 8.0." in text
+    assert text.endswith("Evaluation: 10 seeded episodes × 3 repeats per task and split, at most 8 keyframes, the "
+                         "same scenes for every model.")
+
+
+def test_kept_run_summaries_come_from_the_run_folders_and_survive_them(tmp_path: Path) -> None:
+    spec = load_spec("seen_unseen")
+    layout = Layout.of(spec, tmp_path, tmp_path / "out")
+    run = layout.run_dir("abm")
+    run.mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({
+        "train": {"tasks": None, "data": "runs/seen_unseen/data", "steps": 4000, "batch": 8, "optimizer": "adamw",
+                  "warmup": 50, "weight_decay": 1e-4, "seed": 0},
+        "lr": 1e-3, "policy": {"resolution": 64, "patch_size": 8, "preset": "small+custom", "workspace_size": 1.0},
+        "language": {"kind": "hash"}, "grounder": {"kind": "oracle"}}))
+    (run / "log.csv").write_text("step,total,translation,rotation,gripper,samples_per_s,elapsed_s\n" + "".join(
+        f"{s},{9 / s},{5 / s},{3 / s},{1 / s},7.0,{s * 1.5}\n" for s in range(10, 4001, 10)))
+    (entry,) = rep.kept_run_summaries(spec, layout)
+    assert entry["minutes_at_steps"] == {"1000": 25.0, "2000": 50.0, "3000": 75.0}
+    assert (entry["train_minutes"], entry["samples_per_s"], entry["label"]) == (100.0, 7.0, "abm")
+    assert "workspace_size" not in entry["recipe"]  # the default cube is not stated
+    rep.keep_training_log(run, layout.kept / "training_abm.csv")
+    kept = (layout.kept / "training_abm.csv").read_text().splitlines()
+    assert kept[0] == "step,total,translation,rotation,gripper" and kept[-1].startswith("4000,")
+    assert len(kept) < 260  # at most ~200 rows and the last one

@@ -61,10 +61,10 @@ def _with(**changes) -> dict:
 
 def test_every_builtin_spec_loads() -> None:
     names = builtin_specs()
-    assert {"paper_tables"} <= set(names)
+    assert {"paper_tables", "seen_unseen", "clip_grounder", "put_in_container", "rotation_probe"} <= set(names)
     for name in names:
         spec = load_spec(name)
-        assert spec.runs and spec.evaluation.splits and spec.report.document
+        assert spec.runs and (spec.evaluation.splits or spec.diagnose) and (spec.report.document or spec.report.readme)
     paper = load_spec("paper_tables")
     assert paper.evaluation.episodes == 25 and paper.evaluation.repeats == 2 and paper.resources.threads_each == 1
     assert paper.runs["abm_clip_hash"].train == {"method": "abm", "grounder": "clip", "language": "hash"}
@@ -86,10 +86,17 @@ def test_every_builtin_spec_loads() -> None:
     ({"clip": ""}, r"clip: runs need the benchmark CLIP"),
     ({"report__summary": [{"kind": "per_task", "runs": ["nope"]}]}, r"report\.summary\[0\]\.runs: 'nope' is no run"),
     ({"report__summary": [{"kind": "setup", "title": "x"}]},
-     r"report\.summary\[0\]\.title: a 'setup' section takes no other key"),
+     r"report\.summary\[0\]\.title: a 'setup' section takes show"),
     ({"report__summary": [{"kind": "tables"}]}, r"report\.summary\[0\]\.kind: expected one of setup, "),
     ({"evaluation__splits": {"seen": {"tasks": "two", "runs": ["ghost"]}}}, r"evaluation\.splits\.seen\.runs: 'ghost'"),
     ({"resources__order": ["ghost"]}, r"resources\.order: 'ghost' is no run"),
+    ({"report__summary": [{"kind": "setup", "show": ["weather"]}]},
+     r"report\.summary\[0\]\.show: 'weather' is not something a setup states"),
+    ({"report__summary": [{"kind": "sentences", "sentences": [{"text": "x", "runs": ["abm_oracle"]}]}]},
+     r"report\.summary\[0\]\.sentences\[0\]\.runs: expected two runs of this spec"),
+    ({"report__document": "", "report__title": ""}, r"report\.document: writes nothing"),
+    ({"evaluation__variants": {"abm_oracle@tracking": {"run": "abm_oracle", "grounder": "clip"}}},
+     r"evaluation\.variants: a variant is named RUN@GROUNDER \(abm_oracle@clip\)"),
 ])
 def test_a_spec_mistake_names_the_file_and_the_key(tmp_path: Path, changes: dict, message: str) -> None:
     with pytest.raises(SpecError, match=r"tiny\.yaml: " + message):

@@ -1,9 +1,9 @@
 """Result figures: the success bar chart and training curves, in the evaluation report and in the README
-images that the report scripts draw from the committed JSON."""
+images that the experiments' report (abm.experiments.report) draws from the committed JSON."""
 
 from __future__ import annotations
 
-import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +13,11 @@ from PIL import Image
 from abm.evaluation.plots import keyframe_error_curve, loss_curves, success_chart
 from abm.evaluation.results import EpisodeOutcome, aggregate, eval_seed
 from abm.evaluation.runner import write_reports, write_training_figure
+from abm.experiments.report import collect_cells, draw_figures, keep_training_log
+from abm.experiments.spec import load_spec
+from abm.experiments.state import Layout, restore
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
 TAB_BLUE, TAB_ORANGE, TAB_GREEN = (31, 119, 180), (255, 127, 14), (44, 160, 44)
 
 
@@ -76,38 +78,41 @@ def test_keyframe_error_and_loss_curves(tmp_path):
     assert _has_colour(loss_curves({"abm": rows}, tmp_path / "l.png", heads=("total",)), TAB_BLUE)
 
 
-@pytest.mark.parametrize("script, names", [("seen_unseen_report", ["seen_unseen_success", "seen_unseen_training"]),
-                                           ("clip_grounder_report", ["clip_grounder_losses", "clip_grounder_success"])])
-def test_readme_images_are_what_the_report_scripts_draw_from_the_committed_json(tmp_path, script, names):
-    module = pytest.importorskip(script)
-    store = ROOT / "docs" / "results" / script.removesuffix("_report")
-    drawn = {png.stem: png for png, _ in module.figures(store, tmp_path)}
-    assert sorted(drawn) == sorted(names)
+@pytest.mark.parametrize("name, images", [("seen_unseen", ["seen_unseen_success", "seen_unseen_training"]),
+                                          ("clip_grounder", ["clip_grounder_losses", "clip_grounder_success"])])
+def test_readme_images_are_what_the_report_draws_from_the_committed_json(tmp_path, name, images):
+    spec = load_spec(name)
+    layout = Layout.of(spec, ROOT, tmp_path / "out")  # reads the committed outcomes, draws into tmp_path
+    spec = replace(spec, report=replace(spec.report, figures=tuple(
+        replace(f, file=str(tmp_path / Path(f.file).name)) for f in spec.report.figures)))
+    restore(spec, layout)
+    drawn = {png.stem: png for png in draw_figures(spec, layout, collect_cells(spec, layout))}
+    assert sorted(drawn) == sorted(images)
     readme = (ROOT / "README.md").read_text()
-    for name in names:
-        committed = ROOT / "docs" / "images" / "results" / f"{name}.png"
-        assert f"](docs/images/results/{name}.png)" in readme
-        assert Image.open(committed).size == Image.open(drawn[name]).size
+    for image in images:
+        committed = ROOT / "docs" / "images" / "results" / f"{image}.png"
+        assert f"](docs/images/results/{image}.png)" in readme
+        assert Image.open(committed).size == Image.open(drawn[image]).size
         a = np.asarray(Image.open(committed).convert("RGB")).astype(int)
-        b = np.asarray(Image.open(drawn[name]).convert("RGB")).astype(int)
+        b = np.asarray(Image.open(drawn[image]).convert("RGB")).astype(int)
         assert np.abs(a - b).mean() < 2.0  # the same figure (fonts may differ by a few pixels across machines)
 
 
-def test_report_scripts_keep_compact_loss_curves_and_draw_them(tmp_path):
-    seen_unseen_report = pytest.importorskip("seen_unseen_report")
-    clip_grounder_report = pytest.importorskip("clip_grounder_report")
-    run = tmp_path / "abm_clip"
-    run.mkdir()
+def test_the_report_keeps_compact_loss_curves_and_draws_them(tmp_path):
+    spec = load_spec("clip_grounder")
+    layout = Layout.of(spec, tmp_path, tmp_path / "out")
+    run = layout.run_dir("abm_clip")
+    run.mkdir(parents=True)
     (run / "log.csv").write_text("step,total,translation,rotation,gripper,elapsed_s\n" +
                                  "".join(f"{s},{9 / s},{5 / s},{3 / s},{1 / s},{s}\n" for s in range(1, 1001)))
-    store = tmp_path / "store"
-    store.mkdir()
-    for name in ("results_seen.json", "results_unseen.json"):
-        (store / name).write_text((ROOT / "docs/results/clip_grounder" / name).read_text())
-    seen_unseen_report.keep_training_log(run, store / "training_abm_clip.csv")
-    kept = (store / "training_abm_clip.csv").read_text().splitlines()
+    keep_training_log(run, layout.kept / "training_abm_clip.csv")
+    kept = (layout.kept / "training_abm_clip.csv").read_text().splitlines()
     assert kept[0] == "step,total,translation,rotation,gripper" and kept[-1].startswith("1000,")
     assert 150 < len(kept) < 260  # at most ~200 rows and the last one
-    drawn = dict((png.stem, png) for png, _ in clip_grounder_report.figures(store, tmp_path / "img"))
+    for split in ("seen", "unseen"):
+        layout.eval_dir("abm_clip", split).mkdir(parents=True)
+        (layout.eval_dir("abm_clip", split) / "results.json").write_text(
+            (ROOT / f"docs/results/clip_grounder/abm_clip_{split}.json").read_text())
+    drawn = {png.stem: png for png in draw_figures(spec, layout, collect_cells(spec, layout))}
     assert sorted(drawn) == ["clip_grounder_losses", "clip_grounder_success"]
     assert _has_colour(drawn["clip_grounder_losses"], TAB_BLUE)

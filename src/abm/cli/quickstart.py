@@ -45,8 +45,8 @@ class QuickstartConfig:
     """Sizes of the quickstart run (the ``abm quickstart`` flags; defaults fit about 20 minutes on a 2-core CPU).
 
     The training defaults come from the quickstart recipe (``configs/quickstart.yaml``, :data:`RECIPE`): the CPU
-    recipe of ``scripts/seen_unseen.sh`` cut to one task, with smaller views over a tighter workspace cube,
-    AdamW at 1e-3 and enough steps for the ~2 cm a grasp needs.
+    recipe of the seen/unseen experiment (``abm experiment run seen_unseen``) cut to one task, with smaller views
+    over a tighter workspace cube, AdamW at 1e-3 and enough steps for the ~2 cm a grasp needs.
 
     Attributes:
         out: output folder (data, runs, eval and report inside).

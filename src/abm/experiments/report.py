@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from abm.experiments.spec import SPECS, ExperimentSpec, Section
+from abm.experiments.spec import SPECS, ExperimentSpec, Section, VariantSpec
 from abm.experiments.state import Layout, machines, stage_minutes
 from abm.files import sha256_file
 
@@ -104,6 +104,16 @@ def training_summary(run_dir: Path) -> dict[str, float] | None:
             "samples_per_s": sum(sps) / len(sps)}
 
 
+def minutes_at_steps(run_dir: Path, steps: Sequence[int]) -> dict[str, float]:
+    """Training minutes when the run's log reached each of ``steps`` (``{"1000": 25.3}``)."""
+    log = run_dir / "log.csv"
+    if not steps or not log.is_file():
+        return {}
+    with log.open() as f:
+        at = {int(r["step"]): float(r["elapsed_s"]) / 60 for r in csv.DictReader(f)}
+    return {str(s): round(at[s], 1) for s in steps if s in at}
+
+
 def describe_run(run_dir: Path) -> dict[str, Any]:
     """What only a run folder knows (``config.json``, ``log.csv``): tasks, data, steps, recipe, language,
     grounder and training minutes; ``{}`` when the folder is gone (a fresh clone)."""
@@ -119,6 +129,8 @@ def describe_run(run_dir: Path) -> dict[str, Any]:
            "preset": cfg["policy"]["preset"]},
         "language": cfg["language"].get("kind"), "grounder_spec": cfg["grounder"],
     }
+    if cfg["policy"].get("workspace_size", 1.0) != 1.0:  # not the default 1 m cube: say so
+        entry["recipe"]["workspace_size"] = cfg["policy"]["workspace_size"]
     trained = training_summary(run_dir)
     if trained is not None:
         entry["train_minutes"] = round(trained["elapsed_min"], 1)
@@ -172,6 +184,10 @@ def kept_run_summaries(spec: ExperimentSpec, layout: Layout) -> list[dict[str, A
             entry.update(fresh)
             if trained is not None:
                 entry["samples_per_s"] = round(trained["samples_per_s"], 2)
+            steps = spec.diagnose.steps if spec.diagnose else ()
+            at = minutes_at_steps(layout.run_dir(name), steps)
+            if at:
+                entry["minutes_at_steps"] = at
         if entry:
             entries.append(entry)
     return entries
@@ -254,40 +270,79 @@ class Context:
             return self.spec.runs[run].label
         return next((v.label for v in self.spec.evaluation.variants if v.name == run), run)
 
+    def variant(self, name: str) -> VariantSpec | None:
+        return next((v for v in self.spec.evaluation.variants if v.name == name), None)
+
+    def method(self, name: str) -> str:
+        variant = self.variant(name)
+        return self.spec.runs[variant.run if variant else name].method
+
+    def describe(self, name: str) -> str:
+        variant = self.variant(name)
+        return variant.description if variant else self.spec.runs[name].grounding
+
     def task_order(self) -> dict[str, int]:
         first = self.spec.training.tasks or self.spec.data.tasks
         return {t: i for i, t in enumerate(first)}
 
 
+DEFAULT_SETUP = ("machines", "recipe", "minutes", "stages", "evaluation")
+
+
+def _clip_sentence(ctx: Context) -> str:
+    clip = ctx.layout.clip
+    if clip is None:
+        return ""
+    meta_path = clip / "abm_clip.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    arch = (meta.get("recipe") or {}).get("arch", {}).get("vision", {})
+    size = (f"a {arch.get('num_hidden_layers')}-layer, {arch.get('hidden_size')}-wide ViT at {arch.get('image_size')}² "
+            if arch else "")
+    return (f"CLIP: the benchmark CLIP in `{ctx.layout.show(clip)}` (`abm clip train`: {size}trained on simulator "
+            "renders of every catalog object with their names, never on demonstrations; see docs/grounding.md).")
+
+
 def _setup(ctx: Context, section: Section) -> list[str]:
+    """One paragraph: the machines, data, CLIP, recipe, training minutes and speed, stage times and the
+    evaluation protocol (``section.show`` picks and orders them)."""
     spec, out = ctx.spec, ctx.outcomes
-    setup = []
-    if out.machines:
-        setup.append(f"Machine{'s' if len(out.machines) > 1 else ''} (every session that ran a stage): "
-                     f"{'; '.join(out.machines)}.")
     trained = [e for e in out.entries if e.get("method") != "clip"]
     recipe = next((e["recipe"] for e in trained if e.get("recipe")), None)
+    parts: dict[str, str] = {}
+    if out.machines:
+        parts["machines"] = (f"Machine{'s' if len(out.machines) > 1 else ''} (every session that ran a stage): "
+                             f"{'; '.join(out.machines)}.")
+    d = spec.data
+    parts["data"] = f"Data: {d.episodes} {d.split} demonstrations per task ({', '.join(d.tasks)})."
+    parts["clip"] = _clip_sentence(ctx)
     if recipe:
         n, t = spec.resources.trainings_at_a_time, spec.resources.threads_each
         side = (f"{_number(n)} trainings at a time with {_number(t)} thread{'s' if t != 1 else ''} each" if n > 1
                 else f"one training at a time with {_number(t)} thread{'s' if t != 1 else ''}")
-        setup.append(f"Recipe (every model): `{recipe['preset']}` preset at {recipe['resolution']}² views, patch "
-                     f"{recipe['patch_size']}, {trained[0].get('steps')} steps of batch {recipe['batch']}, "
-                     f"{recipe['optimizer']} lr {recipe['lr']:g}, {side}.")
+        cube = f" over a {recipe['workspace_size']:g} m cube" if "workspace_size" in recipe else ""
+        parts["recipe"] = (f"Recipe (every model): `{recipe['preset']}` preset at {recipe['resolution']}² views{cube}, "
+                           f"patch {recipe['patch_size']}, {trained[0].get('steps')} steps of batch {recipe['batch']}, "
+                           f"{recipe['optimizer']} lr {recipe['lr']:g}, {side}.")
     if trained:
-        setup.append("Training minutes: " + ", ".join(f"{e['name']} {e.get('train_minutes', '?')}" for e in trained)
-                     + ".")
+        parts["minutes"] = "Training minutes: " + ", ".join(
+            f"{e['name']} {e.get('train_minutes', '?')}" for e in trained) + "."
+        speeds = [f"{e['name']} {e['samples_per_s']:.1f}" for e in trained if e.get("samples_per_s")]
+        if speeds:
+            parts["speed"] = "Training samples/s: " + ", ".join(speeds) + "."
     if out.stages:
         ranked = sorted(out.stages.items(),
                         key=lambda kv: STAGE_ORDER.index(kv[0]) if kv[0] in STAGE_ORDER else len(STAGE_ORDER))
-        setup.append("Wall time per stage, every session added up (min): "
-                     + ", ".join(f"{k} {v:.0f}" for k, v in ranked) + ".")
+        parts["stages"] = ("Wall time per stage, every session added up (min): "
+                           + ", ".join(f"{k} {v:.0f}" for k, v in ranked) + ".")
     n = max((r["episodes"] for r in ctx.cells.values()), default=0)
     reps = max((len(r["per_repeat"]) for r in ctx.cells.values()), default=0)
+    show = section.show or DEFAULT_SETUP
     if n:
         where = ", evaluated from the zoo files" if spec.evaluation.from_zoo else ""
-        setup.append(f"Evaluation: {n // max(reps, 1)} seeded episodes × {reps} repeats per task and split, the "
-                     f"same scenes for every model{where}.")
+        keyframes = f", at most {spec.evaluation.max_steps} keyframes" if "keyframes" in show else ""
+        parts["evaluation"] = (f"Evaluation: {n // max(reps, 1)} seeded episodes × {reps} repeats per task and "
+                               f"split{keyframes}, the same scenes for every model{where}.")
+    setup = [parts[item] for item in show if parts.get(item)]
     return [" ".join(setup)] if setup else []
 
 
@@ -369,21 +424,29 @@ def _verdict(text: str, ok: bool | None, value: str) -> str:
 def _targets(ctx: Context, section: Section) -> list[str]:
     """Each target checked against the averages of each row run (measured, not asserted)."""
     parts = []
+    digits = section.digits
     for run in section.runs:
         checks = []
         for check in section.checks:
+            if check.run and check.run != run:
+                continue
             value = ctx.average(run, check.split)
             if check.kind == "at_least":
-                checks.append(_verdict(check.text, None if value is None else value >= check.value, pct(value)))
+                checks.append(_verdict(check.text, None if value is None else value >= check.value,
+                                       pct(value, digits)))
             elif check.kind == "ratio":
                 seen = ctx.average(run, "seen")
                 ok = None if seen is None or value is None or not seen else value / seen >= check.value
                 checks.append(_verdict(check.text, ok, ratio(seen, value)))
             else:
                 base = ctx.average(check.base, check.split)
-                ok = None if value is None or base is None else value >= base + check.value
-                checks.append(_verdict(check.text, ok, f"{pct(value)} vs {pct(base)}"))
-        parts.append(f"{run}: " + "; ".join(checks))
+                if check.kind == "beats":
+                    ok = None if value is None or base is None else value >= base + check.value
+                else:
+                    ok = None if value is None or base is None else value < check.value * base
+                checks.append(_verdict(check.text, ok, f"{pct(value, digits)} vs {pct(base, digits)}"))
+        if checks:
+            parts.append(f"{run}: " + "; ".join(checks))
     return [f"{section.text}: " + ". ".join(parts) + "."]
 
 
@@ -512,11 +575,163 @@ def _heading(ctx: Context, section: Section) -> list[str]:
     return [section.text]
 
 
+def _evaluated(ctx: Context, name: str) -> bool:
+    return any(run == name for run, _, _ in ctx.cells)
+
+
+def _success_rows(ctx: Context, section: Section) -> list[str]:
+    """Rows: the runs and variants evaluated; columns: (method and target,) every task × split, the split
+    averages and unseen / seen."""
+    splits = section.splits or ("seen", "unseen")
+    head = [section.column or "run"] + (["method", "target from"] if section.describe else [])
+    head += [f"{t} {s}" for s in splits for t in ctx.tasks(s)] + [f"{s} avg" for s in splits]
+    both = "seen" in splits and "unseen" in splits
+    lines = _head(head + (["unseen / seen"] if both else []))
+    for name in section.runs:
+        if not _evaluated(ctx, name):
+            continue
+        row = [ctx.label(name)]
+        if section.describe:
+            row += [ctx.method(name), ctx.describe(name)]
+        row += [cell(ctx.cells.get((name, t, s))) for s in splits for t in ctx.tasks(s)]
+        row += [pct(ctx.average(name, s), section.digits) for s in splits]
+        if both:
+            row.append(ratio(ctx.average(name, "seen"), ctx.average(name, "unseen")))
+        lines.append(_row(row))
+    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+
+
+def _sentences(ctx: Context, section: Section) -> list[str]:
+    """Each sentence whose two rows have both averages, one per line."""
+    out = []
+    for sentence in section.sentences:
+        a, b = sentence.runs
+        values = {f"{who}_{s}": ctx.average(run, s) for who, run in (("a", a), ("b", b)) for s in ("seen", "unseen")}
+        if any(v is None for v in values.values()):
+            continue
+        shown = {k: f"{v:.0f}" for k, v in values.items()}
+        out.append(sentence.text.format(a=a, b=b, **shown, ratio_seen=ratio(values["a_seen"], values["b_seen"]),
+                                        ratio_unseen=ratio(values["a_unseen"], values["b_unseen"])))
+    return ["\n".join(out)] if out else []
+
+
+def _missing(ctx: Context, section: Section) -> list[str]:
+    """The rows not evaluated (e.g. runs left out with --runs)."""
+    missing = [ctx.label(n) for n in section.runs if not _evaluated(ctx, n)]
+    return [f"{section.text or 'Not evaluated'}: {', '.join(missing)}."] if missing else []
+
+
+KIND_ORDER = {"approach": 0, "grasp": 1, "lift": 2, "move": 3, "place": 4, "retreat": 5}
+
+
+def _final_rows(ctx: Context) -> list[Mapping[str, Any]]:
+    return [row for rows in ctx.outcomes.summaries.values() for row in rows if "@" not in str(row["method"])]
+
+
+def _keyframe_rows(ctx: Context, section: Section) -> list[str]:
+    """Final-checkpoint accuracy per method, task, split and keyframe kind."""
+    rows = [r for r in _final_rows(ctx) if not section.kinds or r["kind"] in section.kinds]
+    if not rows:
+        return []
+    lines = _head(["method", "task", "split", "keyframe", "position error cm (median)", "within 2 cm",
+                   "rotation error ° (median)"])
+    for r in sorted(rows, key=lambda r: (r["task"], KIND_ORDER.get(r["kind"], 9), r["kind"], r["split"],
+                                         r["method"])):
+        lines.append(f"| {r['method']} | {r['task']} | {r['split']} | {r['kind']} | {r['position_cm_median']:.1f} | "
+                     f"{100 * r['within_grasp_tolerance']:.0f} % | {r['rotation_deg_median']:.0f} |")
+    title = section.title.format(episodes=ctx.spec.diagnose.episodes if ctx.spec.diagnose else "?")
+    return [title, "\n".join(lines)] if title else ["\n".join(lines)]
+
+
+def _keyframe_curve(ctx: Context, section: Section) -> list[str]:
+    """A keyframe kind's position error (seen objects; per task the median, then the mean over tasks) against
+    training steps, with the training minutes at each step (``minutes_at_steps`` of the run summaries)."""
+    kind = (section.kinds or ("grasp",))[0]
+    curve: dict[str, dict[int, list[float]]] = {}
+    for rows in ctx.outcomes.summaries.values():
+        for r in rows:
+            if r["kind"] != kind or r["split"] != "seen":
+                continue
+            method, _, step = str(r["method"]).partition("@")
+            curve.setdefault(method, {}).setdefault(int(step) if step else -1, []).append(r["position_cm_median"])
+    if not any(len(v) > 1 for v in curve.values()):
+        return []
+    minutes = {e["name"]: {int(k): v for k, v in (e.get("minutes_at_steps") or {}).items()}
+               for e in ctx.outcomes.entries}
+    steps = sorted({s for v in curve.values() for s in v if s >= 0})
+    lines = ["| method | " + " | ".join(f"step {s}" for s in steps) + " | final |", "|---" * (len(steps) + 2) + "|"]
+    for method, by_step in sorted(curve.items()):
+        at = minutes.get(method, {})
+        cells = [(f"{sum(by_step[s]) / len(by_step[s]):.1f}" + (f" ({at[s]:.0f} min)" if s in at else ""))
+                 if s in by_step else "–" for s in steps]
+        final = by_step.get(-1)
+        cells.append(f"{sum(final) / len(final):.1f}" if final else "–")
+        lines.append(f"| {method} | " + " | ".join(cells) + " |")
+    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+
+
+def _keyframe_compare(ctx: Context, section: Section) -> list[str]:
+    """Median rotation error (°) / position error (cm) per task, split and keyframe kind, one column per run."""
+    runs = section.runs or tuple(ctx.outcomes.summaries)
+    found: dict[tuple[str, str, str], dict[str, Mapping[str, Any]]] = {}
+    for run in runs:
+        for r in ctx.outcomes.summaries.get(run, []):
+            if not section.kinds or r["kind"] in section.kinds:
+                found.setdefault((r["task"], r["split"], r["kind"]), {})[run] = r
+    if not found:
+        return []
+    order = ctx.task_order()
+    lines = _head(["task", "split", "keyframe", *(section.names.get(r, r) for r in runs)])
+    for (task, split, kind), by_run in sorted(found.items(), key=lambda kv: (
+            order.get(kv[0][0], 99), kv[0][0], kv[0][1], KIND_ORDER.get(kv[0][2], 9))):
+        lines.append(_row([task, split, kind] + [
+            f"{hit['rotation_deg_median']:.0f} / {hit['position_cm_median']:.1f}" if (hit := by_run.get(run))
+            else "–" for run in runs]))
+    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+
+
+def _grounding_quality(ctx: Context, section: Section) -> list[str]:
+    """Mask quality of one grounding configuration on the evaluated tasks' scenes (the records of
+    ``benchmarks/grounding_quality.py``)."""
+    path = ctx.layout.root / section.source
+    if not path.is_file():
+        return []
+    tasks = sorted({t for s in ctx.spec.evaluation.splits for t in s.tasks})
+    rows = [r for r in json.loads(path.read_text()).get("records", []) if r["config"] == section.config
+            and r["task"] in tasks]
+    if not rows:
+        return []
+    lines = _head(["task", "split", "scenes", "mask IoU", "hit rate", "top-1 point on the target"])
+    for t in tasks:
+        for s in ("seen", "unseen"):
+            for r in (r for r in rows if r["task"] == t and r["split"] == s):
+                lines.append(f"| {t} | {s} | {r['n']} | {r['iou']:.2f} | {100 * r['hit_rate']:.0f} % | "
+                             f"{100 * r['top1']:.0f} % |")
+    return [section.title.format(config=section.config), "\n".join(lines)]
+
+
+def _outcome_tables(ctx: Context, section: Section) -> list[str]:
+    """Per split, the tables ``abm eval`` wrote (``results.md``, kept as ``RUN_SPLIT.md``) of every run."""
+    out = []
+    for split in section.splits or tuple(s.split for s in ctx.spec.evaluation.splits):
+        tables = []
+        for name in ctx.spec.runs:
+            path = ctx.layout.eval_dir(name, split) / "results.md"
+            if path.is_file():
+                tables.append("\n".join(line for line in path.read_text().strip().splitlines()
+                                        if "report.html" not in line).strip())
+        if tables:
+            out += [f"## {split}", *tables]
+    return out
+
+
 WRITERS: dict[str, Callable[[Context, Section], list[str]]] = {
     "setup": _setup, "per_task": _per_task, "per_run": _per_run, "averages": _averages, "spread": _spread,
     "targets": _targets, "caveats": _caveats, "weakest_keyframes": _weakest, "approach_yaw": _approach_yaw,
     "zoo_eval": _zoo_eval, "text": _text, "detail": _detail, "keyframe_accuracy": _keyframe_accuracy,
-    "figures": _figures, "heading": _heading,
+    "figures": _figures, "heading": _heading, "success_rows": _success_rows, "sentences": _sentences,
+    "missing": _missing, "keyframe_rows": _keyframe_rows, "keyframe_curve": _keyframe_curve,
+    "keyframe_compare": _keyframe_compare, "grounding_quality": _grounding_quality, "outcome_tables": _outcome_tables,
 }
 
 
@@ -534,8 +749,10 @@ def blocks(ctx: Context, sections: Sequence[Section]) -> list[str]:
 def provenance(spec: ExperimentSpec, layout: Layout) -> str:
     """The report's first line: what wrote it, from which spec, from which kept outcomes."""
     kept, source = layout.show(layout.kept), spec_name(spec, layout)
-    return (f"Written by `abm experiment run {spec.name}` ([{source}]({source})) from the evaluation JSON kept in "
-            f"[{kept}/]({kept}/); cells not evaluated yet show –.")
+    what, tail = ("evaluation JSON", "; cells not evaluated yet show –") if spec.evaluation.splits else (
+        "diagnosis JSON", "")
+    return (f"Written by `abm experiment run {spec.name}` ([{source}]({source})) from the {what} kept in "
+            f"[{kept}/]({kept}/){tail}.")
 
 
 def relink(text: str, folder: str) -> str:
@@ -607,8 +824,11 @@ def compose(spec: ExperimentSpec, layout: Layout, outcomes: Outcomes) -> Written
     summary = "\n\n".join(head + blocks(ctx, spec.report.summary)) + "\n"
     details = blocks(ctx, spec.report.details)
     document = relink(f"# {spec.report.title}\n\n" + "\n\n".join([summary.rstrip("\n"), *details]) + "\n",
-                      Path(spec.report.document).parent.as_posix())
-    block = f"{summary}Full report: [{spec.report.document}]({spec.report.document}).\n"
+                      Path(spec.report.document).parent.as_posix()) if spec.report.document else ""
+    block = summary + (f"Full report: [{spec.report.document}]({spec.report.document}).\n"
+                       if spec.report.document else "")
+    if spec.report.readme:
+        block = relink(block, Path(spec.report.readme).parent.as_posix())
     zoo = outcomes.entries if layout.zoo is not None else None
     return Written(summary=summary, document=document, block=block, records=records(spec, outcomes.cells),
                    zoo=zoo, zoo_readme=zoo_readme(spec, layout, zoo) if zoo is not None else "")
@@ -663,9 +883,12 @@ def draw_figures(spec: ExperimentSpec, layout: Layout, cells: Cells) -> list[Pat
         path = layout.root / figure.file
         names = list(figure.runs) or [*spec.runs, *(v.name for v in spec.evaluation.variants)]
         if figure.kind == "success":
-            rates = [{**rate, "method": run} for (run, _, _), rate in sorted(cells.items()) if run in names]
+            labels = {v.name: v.label for v in spec.evaluation.variants}  # runs by name, variants by label
+            rates = [{**rate, "method": labels.get(run, run)} for (run, _, _), rate in sorted(cells.items())
+                     if run in names]
             if rates:
-                drawn.append(success_chart(rates, path, methods=[n for n in names if any(
+                shown = [labels.get(n, n) for n in names]
+                drawn.append(success_chart(rates, path, methods=[n for n in shown if any(
                     r["method"] == n for r in rates)]))
         elif figure.kind == "losses":
             logs = {n: list(csv.DictReader((layout.kept / f"training_{n}.csv").open())) for n in names
@@ -700,7 +923,8 @@ def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> 
             _write(layout.zoo / "README.md", written.zoo_readme)
     if spec.report.records:
         _write(layout.root / spec.report.records, json.dumps(written.records, indent=1) + "\n")
-    _write(layout.root / spec.report.document, written.document)
+    if spec.report.document:
+        _write(layout.root / spec.report.document, written.document)
     if spec.report.readme:
         readme = layout.root / spec.report.readme
         _write(readme, replace_block(readme.read_text(), spec.report.block, written.block, spec.report.readme))

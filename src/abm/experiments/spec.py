@@ -255,6 +255,12 @@ class Section:
         note: a sentence appended to the section.
         digits: decimals of averages (tables).
         column: the header of a table's first column.
+        show: what a ``setup`` paragraph states, in order (:data:`SETUP_ITEMS`).
+        describe: a ``success_rows`` table also names each row's method and what grounds its target.
+        kinds: keyframe kinds of a keyframe table.
+        sentences: the ``sentences`` of a comparison.
+        source: the JSON a ``grounding_quality`` table reads (relative to the root).
+        config: the grounding configuration it shows.
     """
 
     kind: str
@@ -271,6 +277,26 @@ class Section:
     note: str = ""
     digits: int = 1
     column: str = ""
+    show: tuple[str, ...] = ()
+    describe: bool = False
+    kinds: tuple[str, ...] = ()
+    sentences: tuple[Sentence, ...] = ()
+    source: str = ""
+    config: str = ""
+
+
+@dataclass(frozen=True)
+class Sentence:
+    """A sentence comparing two rows' averages, written once both have seen and unseen averages.
+
+    Attributes:
+        text: the template: ``{a}`` and ``{b}`` name the rows, ``{a_seen}``, ``{a_unseen}``, ``{b_seen}``,
+            ``{b_unseen}`` are their averages (%), ``{ratio_seen}`` and ``{ratio_unseen}`` are b / a.
+        runs: the two rows ``a`` and ``b``.
+    """
+
+    text: str
+    runs: tuple[str, str]
 
 
 @dataclass(frozen=True)
@@ -279,11 +305,12 @@ class TargetCheck:
 
     Attributes:
         text: how the report states it (``seen ≥ 60 %``).
-        kind: ``at_least`` (the split average ≥ ``value``), ``ratio`` (unseen / seen ≥ ``value``) or
-            ``beats`` (the split average ≥ ``base``'s + ``value``).
+        kind: ``at_least`` (the split average ≥ ``value``), ``ratio`` (unseen / seen ≥ ``value``), ``beats``
+            (the split average ≥ ``base``'s + ``value``) or ``below`` (the split average < ``value`` × ``base``'s).
         split: the split it is checked on.
         value: the threshold, ratio or margin.
-        base: the run compared with (``beats``).
+        base: the run compared with (``beats``, ``below``).
+        run: the only row it is checked on (default: every row of the section).
     """
 
     text: str
@@ -291,6 +318,7 @@ class TargetCheck:
     split: str
     value: float
     base: str = ""
+    run: str = ""
 
 
 @dataclass(frozen=True)
@@ -526,12 +554,12 @@ def _checked(reader: _Reader, key: str, cls: type, forbidden: Sequence[str] = ()
 # --------------------------------------------------------------------------------------------- sections
 #: the keys each report section kind takes (besides ``kind``)
 SECTION_KEYS: dict[str, tuple[str, ...]] = {
-    "setup": (),
+    "setup": ("show",),
     "per_task": ("title", "runs", "splits", "table", "paper", "column"),
     "per_run": ("title", "runs", "splits", "table", "paper", "digits", "column"),
     "averages": ("title", "runs", "splits", "table", "paper", "names", "column"),
     "spread": ("of_table", "text"),
-    "targets": ("text", "runs", "checks"),
+    "targets": ("text", "runs", "checks", "digits"),
     "caveats": (),
     "weakest_keyframes": ("splits",),
     "approach_yaw": ("splits", "task", "note"),
@@ -540,13 +568,19 @@ SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "heading": ("text",),
     "detail": ("runs", "splits"),
     "keyframe_accuracy": ("splits", "text"),
-    "keyframe_table": ("title", "runs", "splits", "text"),
     "figures": (),
     "outcome_tables": ("splits",),
-    "success_rows": ("title", "runs", "splits", "names", "note"),
-    "comparisons": ("checks", "text"),
+    "success_rows": ("title", "runs", "splits", "column", "describe", "digits"),
+    "sentences": ("sentences",),
+    "missing": ("text", "runs"),
+    "keyframe_rows": ("title", "kinds"),
+    "keyframe_curve": ("title", "kinds"),
+    "keyframe_compare": ("title", "runs", "names", "kinds"),
+    "grounding_quality": ("title", "source", "config"),
 }
-TARGET_KINDS = ("at_least", "ratio", "beats")
+#: what a ``setup`` paragraph can state (default: machines, recipe, minutes, stages, evaluation)
+SETUP_ITEMS = ("machines", "data", "clip", "recipe", "minutes", "speed", "stages", "evaluation", "keyframes")
+TARGET_KINDS = ("at_least", "ratio", "beats", "below")
 FIGURE_KINDS = ("success", "losses", "keyframe_error")
 
 
@@ -589,17 +623,37 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
         for i, item in enumerate(raw):
             c = _Reader(item, reader.source, f"{reader.where}.checks[{i}]")
             check = TargetCheck(text=c.text("text"), kind=c.choice("kind", TARGET_KINDS),
-                                split=c.choice("split", SPLITS), value=c.number("value"), base=c.text("base", ""))
-            if check.kind == "beats" and check.base not in known:
+                                split=c.choice("split", SPLITS), value=c.number("value"), base=c.text("base", ""),
+                                run=c.text("run", ""))
+            if check.kind in ("beats", "below") and check.base not in known:
                 raise c.error(f"expected a run of this spec, got {check.base!r}", "base")
+            if check.run and check.run not in section_runs:
+                raise c.error(f"expected a row of this section, got {check.run!r}", "run")
             c.done()
             items.append(check)
         checks = tuple(items)
+    sentences = []
+    raw_sentences = reader.raw("sentences", [])
+    if not isinstance(raw_sentences, list):
+        raise reader.error(f"expected a list of sentences, got {_shown(raw_sentences)}", "sentences")
+    for i, item in enumerate(raw_sentences):
+        c = _Reader(item, reader.source, f"{reader.where}.sentences[{i}]")
+        pair = c.names("runs")
+        if len(pair) != 2 or any(r not in known for r in pair):
+            raise c.error(f"expected two runs of this spec, got {list(pair)}", "runs")
+        sentences.append(Sentence(text=c.text("text"), runs=(pair[0], pair[1])))
+        c.done()
+    show = reader.names("show", ()) if "show" in allowed else ()
+    for item in show:
+        if item not in SETUP_ITEMS:
+            raise reader.error(f"{item!r} is not something a setup states ({', '.join(SETUP_ITEMS)})", "show")
     section = Section(kind=kind, title=reader.text("title", ""), text=reader.text("text", ""), runs=section_runs,
                       splits=splits, table=reader.optional_integer("table"), names=names, paper=paper,
                       of_table=reader.optional_integer("of_table"), checks=checks, task=reader.text("task", ""),
                       note=reader.text("note", ""), digits=reader.integer("digits", 1, low=0),
-                      column=reader.text("column", ""))
+                      column=reader.text("column", ""), show=show, describe=reader.flag("describe"),
+                      kinds=reader.names("kinds", ()), sentences=tuple(sentences), source=reader.text("source", ""),
+                      config=reader.text("config", ""))
     reader.done()
     return section
 
@@ -721,8 +775,6 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
                                 gifs=e.integer("gifs", 0, low=0), from_zoo=e.flag("from_zoo"), splits=tuple(splits),
                                 variants=tuple(variants), zoo_eval=e.names("zoo_eval", ()))
     e.done()
-    if not evaluation.splits:
-        raise e.error("is required: at least one split", "splits")
     evaluated = set(names) | {v.name for v in variants}
     for one_split in evaluation.splits:
         for run in one_split.runs or ():
@@ -759,12 +811,17 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         figures.append(FigureSpec(kind=f.choice("kind", FIGURE_KINDS), file=f.text("file"), alt=f.text("alt"),
                                   runs=f.names("runs", ())))
         f.done()
-    report = ReportSpec(title=rep.text("title"), document=rep.text("document"), records=rep.text("records", ""),
-                        readme=rep.text("readme", ""), block=rep.text("block", ""),
-                        summary=_sections(rep, "summary", names), details=_sections(rep, "details", names),
+    rows = [*names, *(v.name for v in variants)]
+    report = ReportSpec(title=rep.text("title", ""), document=rep.text("document", ""),
+                        records=rep.text("records", ""), readme=rep.text("readme", ""), block=rep.text("block", ""),
+                        summary=_sections(rep, "summary", rows), details=_sections(rep, "details", rows),
                         figures=tuple(figures), zoo_readme=rep.flag("zoo_readme"), zoo_note=rep.text("zoo_note", ""))
     if report.readme and not _MARKER.match(report.block):
         raise rep.error(f"a README block needs a marker name (lower case, digits, -), got {report.block!r}", "block")
+    if not report.document and not report.readme:
+        raise rep.error("writes nothing: give a document, a README block, or both", "document")
+    if report.document and not report.title:
+        raise rep.error("a document needs a title", "title")
     rep.done()
 
     spec = ExperimentSpec(

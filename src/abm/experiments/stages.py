@@ -502,9 +502,10 @@ class Engine:
                 return True
             keep(self.spec, self.layout)
             write_report(self.spec, self.layout)
-            LOG.info("report: wrote %s", self.spec.report.document + (
-                f" and the {self.spec.report.block} block of {self.spec.report.readme}" if self.spec.report.readme
-                else ""))
+            written = [self.spec.report.document] if self.spec.report.document else []
+            if self.spec.report.readme:
+                written.append(f"the {self.spec.report.block} block of {self.spec.report.readme}")
+            LOG.info("report: wrote %s", " and ".join(written))
             return True
         if stage == "carry":
             if not dry_run:

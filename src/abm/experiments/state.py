@@ -112,12 +112,16 @@ class Layout:
 def kept_pairs(spec: ExperimentSpec, layout: Layout) -> list[tuple[Path, Path]]:
     """``(file under OUT, its committed copy under KEPT)`` of every finished result the spec can produce."""
     kept, pairs = layout.kept, []
+    tables = any(s.kind == "outcome_tables" for s in (*spec.report.summary, *spec.report.details))
     names = [*spec.runs, *(v.name for v in spec.evaluation.variants)]
     for name in names:
         for split in spec.evaluation.splits:
             if split.runs is None or name in split.runs:
                 pairs.append((layout.eval_dir(name, split.split) / "results.json",
                               kept / f"{name}_{split.split}.json"))
+                if tables:  # the report prints the evaluation's own tables
+                    pairs.append((layout.eval_dir(name, split.split) / "results.md",
+                                  kept / f"{name}_{split.split}.md"))
     for name in spec.diagnoses():
         pairs.append((layout.diagnosis(name), kept / f"keyframe_accuracy_{name}.json"))
     if spec.evaluation.zoo_eval:
