@@ -2,9 +2,11 @@
 
 Typical use::
 
-    from abm.grounding import decompose_instruction, make_grounder, mask_views
+    from abm.grounding import decompose_instruction, make_grounder, mask_views, resolve_instruction
 
     target, skill = decompose_instruction("put the tomato in the plate")   # "tomato", "put X in the plate"
+    resolve_instruction("grab the yellow one", ["target", "red block", "yellow block"]).canonical
+    # -> "put the yellow block on the target" (plain words onto the scene's objects; abm.grounding.resolve)
     grounder = make_grounder("clip", model="openai/clip-vit-large-patch14-336")  # or make_grounder("oracle")
     field = grounder.ground(observation, cloud, target, episode.object_names)  # MaskField over cloud points
     views = mask_views(renderer, cloud, field.mask)                           # center-pixel masks (V, H, W)
@@ -81,6 +83,12 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
         normalize_heatmap,
         threshold_heatmap,
     )
+    from abm.grounding.resolve import (
+        RESOLVE_MIN_CONFIDENCE,
+        Resolution,
+        UnresolvedInstructionError,
+        resolve_instruction,
+    )
 
 __getattr__, __dir__ = lazy_exports(__name__, __file__)
 
@@ -94,5 +102,6 @@ __all__ = [
     "image_key", "lift_patch_features", "load_clip", "load_templates", "make_grounder", "mask_field_from_features",
     "mask_views", "match_object_ids", "model_fingerprint", "nearest_patch_index", "normalize_heatmap",
     "normalize_instruction", "random_clip", "require_instruction",
+    "RESOLVE_MIN_CONFIDENCE", "Resolution", "UnresolvedInstructionError", "resolve_instruction",
     "target_point_mask", "threshold_heatmap", "tiny_clip", "upsample_nearest",
 ]
