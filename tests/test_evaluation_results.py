@@ -184,7 +184,8 @@ def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch
     monkeypatch.setattr(runner, "_load_policy", broken_policy)
     assert cli_main(base + ["--split", "seen", "--tasks", "pick_block"]) == 2
     err = capsys.readouterr().err
-    assert "every episode crashed" in err and "last error: RuntimeError: policy exploded" in err
+    assert "1 of 1 episode(s) crashed and count as failures, every episode" in err
+    assert "first error: " in err and "RuntimeError: policy exploded" in err
 
 
 def test_failure_reasons_and_the_html_report(tmp_path) -> None:

@@ -72,7 +72,7 @@ def test_killed_ray_generation_resumes_and_equals_the_local_pool(cluster, tmp_pa
 
 def test_eval_on_ray_gives_the_same_results_json(cluster, tiny_run, tmp_path):
     run = tiny_run  # a trained tiny abm run
-    results = {}
+    results, rollouts = {}, {}
     for backend in ("ray", "local"):
         out = tmp_path / f"eval_{backend}"
         assert main(["eval", "--run", str(run), "--tasks", "pick_block", "--split", "seen", "--episodes", "2",
@@ -81,7 +81,10 @@ def test_eval_on_ray_gives_the_same_results_json(cluster, tiny_run, tmp_path):
         results[backend] = json.loads((out / "results.json").read_text())
         outcomes = [json.loads(line) for line in (out / "outcomes.jsonl").read_text().splitlines()]
         assert sorted(o["episode"] for o in outcomes) == [0, 1] and not any(o["error"] for o in outcomes)
+        # episode by episode, down to the digest of the keyframes predicted
+        rollouts[backend] = {o["episode"]: (o["success"], o["steps"], o["failure"], o["trajectory"]) for o in outcomes}
     assert results["ray"] == results["local"]
+    assert rollouts["ray"] == rollouts["local"] and all(r[3] for r in rollouts["local"].values())
 
 
 def test_a_ray_address_that_does_not_answer_is_a_clear_error(tmp_path, capsys):

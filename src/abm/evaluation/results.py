@@ -9,12 +9,16 @@ Success rates follow the paper's protocol: per repeat, the percentage of success
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from abm.files import atomic_path, write_text_atomic
 
@@ -50,6 +54,10 @@ class EpisodeOutcome:
             Y]``, :func:`subgoal_results`); empty for one-target instructions and in older logs.
         instruction: the episode's instruction; ``target``: the object(s) it names, comma-separated (``""`` in
             older logs, or when the scene could not be built).
+        trajectory: digest of the keyframes the policy predicted (:func:`trajectory_digest`), so two commands'
+            outcomes can be compared beyond success (``""`` in older logs and for crashed rollouts).
+        code: digest of the abm source that rolled the episode out (:func:`abm.evaluation.policies.code_digest`;
+            ``""`` in older logs): outcomes of two commands are only comparable when it matches.
     """
 
     method: str
@@ -68,11 +76,22 @@ class EpisodeOutcome:
     subgoals: list[bool] = field(default_factory=list)
     instruction: str = ""
     target: str = ""
+    trajectory: str = ""
+    code: str = ""
 
     @property
     def key(self) -> tuple[str, str, str, int, int, str, str]:
         """Identity of the rollout: protocol position plus the checkpoint and evaluation settings used."""
         return (self.method, self.task, self.split, self.repeat, self.episode, self.checkpoint, self.settings)
+
+
+def trajectory_digest(actions: Iterable[Any]) -> str:
+    """16 hex digits of SHA-1 over the keyframe actions (position, quaternion, gripper, collision flag), in order."""
+    h = hashlib.sha1()
+    for a in actions:
+        h.update(np.concatenate([np.asarray(a.position, np.float64), np.asarray(a.quaternion, np.float64),
+                                 [float(a.gripper_open), float(a.ignore_collision)]]).tobytes())
+    return h.hexdigest()[:16]
 
 
 FAILURES = ("crashed", "IK unreachable", "motion blocked", "collision", "grasp missed", "timeout")

@@ -1,9 +1,10 @@
 """Seeded policy rollouts in ABM-Bench and the success tables they produce.
 
 Every (task, split, repeat, episode) uses the scene seed :func:`~abm.evaluation.results.eval_seed`, so
-all methods face exactly the same scenes. Each finished rollout is appended to
-``OUT/outcomes.jsonl`` at once; re-running the same command skips what is there (resume), and a
-rollout that raises is recorded as a failure with its error instead of stopping the evaluation.
+all methods face exactly the same scenes, and an outcome depends on nothing but the checkpoint, the scene and
+the settings: not on the command, the worker it ran in or the backend (:mod:`abm.evaluation.policies`). Each
+finished rollout is appended to ``OUT/outcomes.jsonl`` at once; re-running the same command skips what is there
+(resume), and a rollout that raises is recorded as a failure with its error instead of stopping the evaluation.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from typing import Any
 
 from abm.evaluation.html_report import write_html_report
 from abm.evaluation.plots import loss_curves, read_log, success_chart
+from abm.evaluation.policies import check_policies, code_digest, forget_policies, load_policy, rollout_state
 from abm.evaluation.results import (
     EpisodeOutcome,
     OutcomeLog,
@@ -32,6 +34,7 @@ from abm.evaluation.results import (
     markdown_table,
     subgoal_rates,
     subgoal_results,
+    trajectory_digest,
     write_csv,
     write_json,
 )
@@ -39,9 +42,7 @@ from abm.evaluation.settings import EvalSettings
 from abm.files import write_text_atomic
 from abm.geometry import project_to_camera
 from abm.grounding.conditioning import split_roles
-from abm.grounding.grounders import override_spec
 from abm.grounding.visualize import hstack, label, overlay_views, upscale, vstack
-from abm.policy import KeyframePolicy
 from abm.policy.checkpoint import load_checkpoint, resolve_checkpoint
 from abm.progress import Progress
 from abm.ray_pool import RayActorPool
@@ -68,58 +69,60 @@ class EvalJob:
         return (self.method, self.task, self.split, self.repeat, self.episode, self.checkpoint, self.settings)
 
 
-_POLICIES: dict[tuple[str, str | None, str | None, str], Any] = {}  # per-process cache of loaded policies
-
-
 def _load_policy(run: str, settings: EvalSettings) -> Any:
-    key = (run, settings.grounder, settings.clip_model, settings.device)
-    if key not in _POLICIES:
-        grounder = override_spec(settings.grounder, settings.clip_model)
-        _POLICIES[key] = KeyframePolicy.from_checkpoint(run, device=settings.device, grounder=grounder)
-    return _POLICIES[key]
+    """A fresh copy of the policy for one rollout (:func:`abm.evaluation.policies.load_policy`)."""
+    return load_policy(run, settings)
 
 
 def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
-    """Roll out one episode; never raises (a crash becomes a failed outcome with its error text)."""
+    """Roll out one episode; never raises (a crash becomes a failed outcome with its error text).
+
+    The outcome depends on the job's checkpoint, task, split and seed and on ``settings`` only: the rollout gets
+    a fresh copy of the policy, one torch thread and RNGs seeded from the scene seed
+    (:func:`abm.evaluation.policies.rollout_state`), in whichever process it runs; with a GIF it acts through
+    ``explain()``, whose action is :meth:`act`'s.
+    """
     from abm.sim.env import make_env, run_policy  # mujoco (optional `sim` extra)
 
     start = time.perf_counter()
     steps = 0
     instruction = target = ""
     try:
-        policy = _load_policy(job.checkpoint or job.run, settings)
-        with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
-                      splits_path=settings.splits_path) as env:
-            instruction, target = env.instruction, ", ".join(env.target_names)
-            policy.reset()
-            explained: list[Any] = []
+        with rollout_state(job.seed):
+            policy = _load_policy(job.checkpoint or job.run, settings)
+            with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
+                          splits_path=settings.splits_path) as env:
+                instruction, target = env.instruction, ", ".join(env.target_names)
+                policy.reset()
+                explained: list[Any] = []
 
-            def act(obs: Any) -> Any:
-                if not job.gif_path:
-                    return policy.act(obs, env.instruction, env.object_names)
-                explained.append(policy.explain(obs, env.instruction, env.object_names))
-                return explained[-1].action
+                def act(obs: Any) -> Any:
+                    if not job.gif_path:
+                        return policy.act(obs, env.instruction, env.object_names)
+                    explained.append(policy.explain(obs, env.instruction, env.object_names))
+                    return explained[-1].action
 
-            episode = run_policy(env, act)
-            steps = len(episode.steps)
-            meta = episode.metadata
-            held = bool(meta.get("held_target"))
-            failure = failure_reason(bool(episode.success), "", meta.get("motions", []), held)
-            if job.gif_path:
-                save_rollout_gif(episode, job.gif_path, result="success" if episode.success else failure)
-                save_views_figure(explained, views_path(job.gif_path))
+                episode = run_policy(env, act)
+        steps = len(episode.steps)
+        meta = episode.metadata
+        held = bool(meta.get("held_target"))
+        failure = failure_reason(bool(episode.success), "", meta.get("motions", []), held)
+        if job.gif_path:
+            save_rollout_gif(episode, job.gif_path, result="success" if episode.success else failure)
+            save_views_figure(explained, views_path(job.gif_path))
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,
                               bool(episode.success), steps, time.perf_counter() - start,
                               checkpoint=job.checkpoint, settings=job.settings, failure=failure,
                               subgoals=subgoal_results(_roles(episode), held, bool(episode.success)),
-                              instruction=instruction, target=target)
+                              instruction=instruction, target=target,
+                              trajectory=trajectory_digest(a for _, a in episode.steps), code=code_digest())
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
-        text = f"{type(err).__name__}: {err}"
+        text = " ".join(f"{type(err).__name__}: {err}".split())
         tb = traceback.format_exc(limit=3).strip().splitlines()
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, False,
                               steps, time.perf_counter() - start, error=f"{text} | {tb[-3] if len(tb) > 2 else ''}",
                               checkpoint=job.checkpoint, settings=job.settings, failure="crashed",
-                              instruction=instruction, target=target)
+                              instruction=instruction, target=target, code=code_digest())
 
 
 def _worker_init() -> None:
@@ -130,12 +133,45 @@ def _worker_init() -> None:
 
 
 def method_labels(runs: Sequence[str | Path]) -> dict[str, str]:
-    """Table labels of runs: the policy variant, or ``variant (run folder)`` when variants repeat."""
+    """Table labels of runs: the policy variant, or ``variant (path)`` when several checkpoint files share a
+    variant, with as many trailing parts of each run's path as tell them apart (``abm (seed1/abm)``). Runs that
+    are the same checkpoint file get the same label; different files never do."""
     variants = {str(r): load_checkpoint(r, map_location="cpu")["policy_config"]["variant"] for r in runs}
-    counts: dict[str, int] = {}
-    for v in variants.values():
-        counts[v] = counts.get(v, 0) + 1
-    return {r: (v if counts[v] == 1 else f"{v} ({Path(r).name})") for r, v in variants.items()}
+    files = {str(r): checkpoint_of(r) for r in runs}
+    labels: dict[str, str] = {}
+    for variant in dict.fromkeys(variants.values()):
+        group = [r for r in variants if variants[r] == variant]
+        shown = {files[r]: Path(r).resolve() for r in reversed(group)}  # per file: the first run naming it
+        if len(shown) == 1:
+            labels.update({r: variant for r in group})
+            continue
+        depth = 1
+        while len({_tail(p, depth) for p in shown.values()}) < len(shown) and depth < 64:
+            depth += 1
+        labels.update({r: f"{variant} ({_tail(shown[files[r]], depth)})" for r in group})
+    return labels
+
+
+def _tail(path: Path, depth: int) -> str:
+    return "/".join(path.parts[-depth:])
+
+
+def same_file_runs(runs: Sequence[str | Path]) -> list[str]:
+    """``runs`` without repeats of a checkpoint file (the first run naming each file is kept)."""
+    seen: dict[str, str] = {}
+    for r in map(str, runs):
+        seen.setdefault(checkpoint_of(r), r)
+    return list(seen.values())
+
+
+def check_labels(runs: Sequence[str], labels: dict[str, str]) -> None:
+    """Refuse (``ValueError``) labels that would pool two different checkpoint files into one table row."""
+    owner: dict[str, str] = {}
+    for r in runs:
+        label, file = labels[r], checkpoint_of(r)
+        if owner.setdefault(label, file) != file:
+            raise ValueError(f"the runs {owner[label]} and {file} have the same table label {label!r}, so their "
+                             "episodes would be pooled into one row: give each run its own label")
 
 
 def plan_jobs(
@@ -177,6 +213,7 @@ def evaluate(
     runner: Callable[[EvalJob, EvalSettings], EpisodeOutcome] = run_job,
     backend: str = "local",
     ray_address: str | None = None,
+    collect: list[EpisodeOutcome] | None = None,
 ) -> list[SuccessRate]:
     """Evaluate policies on one split and write ``outcomes.jsonl``, ``results.{json,csv,md}`` to ``out_dir``.
 
@@ -190,27 +227,43 @@ def evaluate(
         labels: run -> method label for the tables (default: from the checkpoints, see :func:`method_labels`).
         runner: the function that rolls out one job (replaceable for tests).
         backend: ``"local"`` (in-process for one worker, else a process pool) or ``"ray"`` (``workers`` Ray
-            actors at ``ray_address``, or a local Ray; :mod:`abm.ray_pool`).
+            actors at ``ray_address``, or a local Ray; :mod:`abm.ray_pool`). The outcomes are the same on
+            every backend and for any ``workers`` (see :func:`run_job`).
+        collect: if given, receives the outcomes the returned rates are computed from (crashed ones have an
+            ``error``; each is from this call, as crashed episodes are always rolled out again).
+
+    Runs naming the same checkpoint file are evaluated once. Before the first rollout, the default runner loads
+    every run's policy once in this process (:func:`abm.evaluation.policies.check_policies`): a run that cannot
+    load raises :class:`abm.evaluation.policies.PolicyLoadError` and nothing is rolled out.
 
     Returns:
         success rates of every (method, task) on ``split``, from the outcomes of exactly the planned
         rollouts (same checkpoints, same settings); older lines of the log are kept but not reported.
     """
     settings = settings or EvalSettings()
+    runs = same_file_runs(runs)
+    labels = labels or method_labels(runs)
+    check_labels(runs, labels)
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     log = OutcomeLog(out / "outcomes.jsonl")
     done = log.done()
     checkpoints = {str(r): checkpoint_of(r) for r in runs}
     plan = [replace(j, checkpoint=checkpoints[j.run], settings=settings.signature())
             for j in plan_jobs(runs, tasks, split, episodes, repeats, out, gifs, labels)]
-    check_same_evaluation(log.read(), plan, out)
+    check_same_evaluation(log.read(), plan, out, record=False)
     jobs = [j for j in plan if j.key not in done]
+    in_process = workers <= 1 and backend == "local"
+    if jobs and runner is run_job:  # fail before any rollout (and any file written) on a policy that cannot load
+        check_policies(list(dict.fromkeys(j.checkpoint or j.run for j in jobs)), settings)
+        if not in_process:
+            forget_policies()  # the workers load their own
+    out.mkdir(parents=True, exist_ok=True)
+    check_same_evaluation(log.read(), plan, out)
     bar = Progress(len(jobs), f"eval {split}", "episodes", bar=progress)
     successes = 0
-    if backend not in ("local", "ray"):
-        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
-    if workers <= 1 and backend == "local":
+    if in_process:
         for job in jobs:
             outcome = runner(job, settings)
             log.append(outcome)
@@ -227,8 +280,24 @@ def evaluate(
     bar.close()
     planned = {j.key for j in plan}
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
+    if collect is not None:
+        collect.extend(latest.values())
     write_training_figure({j.method: j.run for j in plan}, out / "training.png")
     return write_reports(list(latest.values()), out)
+
+
+def crash_summary(outcomes: Sequence[EpisodeOutcome]) -> str:
+    """One line on the crashed rollouts among ``outcomes`` (``""`` if none): how many, the first one (protocol
+    order) with its checkpoint, episode and error, and the fix."""
+    crashed = sorted((o for o in outcomes if o.error), key=lambda o: (o.split, o.task, o.repeat, o.episode, o.method))
+    if not crashed:
+        return ""
+    first = crashed[0]
+    every = ", every episode (the table measures nothing)" if len(crashed) == len(outcomes) else ""
+    return (f"{len(crashed)} of {len(outcomes)} episode(s) crashed and count as failures{every}; first error: "
+            f"{first.checkpoint or first.method}, {first.task} ({first.split}) episode {first.episode} (seed "
+            f"{first.seed}): {' '.join(first.error.split())}; fix the cause and run the same command again (crashed "
+            "episodes are rolled out again, finished ones are kept)")
 
 
 PROTOCOL_FILE = "evaluation.json"

@@ -8,8 +8,15 @@ from pathlib import Path
 from abm.cli import CommandError
 from abm.configuration import config_from_args
 from abm.data.episode_store import EpisodeStore
-from abm.evaluation.results import OutcomeLog, combined_table, markdown_table, write_json
-from abm.evaluation.runner import EvalJob, EvalSettings, check_same_evaluation, evaluate
+from abm.evaluation.results import EpisodeOutcome, OutcomeLog, combined_table, markdown_table, write_json
+from abm.evaluation.runner import (
+    EvalJob,
+    EvalSettings,
+    check_same_evaluation,
+    crash_summary,
+    evaluate,
+    same_file_runs,
+)
 from abm.files import FolderLock
 from abm.policy.checkpoint import load_checkpoint
 from abm.ray_pool import RayBackendError
@@ -81,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
             raise CommandError(f"run {r} does not exist (give a training run folder or a checkpoint file)")
     if args.episodes < 1 or args.repeats < 1:
         raise CommandError("--episodes and --repeats must be at least 1")
+    args.run = [Path(r) for r in same_file_runs(args.run)]  # a file named twice is one run (one table row)
     plan = plan_tasks(args)
     _check_setup(args, plan)
     base = args.run[0] if args.run[0].is_dir() else args.run[0].parent
@@ -100,11 +108,13 @@ def run(args: argparse.Namespace) -> int:
                               [EvalJob("", "", t, split, 0, 0, 0, settings=settings.signature()) for t in tasks],
                               outs[split], record=False)
     rates = []
+    outcomes: list[EpisodeOutcome] = []
     for split, tasks in plan.items():
         try:
             with FolderLock(outs[split], "abm eval"):  # one writer per results folder
                 found = evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers,
-                                 settings, gifs=args.gifs, backend=args.backend, ray_address=args.ray_address)
+                                 settings, gifs=args.gifs, backend=args.backend, ray_address=args.ray_address,
+                                 collect=outcomes)
         except RayBackendError as err:
             raise CommandError(str(err)) from None
         rates += [r for r in found if r.split == split and r.task in tasks]
@@ -118,19 +128,13 @@ def run(args: argparse.Namespace) -> int:
             + ", ".join(f"[{o.name}]({o.name}/results.md)" for o in outs.values()) + "\n\n" + table + "\n")
         write_json(rates, parent / "eval_summary.json")
         print(table)
-    errors = sum(r.errors for r in rates)
     for split, out in outs.items():
         print(f"results {split}: {out / 'results.md'} (also .json, .csv; per-episode outcomes in outcomes.jsonl)")
     if not single:
         print(f"combined table: {parent / 'eval_summary.md'} (also eval_summary.json)")
-    if errors:
-        print(f"{errors} episode(s) crashed and count as failures; see outcomes.jsonl in "
-              + ", ".join(map(str, outs.values())))
-        if errors == sum(r.episodes for r in rates):
-            latest = [o.error for out in outs.values() for o in OutcomeLog(out / "outcomes.jsonl").read()
-                      if o.error][-1:]
-            raise CommandError(f"every episode crashed, so the table measures nothing; last error: "
-                               f"{latest[0] if latest else '?'}")
+    crashes = crash_summary(outcomes)
+    if crashes:  # a crash is not a measurement: the tables are written, but the command fails
+        raise CommandError(f"{crashes}; outcomes: {', '.join(str(o / 'outcomes.jsonl') for o in outs.values())}")
     return 0
 
 

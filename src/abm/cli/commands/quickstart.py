@@ -20,8 +20,8 @@ from abm.data.generate import generate
 from abm.evaluation.html_report import write_html_report
 from abm.evaluation.plots import success_chart
 from abm.evaluation.report import plot_training_curves, views_figure
-from abm.evaluation.results import OutcomeLog, aggregate, combined_table
-from abm.evaluation.runner import EvalSettings, evaluate, write_tables
+from abm.evaluation.results import EpisodeOutcome, OutcomeLog, aggregate, combined_table
+from abm.evaluation.runner import EvalSettings, crash_summary, evaluate, write_tables
 from abm.grounding.clip import ClipWeightsNotFoundError, load_clip
 from abm.policy import KeyframePolicy
 from abm.policy.config import PolicyConfig
@@ -136,17 +136,21 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     settings = EvalSettings(device=cfg.device, resolution=cfg.resolution, max_steps=cfg.max_steps)
     eval_dir = out / "eval"
     rates = []
+    outcomes: list[EpisodeOutcome] = []
     for split in ("seen", "unseen"):
         print(f"[3/4] evaluating {', '.join(cfg.methods)} on {split} objects ({cfg.eval_episodes} episodes per task)")
         rates += evaluate(list(runs.values()), cfg.tasks, split, eval_dir / split, episodes=cfg.eval_episodes,
-                          repeats=1, workers=cfg.workers, settings=settings, gifs=1)
+                          repeats=1, workers=cfg.workers, settings=settings, gifs=1, collect=outcomes)
 
     print(f"[4/4] report -> {report}")
     table = combined_table(rates)
     write_tables(rates, report)
-    write_report(report, runs, eval_dir, data, cfg, grounder_text, rates)
+    write_report(report, runs, eval_dir, data, cfg, grounder_text, rates, outcomes)
     print(table)
     print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
+    crashes = crash_summary(outcomes)
+    if crashes:  # the report is written, but a crash is not a measurement: the command fails
+        raise ValueError(f"{crashes}; report: {report}/README.md")
     return report
 
 
@@ -161,9 +165,10 @@ def _train_with_threads(config, threads: int) -> dict:
 
 
 def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path, cfg: QuickstartConfig,
-                 grounder: str, rates: list | None = None) -> None:
+                 grounder: str, rates: list | None = None, outcomes: list[EpisodeOutcome] | None = None) -> None:
     """Table, curves, example views and GIFs in one folder with a README that links them (``rates``: the
-    success rates, for the combined seen / unseen table)."""
+    success rates, for the combined seen / unseen table; ``outcomes``: the episodes behind them, default every
+    outcome logged under ``eval_dir``)."""
     report.mkdir(parents=True, exist_ok=True)
     plot_training_curves({m: r for m, r in runs.items()}, report / "training_curves.png")
     figures = []
@@ -181,7 +186,8 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
     gifs = sorted(eval_dir.glob("*/gifs/*.gif"))
     for picture in [*gifs, *eval_dir.glob("*/gifs/*_views.png")]:  # rollouts and their heatmap overlays
         shutil.copy(picture, report / picture.name)
-    outcomes = [o for log in sorted(eval_dir.glob("*/outcomes.jsonl")) for o in OutcomeLog(log).read()]
+    if outcomes is None:
+        outcomes = [o for log in sorted(eval_dir.glob("*/outcomes.jsonl")) for o in OutcomeLog(log).read()]
     if outcomes:
         success_chart(aggregate(outcomes), report / "success.png")
     write_html_report(outcomes, report / "report.html", report, "abm quickstart")
