@@ -26,14 +26,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "ground",
         help="ground an instruction's target object and write heatmap / mask / virtual-view PNGs",
-        description="Split the instruction into the target X and the skill, compute the Object Mask Field "
+        description="Resolve the instruction (in plain words) onto the scene's objects, split it into the target X "
+        "and the skill, compute the Object Mask Field "
         "of X over the fused point cloud (CLIP or oracle grounder), render it into the five virtual views "
         "and write PNGs. Without --episode the built-in synthetic scene is used.",
     )
     p.add_argument("--episode", type=Path, help="episode file (abm.data.episode_store format)")
     p.add_argument("--step", type=count, default=0, help="keyframe index within the episode (default 0)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the synthetic scene (without --episode)")
-    p.add_argument("--instruction", help="instruction (default: the episode's, or one naming a scene object)")
+    p.add_argument("--instruction", help="instruction, in plain words ('grab the yellow one'; default: the "
+                   "episode's, or one naming a scene object)")
     p.add_argument("--grounder", choices=("oracle", "clip"), default="oracle", help="grounder (default oracle)")
     p.add_argument("--clip-model", default=None,
                    help=clip_model_help("of --grounder clip (needs them locally unless --allow-download)"))

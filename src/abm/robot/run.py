@@ -28,7 +28,7 @@ import numpy as np
 
 from abm.files import load_yaml
 from abm.grounding.conditioning import split_roles
-from abm.grounding.decision import GroundingRecorder, TargetDecision, decide_target
+from abm.grounding.decision import GroundingRecorder, TargetDecision, decide_target, normalize_name
 from abm.grounding.instruction import (
     InstructionError,
     MultiStepInstructionError,
@@ -36,6 +36,7 @@ from abm.grounding.instruction import (
     require_instruction,
 )
 from abm.grounding.mask_field import MaskField
+from abm.grounding.resolve import Resolution, UnresolvedInstructionError, resolve_instruction
 from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot
 from abm.robot.limits import LIMITS_SCHEMA, LimitError, MotionLimits
 from abm.robot.realsense import RealSenseCamera
@@ -182,6 +183,39 @@ def _target_note(instruction: str) -> str:
         return ""
 
 
+def resolve_for_policy(instruction: str, names: dict[int, str] | None) -> tuple[str, Resolution | None]:
+    """``(the instruction the policy gets, the resolution)``: an instruction in plain words resolved onto the scene's
+    objects (:func:`abm.grounding.resolve.resolve_instruction`: "grab the yellow one" -> "put the yellow block on
+    the target"), so the names are checked and grounded as the scene spells them.
+
+    The instruction is kept as given when the camera names no objects (``(instruction, None)``), when the
+    templates already read it as the resolved object and skill, and when the resolution is refused but the text
+    names an object the old way (the check before the first step then says what the scene lacks).
+
+    Raises:
+        MultiStepInstructionError: several steps or objects.
+        UnresolvedInstructionError: no object and skill of the scene fit, and the text names no object.
+    """
+    if not names:
+        return instruction, None
+    try:
+        resolution = resolve_instruction(instruction, names)
+    except MultiStepInstructionError:
+        raise
+    except UnresolvedInstructionError:
+        if _named_targets(instruction, names):
+            return instruction, None  # decide_target refuses the named object with the scene's list
+        raise
+    try:
+        parsed = decompose_instruction(instruction)
+    except InstructionError:
+        parsed = None
+    named = tuple(normalize_name(t) for t in _named_targets(instruction, names))
+    same = parsed is not None and parsed[1] == resolution.skill and \
+        named == tuple(normalize_name(t) for t in resolution.targets)
+    return (instruction if same else resolution.canonical), resolution
+
+
 def _named_targets(instruction: str, names: dict[int, str] | None) -> tuple[str, ...]:
     """The objects of the instruction's sub-goals (X, and Y for a two-target skill), or ``()`` when it does not
     split (the policy then raises its own error, or a variant that reads the whole instruction runs)."""
@@ -220,6 +254,8 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
               allow_no_target: bool = False) -> list[dict[str, Any]]:
     """Run the loop for ``steps`` keyframes (or until a simulated arm reports success).
 
+    An instruction in plain words is first resolved onto the scene's objects (:func:`resolve_for_policy`; the
+    policy gets the resolved text, ``steps.jsonl`` keeps the given one and the resolution under ``resolved``).
     Every step's grounding is judged by :func:`abm.grounding.decision.decide_target` (one line per step in
     ``steps.jsonl`` holds it under ``grounding``); before the first step, the objects the instruction names are
     checked against the scene's vocabulary (``camera.object_names``, when the camera names its objects).
@@ -229,7 +265,8 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
         allow_no_target: act even when the target is refused (the refusal is logged as a warning).
 
     Raises:
-        InstructionError: the instruction is empty or whitespace-only (nothing is moved).
+        InstructionError: the instruction is empty or whitespace-only, or names no object of the scene in words
+            :func:`abm.grounding.resolve.resolve_instruction` can resolve (nothing is moved).
         NoTargetError: the target is not one object of the scene that the grounder found with confidence (a name
             the scene does not hold, several candidates, not found, unsure; not ``allow_no_target``); nothing is
             moved (the step is logged).
@@ -241,14 +278,19 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
     log_dir.mkdir(parents=True, exist_ok=True)
     records: list[dict[str, Any]] = []
     names = getattr(camera, "object_names", None) or None
-    log.info("abm run: %r%s, %d keyframe(s) at most, log in %s", instruction, _target_note(instruction), steps,
-             log_dir)
+    given = instruction
+    instruction, resolution = resolve_for_policy(given, names)
+    note = _target_note(instruction)
+    if instruction != given and resolution is not None:
+        note = (f" (target: {resolution.target}; read as {instruction!r}, confidence {resolution.confidence:.2f}, "
+                f"by {resolution.method})")
+    log.info("abm run: %r%s, %d keyframe(s) at most, log in %s", given, note, steps, log_dir)
     policy.reset()
     with (log_dir / "steps.jsonl").open("w") as out:
         for name in _named_targets(instruction, names):  # every sub-goal's object, before anything moves
             named = decide_target(None, name, names)
             if not named.found and not allow_no_target:
-                raise _refuse(out, 0, instruction, named)
+                raise _refuse(out, 0, given, named)
         # policy.grounder builds the grounder (CLIP) only now, once the names passed
         with GroundingRecorder(getattr(policy, "grounder", None)) as grounding:
             for k in range(steps):
@@ -264,10 +306,13 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
                 decision = _step_decision(grounding, seen, names)
                 if decision is not None and not decision.found:
                     if not allow_no_target:
-                        raise _refuse(out, k, instruction, decision)
-                    log.warning("step %d: %s (%s: acting anyway)", k, decision.message(instruction), OVERRIDE)
+                        raise _refuse(out, k, given, decision)
+                    log.warning("step %d: %s (%s: acting anyway)", k, decision.message(given), OVERRIDE)
                 action = seen.action
-                record = {"step": k, **({"instruction": instruction} if k == 0 else {}),
+                first = {"instruction": given} if k == 0 else {}
+                if k == 0 and resolution is not None:
+                    first["resolved"] = resolution.as_record()
+                record = {"step": k, **first,
                           "position": action.position.round(4).tolist(),
                           "quaternion": action.quaternion.round(4).tolist(), "gripper_open": action.gripper_open,
                           "ignore_collision": action.ignore_collision, "timings": policy.last_timings}

@@ -7,7 +7,9 @@ sample scene (default). Writes to ``--out``:
 * ``topdown.png`` — the mask field seen from above (RGB, heatmap, mask) over the workspace;
 * ``views.png`` / ``view_<name>.png`` — the five virtual views with the center pixel marked, above the
   re-rendered binary mask;
-* ``summary.json`` — instruction, target, skill, prompt, point counts, mask centre, the scene's objects.
+* ``summary.json`` — instruction, target, skill, prompt, point counts, mask centre, the scene's objects, and how
+  the instruction was resolved onto them (``resolved``: :func:`abm.grounding.resolve.resolve_instruction`, so
+  "grab the yellow one" grounds the scene's ``yellow block``).
 
 A target ``abm run`` would refuse (:func:`abm.grounding.decision.decide_target`: a name the scene does not hold,
 several candidates, not found by the grounder, or found without confidence) is a warning naming the objects the
@@ -27,8 +29,9 @@ from abm.files import write_text_atomic
 from abm.geometry import Workspace, fuse_cameras
 from abm.grounding.decision import decide_target
 from abm.grounding.grounders import make_grounder
-from abm.grounding.instruction import decompose_instruction
+from abm.grounding.instruction import InstructionError, decompose_instruction
 from abm.grounding.mask_field import mask_views
+from abm.grounding.resolve import Resolution, UnresolvedInstructionError, resolve_instruction
 from abm.grounding.visualize import blend, colormap, gray, hstack, label, mark_pixels, to_uint8, upscale, vstack
 from abm.render import OrthographicRenderer
 from abm.render.synthetic import synthetic_scene
@@ -106,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--device {args.device}: CUDA is not available on this machine (use --device cpu)")
     obs, names, episode_instruction, where = _load_observation(args)
     instruction = args.instruction or episode_instruction or f"put the {next(iter(names.values()))} in the plate"
-    target, skill = decompose_instruction(instruction)
+    target, skill, resolution = _resolve(instruction, names)
     workspace = Workspace()
     cloud = fuse_cameras(obs, workspace)
 
@@ -159,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         "points": len(cloud), "mask_points": int(field.mask.sum()),
         "mask_center_m": None if center is None else [round(float(c), 4) for c in center],
         "scene_objects": scene_objects, "target_in_scene": target in scene_objects,
+        "resolved": None if resolution is None else resolution.as_record(),
         "center_pixels": {v: [int(x) for x in np.argwhere(mviews.center[i].cpu().numpy()).reshape(-1)]
                           for i, v in enumerate(renderer.views)},
     }
@@ -172,6 +176,9 @@ def run(args: argparse.Namespace) -> int:
             summary["scoring"] = grounder.proposal_config.scoring
     write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(f"{where}: {instruction!r} -> target {target!r}, skill {skill!r}")
+    if resolution is not None and resolution.method != "templates":
+        print(f"read as {resolution.canonical!r} (confidence {resolution.confidence:.2f}, by {resolution.method}; "
+              f"{resolution.phrase!r} is the scene's {resolution.target!r})")
     print(f"{args.grounder} grounder: {summary['mask_points']} of {len(cloud)} points masked, found={field.found}, "
           f"confidence {summary['confidence']:.2f}")
     print(f"wrote camera_*.png, topdown.png, views.png, view_*.png and summary.json to {args.out}/")
@@ -181,6 +188,21 @@ def run(args: argparse.Namespace) -> int:
             raise CommandError(f"{message}; --strict")
         logging.getLogger("abm").warning("abm ground: WARNING: %s", message)
     return 0
+
+
+def _resolve(instruction: str, names: dict[int, str]) -> tuple[str, str, Resolution | None]:
+    """``(target X, skill, resolution)``: the instruction resolved onto the scene's objects
+    (:func:`abm.grounding.resolve.resolve_instruction`, as ``abm run`` does), or, when that is refused but the
+    templates name an object, the templates' X as written (the decision then says what the scene lacks)."""
+    try:
+        resolution = resolve_instruction(instruction, names)
+    except UnresolvedInstructionError as err:
+        try:
+            target, skill = decompose_instruction(instruction)
+        except InstructionError:
+            raise err from None
+        return target, skill, None
+    return resolution.target, resolution.skill, resolution
 
 
 def _flag(image: np.ndarray, notice: str) -> np.ndarray:
