@@ -22,13 +22,13 @@ SPEC = {
     "about": "two tasks, one episode, two steps: the engine end to end",
     "out": "runs/tiny", "kept": "docs/results/tiny", "zoo": "models",
     "tasks": {"two": ["pick_block", "place_food"]},
-    "data": {"tasks": "two", "episodes": 1, "workers": 1, "resolution": 64},
+    "data": {"tasks": "two", "episodes": 1, "workers": 1, "resolution": 32},
     "training": {"recipe": "quickstart", "tasks": "two", "steps": 2,
                  "train": {"batch": 2, "checkpoint_every": 2, "warmup": 1, "verify": False},
                  "policy": TINY_MODEL},
     "runs": {"abm_oracle": {"label": "ABM (oracle mask)", "train": {"method": "abm", "grounder": "oracle"}},
              "rvt_hash": {"label": "RVT (hash text)", "train": {"method": "rvt", "language": "hash"}}},
-    "evaluation": {"from_zoo": True, "episodes": 1, "repeats": 1, "workers": 1, "max_steps": 2,
+    "evaluation": {"from_zoo": True, "episodes": 1, "repeats": 1, "workers": 1, "max_steps": 1,
                    "splits": {"seen": {"tasks": "two"}}},
     "resources": {"trainings_at_a_time": 2, "threads_each": 1},
     "report": {"title": "Tiny", "document": "docs/results/tiny.md", "records": "docs/results/tiny.json",
@@ -54,7 +54,8 @@ def test_a_tiny_experiment_runs_end_to_end_and_reports(tmp_path: Path, capsys, m
     block = readme.split("<!-- tiny:start -->\n")[1].split("<!-- tiny:end -->")[0]
     assert block.startswith("Written by `abm experiment run tiny` ([tiny.yaml](tiny.yaml))")
     assert "| task | ABM (oracle mask) seen | RVT (hash text) seen |" in block
-    assert "Recipe (every model): `small+custom` preset at 32² views, patch 8, 2 steps of batch 2" in block
+    assert ("Recipe (every model): `small+custom` preset at 32² views over a 0.6 m cube, patch 8, 2 steps of "
+            "batch 2") in block
     assert block.endswith("Full report: [docs/results/tiny.md](docs/results/tiny.md).\n") and readme.endswith("end\n")
     index = json.loads((tmp_path / "models/index.json").read_text())
     assert [e["name"] for e in index] == ["abm_oracle", "rvt_hash"] and index[0]["data"] == "runs/tiny/data"

@@ -180,6 +180,7 @@ class EvaluationSpec:
         splits: the object splits and their tasks.
         variants: runs evaluated with another grounder.
         zoo_eval: time ``abm zoo eval`` once these runs are in the zoo (empty: never).
+        device: torch device of the evaluated policies (cpu, cuda).
     """
 
     episodes: int = 25
@@ -191,6 +192,7 @@ class EvaluationSpec:
     splits: tuple[EvalSplit, ...] = ()
     variants: tuple[VariantSpec, ...] = ()
     zoo_eval: tuple[str, ...] = ()
+    device: str = "cpu"
 
     def split_runs(self, split: EvalSplit, runs: Sequence[str]) -> list[str]:
         """The runs and variants evaluated on ``split``, in spec order."""
@@ -773,7 +775,8 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
     evaluation = EvaluationSpec(episodes=e.integer("episodes", 25), repeats=e.integer("repeats", 1),
                                 workers=e.integer("workers", WORKERS), max_steps=e.integer("max_steps", MAX_KEYFRAMES),
                                 gifs=e.integer("gifs", 0, low=0), from_zoo=e.flag("from_zoo"), splits=tuple(splits),
-                                variants=tuple(variants), zoo_eval=e.names("zoo_eval", ()))
+                                variants=tuple(variants), zoo_eval=e.names("zoo_eval", ()),
+                                device=e.text("device", "cpu"))
     e.done()
     evaluated = set(names) | {v.name for v in variants}
     for one_split in evaluation.splits:

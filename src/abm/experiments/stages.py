@@ -107,11 +107,13 @@ class Engine:
         backend: ``local`` (subprocesses) or ``ray`` (trainings and evaluations on a Ray cluster).
         ray_address: the cluster (``None``: a local Ray).
         runner: the runner of the trainings and evaluations (default: from ``backend``; tests pass their own).
+        clip_model: the CLIP weights the runs that need one use (a hub name or a folder), instead of the spec's
+            ``clip`` folder (``abm quickstart`` passes the one it found).
     """
 
     def __init__(self, spec: ExperimentSpec, root: Path, out: Path | None = None, source: Source | None = None,
                  runs: Sequence[str] | None = None, backend: str = "local", ray_address: str | None = None,
-                 runner: Runner | None = None) -> None:
+                 runner: Runner | None = None, clip_model: str | None = None) -> None:
         unknown = [r for r in runs or () if r not in spec.runs]
         if unknown:
             raise ValueError(f"--runs {' '.join(unknown)}: not a run of {spec.name} (its runs: "
@@ -122,6 +124,7 @@ class Engine:
         self.selected = [r for r in spec.run_names() if not runs or r in runs]
         self.backend, self.ray_address = backend, ray_address
         self.runner = runner
+        self.clip_model = clip_model
         self.steps = training_steps(spec)
         self._events: dict[str, list[dict[str, Any]]] = {}
         self._kept = dict(kept_pairs(spec, self.layout))
@@ -139,7 +142,13 @@ class Engine:
 
     def has_clip(self) -> bool:
         clip = self.layout.clip
-        return clip is not None and (clip / "config.json").is_file()
+        return self.clip_model is not None or (clip is not None and (clip / "config.json").is_file())
+
+    def clip_arg(self) -> str:
+        """The ``--clip-model`` of the commands: the given CLIP, else the spec's folder (root-relative)."""
+        if self.clip_model is not None:
+            return self.clip_model
+        return self.rel(self.layout.clip) if self.layout.clip is not None else ""
 
     def exported(self, run: str) -> bool:
         return self.layout.zoo is not None and self.layout.zoo_file(run).is_file()
@@ -218,7 +227,7 @@ class Engine:
                 continue
             cache = self.layout.cache(kind)
             argv = self.source.cli("data", "ground", "--data", self.rel(self.layout.data), "--cache", self.rel(cache),
-                                   "--clip-model", self.rel(self.layout.clip) if self.layout.clip else "",
+                                   "--clip-model", self.clip_arg(),
                                    *(["--features"] if kind == "features" else []), "--tasks", *tasks, *cube)
             job = Job(f"ground/{kind}", "ground", argv, folder=cache)
             if all(self.trained(r) for r in users):
@@ -243,8 +252,8 @@ class Engine:
             recipe["tasks"] = list(tasks)
         if spec_run.cache:
             recipe["cache_dir"] = self.rel(self.layout.cache(spec_run.cache))
-        if spec_run.needs_clip and self.layout.clip is not None:
-            recipe["clip_model"] = self.rel(self.layout.clip)
+        if spec_run.needs_clip and self.clip_arg():
+            recipe["clip_model"] = self.clip_arg()
         policy = {**(base.get("policy") or {}), **spec_run.policy}
         if policy:
             recipe["policy"] = policy
@@ -329,12 +338,13 @@ class Engine:
                 argv = self.source.cli(
                     "eval", "--run", self.rel(model) if model else "?", "--tasks", *split.tasks, "--split",
                     split.split, "--episodes", str(ev.episodes), "--repeats", str(ev.repeats), "--workers",
-                    str(ev.workers), "--max-steps", str(ev.max_steps), "--out", self.rel(folder),
-                    *(["--gifs", str(ev.gifs)] if ev.gifs else []))
+                    str(ev.workers), "--max-steps", str(ev.max_steps), "--resolution", str(self.spec.data.resolution),
+                    "--out", self.rel(folder), *(["--gifs", str(ev.gifs)] if ev.gifs else []),
+                    *(["--device", ev.device] if ev.device != "cpu" else []))
                 if variant is not None:
                     argv += ["--grounder", variant.grounder]
-                    if variant.grounder in ("clip", "tracking") and self.layout.clip is not None:
-                        argv += ["--clip-model", self.rel(self.layout.clip)]
+                    if variant.grounder in ("clip", "tracking") and self.clip_arg():
+                        argv += ["--clip-model", self.clip_arg()]
                 job = Job(f"eval/{name}/{split.split}", "eval", argv, folder=folder)
                 if self.have(folder / "results.json"):
                     job.state = DONE
@@ -397,7 +407,8 @@ class Engine:
             try:
                 argv = self.source.script(
                     "keyframe_accuracy.py", "--run", self.rel(model) if model else "?", "--tasks", *tasks, "--splits",
-                    *d.splits, "--episodes", str(d.episodes), *(["--steps", *map(str, d.steps)] if d.steps else []),
+                    *d.splits, "--episodes", str(d.episodes), "--resolution", str(self.spec.data.resolution),
+                    *(["--steps", *map(str, d.steps)] if d.steps else []),
                     *(["--kinds", *d.kinds] if d.kinds else []),
                     *(["--grounder", "oracle"] if name.endswith(ORACLE_MASK) else []), "--out", self.rel(out))
                 blocked = ""
@@ -473,8 +484,8 @@ class Engine:
 
     def slots(self, stage: str) -> tuple[int, int]:
         """``(jobs at a time, CPUs each)`` of a stage: trainings as the resources say; evaluations (``workers``
-        processes each) and diagnoses (one each) as many as fit the trainings' CPUs; exports beside each other;
-        the data stage alone (its generator has its own workers)."""
+        processes each) and diagnoses (one each) as many as fit the trainings' CPUs; the rest one at a time (the
+        generator has its own workers; ``abm export`` locks the zoo folder it writes)."""
         res = self.spec.resources
         cpus = res.trainings_at_a_time * res.threads_each
         if stage == "train":
@@ -482,7 +493,7 @@ class Engine:
         if stage == "eval":
             workers = self.spec.evaluation.workers
             return max(1, cpus // workers), workers
-        if stage in ("diagnose", "export"):
+        if stage == "diagnose":
             return max(1, cpus), 1
         return 1, 1
 
