@@ -1,6 +1,6 @@
 """Imports flow one way: types (and the small helpers machine, workers, configuration, files,
 schema, lazy, progress, ray_pool) -> geometry
--> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot / viewer / zoo
+-> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot / viewer / zoo / gym
 -> clip_training (the benchmark CLIP's trainer) -> experiments (the experiment engine) -> cli (the command line:
 parsers in ``abm.cli.<group>``, command functions in ``abm.cli.commands.<group>``).
 
@@ -29,7 +29,7 @@ LAYERS = [
     ("data",),  # below policy: the dataset yields policy-independent samples
     ("policy",),
     ("train",),
-    ("evaluation", "robot", "viewer", "zoo"),
+    ("evaluation", "robot", "viewer", "zoo", "gym"),  # gym: the tasks as gymnasium environments
     ("clip_training",),  # uses sim, grounding and render; only the command line, tests and benchmarks use it
     ("experiments",),  # the experiment engine: runs the command line as subprocesses, writes the reports
     ("cli",),
