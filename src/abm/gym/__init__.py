@@ -36,12 +36,12 @@ from abm.gym.env import (
 from abm.sim.splits import load_splits
 
 ENTRY_POINT = "abm.gym.env:AbmTaskEnv"
-VERSION = 0
+ENV_VERSION = 0
 
 
 def env_id(task: str, split: str) -> str:
     """The registered id of a task and split: ``abm/<task>-<split>-v0``."""
-    return f"abm/{task}-{split}-v{VERSION}"
+    return f"abm/{task}-{split}-v{ENV_VERSION}"
 
 
 def register_envs() -> tuple[str, ...]:
