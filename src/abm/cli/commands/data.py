@@ -52,22 +52,30 @@ def _generate(args: argparse.Namespace) -> int:
 
 def _export(args: argparse.Namespace) -> int:
     try:
-        report = export_lerobot(args.data, args.out, frames=args.frames, crf=args.crf)
+        report = export_lerobot(args.data, args.out, frames=args.frames, crf=args.crf,
+                                data_file_mb=args.data_file_mb, video_file_mb=args.video_file_mb)
     except ImportError as err:
         raise CommandError(f"{err}; install the export dependencies: pip install 'abm[lerobot]'") from None
     except (EpisodeFormatError, ValueError, FileNotFoundError) as err:  # the export removed what it wrote
         raise CommandError(str(err)) from None
-    kind = f"dense frames at {report.fps:g} fps" if report.dense else "keyframes (nominal 1 fps)"
+    kind = f"dense frames at {report.fps:g} fps" if report.dense else "keyframes (one frame per keyframe)"
     print(f"{report.episodes} episodes, {report.frames} {kind} -> {args.out} (LeRobot v3.0, "
-          f"{report.bytes / 1e6:.1f} MB)")
+          f"{_files(report.files)}, {report.bytes / 1e6:.1f} MB)")
     return 0
+
+
+def _files(names: list[str]) -> str:
+    """"2 data files, 4 video files" of an export's file names."""
+    data = sum(name.startswith("data/") for name in names)
+    videos = len(names) - data
+    return f"{data} data file{'s' * (data != 1)}" + (f", {videos} video file{'s' * (videos != 1)}" if videos else "")
 
 
 def _import(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise CommandError(f"--out {args.out} is a file; give a folder")
     try:
-        written = import_lerobot(args.dataset, args.out, overwrite=args.overwrite)
+        written = import_lerobot(args.dataset, args.out, overwrite=args.overwrite, task=args.task, split=args.split)
     except ImportError as err:
         raise CommandError(f"{err}; install the import dependencies: pip install 'abm[lerobot]'") from None
     except (ValueError, FileNotFoundError) as err:
