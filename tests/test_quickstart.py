@@ -1,4 +1,5 @@
-"""End-to-end smoke test: data -> training of abm and rvt -> evaluation on seen/unseen -> report."""
+"""End-to-end smoke test: data -> training of abm and rvt -> evaluation on seen/unseen -> report, through the
+quickstart spec (configs/experiments/quickstart.yaml) and the experiment engine."""
 
 from __future__ import annotations
 
@@ -25,7 +26,9 @@ def test_quickstart_end_to_end_produces_table_and_report(tmp_path, capsys, monke
     assert len(list(report.glob("*_[0-9][0-9][0-9]_views.png"))) == 4  # the heatmap overlays of each GIF's rollout
     assert (report / "report.html").read_text().count("<img ") == 9  # GIFs, their overlays and the success chart
     assert "](success.png)" in (report / "README.md").read_text()
-    logs = [tmp_path / "qs/eval" / split / "outcomes.jsonl" for split in ("seen", "unseen")]
+    # the quickstart spec's stages (abm.experiments): one evaluation folder per method and split
+    logs = sorted((tmp_path / "qs/eval").glob("*/*/outcomes.jsonl"))
+    assert len(logs) == 4 and (tmp_path / "qs/abm/checkpoints").is_dir()
     outcomes = [json.loads(line) for log in logs for line in log.read_text().splitlines()]
     assert sorted((o["method"], o["split"]) for o in outcomes) == [
         ("abm", "seen"), ("abm", "unseen"), ("rvt", "seen"), ("rvt", "unseen")]

@@ -19,13 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from abm.cli.train import POLICY_DEST, parse_override
-from abm.configuration import (
-    CAMERA_RESOLUTION,
-    MAX_KEYFRAMES,
-    WORKERS,
-    add_config_arguments,
-    load_recipe,
-)
+from abm.configuration import CAMERA_RESOLUTION, add_config_arguments, load_recipe
+from abm.experiments.spec import ExperimentSpec, load_spec
 from abm.policy.config import PolicyConfig
 
 #: The quickstart's training recipe (``configs/quickstart.yaml``; also ``abm train --config quickstart``): steps,
@@ -34,10 +29,21 @@ from abm.policy.config import PolicyConfig
 RECIPE = "quickstart"
 
 
+#: The quickstart's experiment (``configs/experiments/quickstart.yaml``): its tasks, demonstrations, methods and
+#: evaluation are the flags' defaults; ``abm quickstart`` runs it with the flags applied (``abm.experiments``).
+SPEC = "quickstart"
+
+
 @functools.cache
 def recipe() -> dict[str, Any]:
     """The quickstart recipe's values (:data:`RECIPE`)."""
     return load_recipe(RECIPE)
+
+
+@functools.cache
+def spec() -> ExperimentSpec:
+    """The quickstart's experiment spec (:data:`SPEC`)."""
+    return load_spec(SPEC)
 
 
 @dataclass
@@ -49,7 +55,7 @@ class QuickstartConfig:
     over a tighter workspace cube, AdamW at 1e-3 and enough steps for the ~2 cm a grasp needs.
 
     Attributes:
-        out: output folder (data, runs, eval and report inside).
+        out: output folder (data, one folder per method, eval, logs and report inside).
         tasks: trainable tasks to use.
         methods: policy variants to train and compare.
         episodes: demonstrations per task (seen objects).
@@ -71,19 +77,19 @@ class QuickstartConfig:
         seed: seed of the demonstrations.
     """
 
-    out: Path = Path("out/quickstart")
-    tasks: list[str] = field(default_factory=lambda: ["pick_block"])
-    methods: list[str] = field(default_factory=lambda: ["abm", "rvt"])
-    episodes: int = 20
+    out: Path = field(default_factory=lambda: Path(spec().out))
+    tasks: list[str] = field(default_factory=lambda: list(spec().data.tasks))
+    methods: list[str] = field(default_factory=lambda: [run.method for run in spec().runs.values()])
+    episodes: int = field(default_factory=lambda: spec().data.episodes)
     steps: int = field(default_factory=lambda: recipe()["steps"])
     batch: int = field(default_factory=lambda: recipe()["batch"])
     optimizer: str = field(default_factory=lambda: recipe()["optimizer"], metadata={"choices": ["adamw", "lamb"]})
     lr: float = field(default_factory=lambda: recipe()["lr"])
     warmup: int = field(default_factory=lambda: recipe()["warmup"])
     policy_overrides: dict[str, Any] = field(default_factory=lambda: dict(recipe()["policy"]), metadata={"cli": False})
-    eval_episodes: int = 10
-    max_steps: int = MAX_KEYFRAMES
-    workers: int = WORKERS
+    eval_episodes: int = field(default_factory=lambda: spec().evaluation.episodes)
+    max_steps: int = field(default_factory=lambda: spec().evaluation.max_steps)
+    workers: int = field(default_factory=lambda: spec().evaluation.workers)
     resolution: int = field(default=CAMERA_RESOLUTION, metadata={"flag": "--camera-resolution"})
     device: str = "cpu"
     clip_model: str | None = None

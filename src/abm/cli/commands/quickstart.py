@@ -7,27 +7,23 @@ import os
 import shutil
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
+from dataclasses import replace
 from pathlib import Path
 
-from abm.cli import configure_logging
-from abm.cli.quickstart import QuickstartConfig, recipe
+from abm.cli.quickstart import SPEC, QuickstartConfig, recipe
 from abm.cli.train import POLICY_DEST
 from abm.configuration import CPU_CLIP_MODEL, GPU_CLIP_MODEL, config_from_args, overrides_from_args
 from abm.data.episode_store import EpisodeStore
-from abm.data.generate import generate
 from abm.evaluation.html_report import write_html_report
 from abm.evaluation.plots import success_chart
 from abm.evaluation.report import plot_training_curves, views_figure
 from abm.evaluation.results import EpisodeOutcome, OutcomeLog, aggregate, combined_table
-from abm.evaluation.runner import EvalSettings, crash_summary, evaluate, write_tables
+from abm.evaluation.runner import crash_summary, write_tables
+from abm.experiments.spec import EvalSplit, ExperimentSpec, Resources, RunSpec, load_spec
+from abm.experiments.stages import Engine
 from abm.grounding.clip import ClipWeightsNotFoundError, load_clip
 from abm.policy import KeyframePolicy
 from abm.policy.config import PolicyConfig
-from abm.train.config import TrainConfig
-from abm.train.loop import train
-from abm.workers import die_with_parent
 
 BENCHMARK_CLIP_ENV = "ABM_BENCHMARK_CLIP"
 DEFAULT_BENCHMARK_CLIP = "~/.cache/abm/benchmark-clip"
@@ -92,60 +88,63 @@ def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict, str]:
     return "oracle", {}, "oracle (simulator segmentation; no CLIP weights found)"
 
 
+def quickstart_spec(cfg: QuickstartConfig, grounder: str) -> ExperimentSpec:
+    """The quickstart spec (``configs/experiments/quickstart.yaml``) with the command's flags applied: the tasks,
+    demonstrations, methods, recipe values, evaluation sizes and the grounder :func:`choose_grounder` picked.
+
+    The methods train side by side, one process each with its share of the cores, when the device is the CPU
+    and the machine has a core per method (on a CPU this beats training them in turn)."""
+    base = load_spec(SPEC)
+    tasks = tuple(cfg.tasks)
+    train = {"batch": cfg.batch, "lr": cfg.lr, "optimizer": cfg.optimizer, "warmup": min(cfg.warmup, cfg.steps // 4),
+             "checkpoint_every": max(50, cfg.steps // 4), "device": cfg.device, "grounder": grounder, "seed": cfg.seed}
+    runs = {m: RunSpec(name=m, label=m, grounding=grounder, train={"method": m, **train},
+                       policy=dict(cfg.policy_overrides)) for m in cfg.methods}
+    cores = os.cpu_count() or 1
+    parallel = cfg.device == "cpu" and len(runs) > 1 and cores >= len(runs)
+    resources = Resources(trainings_at_a_time=len(runs) if parallel else 1,
+                          threads_each=max(1, cores // len(runs)) if parallel else cores)
+    return replace(
+        base, out=str(cfg.out), kept=str(cfg.out / "kept"),
+        data=replace(base.data, tasks=tasks, episodes=cfg.episodes, workers=cfg.workers, seed=cfg.seed,
+                     resolution=cfg.resolution),
+        training=replace(base.training, tasks=tasks, steps=cfg.steps), runs=runs, resources=resources,
+        evaluation=replace(base.evaluation, episodes=cfg.eval_episodes, repeats=1, workers=cfg.workers,
+                           max_steps=cfg.max_steps, gifs=1, device=cfg.device,
+                           splits=tuple(EvalSplit(split, tasks) for split in ("seen", "unseen"))))
+
+
 def run_quickstart(cfg: QuickstartConfig) -> Path:
-    """Run all stages; returns the report folder."""
-    import torch
-
-
+    """Run the quickstart spec's stages (:mod:`abm.experiments`: data, grounding, training, evaluation; every
+    stage resumes), then write the report folder; returns it."""
     PolicyConfig.from_preset("small", "abm", **cfg.policy_overrides)  # bad policy settings fail before any work
     start = time.perf_counter()
-    out = cfg.out
-    data, runs_dir, report = out / "data", out / "runs", out / "report"
-    torch.set_num_threads(max(1, torch.get_num_threads()))
     grounder, options, grounder_text = choose_grounder(cfg)
-
-    print(f"[1/4] demonstrations: {cfg.episodes} per task, seen objects -> {data}")
-    for i, task in enumerate(cfg.tasks):
-        generate(task, "seen", cfg.episodes, data, workers=cfg.workers, seed=cfg.seed + 1000 * i,
-                 resolution=cfg.resolution)
-
-    runs = {}
-    configs = []
-    for i, method in enumerate(cfg.methods):
-        run = runs_dir / method
-        configs.append(TrainConfig(
-            method=method, preset="small", out=run, data=data, tasks=list(cfg.tasks), splits=["seen"],
-            steps=cfg.steps, batch=cfg.batch, lr=cfg.lr, optimizer=cfg.optimizer,
-            warmup=min(cfg.warmup, cfg.steps // 4), checkpoint_every=max(50, cfg.steps // 4), device=cfg.device,
-            grounder=grounder, grounder_options=options, seed=cfg.seed, resume=True,
-            policy_overrides=dict(cfg.policy_overrides), progress=i == 0))
-        runs[method] = run
-    parallel = cfg.device == "cpu" and len(configs) > 1 and (os.cpu_count() or 1) >= len(configs)
-    print(f"[2/4] training {', '.join(cfg.methods)} (small preset, {cfg.steps} steps, {cfg.policy_overrides})"
-          + (" side by side, one process each" if parallel else "") + f" -> {runs_dir}")
-    if parallel:
-        # one process per method with its share of the cores: on a CPU this beats training them in turn
-        threads = max(1, (os.cpu_count() or 1) // len(configs))
-        with ProcessPoolExecutor(len(configs), mp_context=get_context("spawn"), initializer=die_with_parent) as pool:
-            for summary in pool.map(_train_with_threads, configs, [threads] * len(configs)):
-                print(f"  {summary['method']}: {summary['steps']} steps, {summary['seconds'] / 60:.1f} min")
-    else:
-        for tc in configs:
-            train(tc)
-
-    settings = EvalSettings(device=cfg.device, resolution=cfg.resolution, max_steps=cfg.max_steps)
-    eval_dir = out / "eval"
-    rates = []
-    outcomes: list[EpisodeOutcome] = []
-    for split in ("seen", "unseen"):
-        print(f"[3/4] evaluating {', '.join(cfg.methods)} on {split} objects ({cfg.eval_episodes} episodes per task)")
-        rates += evaluate(list(runs.values()), cfg.tasks, split, eval_dir / split, episodes=cfg.eval_episodes,
-                          repeats=1, workers=cfg.workers, settings=settings, gifs=1, collect=outcomes)
+    spec = quickstart_spec(cfg, grounder)
+    engine = Engine(spec, root=Path("."), out=cfg.out, clip_model=options.get("model"))
+    layout = engine.layout
+    report = cfg.out / "report"
+    side = " side by side, one process each" if spec.resources.trainings_at_a_time > 1 else ""
+    steps = [(["data"], f"demonstrations: {cfg.episodes} per task, seen objects -> {layout.data}"),
+             (["ground", "train"], f"training {', '.join(cfg.methods)} (small preset, {cfg.steps} steps, "
+              f"{cfg.policy_overrides}){side} -> {cfg.out}"),
+             (["eval"], f"evaluating {', '.join(cfg.methods)} on seen and unseen objects ({cfg.eval_episodes} "
+              "episodes per task)")]
+    for i, (stages, what) in enumerate(steps, 1):
+        print(f"[{i}/4] {what}")
+        if engine.run(stages) != 0:
+            raise ValueError(f"the quickstart's {' and '.join(stages)} stage failed: see the logs in "
+                             f"{layout.out / 'logs'}")
 
     print(f"[4/4] report -> {report}")
+    runs = {m: layout.run_dir(m) for m in cfg.methods}
+    folders = [layout.eval_dir(m, split) for m in cfg.methods for split in ("seen", "unseen")]
+    outcomes = [o for folder in folders if (folder / "outcomes.jsonl").is_file()
+                for o in OutcomeLog(folder / "outcomes.jsonl").read()]
+    rates = aggregate(outcomes)
     table = combined_table(rates)
     write_tables(rates, report)
-    write_report(report, runs, eval_dir, data, cfg, grounder_text, rates, outcomes)
+    write_report(report, runs, folders, layout.data, cfg, grounder_text, rates, outcomes)
     print(table)
     print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
     crashes = crash_summary(outcomes)
@@ -154,21 +153,11 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     return report
 
 
-def _train_with_threads(config, threads: int) -> dict:
-    """Train one run in a worker process with ``threads`` torch threads (see :func:`run_quickstart`)."""
-    import torch
-
-
-    configure_logging()
-    torch.set_num_threads(threads)
-    return train(config)
-
-
-def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path, cfg: QuickstartConfig,
+def write_report(report: Path, runs: dict[str, Path], eval_dirs: list[Path], data: Path, cfg: QuickstartConfig,
                  grounder: str, rates: list | None = None, outcomes: list[EpisodeOutcome] | None = None) -> None:
-    """Table, curves, example views and GIFs in one folder with a README that links them (``rates``: the
-    success rates, for the combined seen / unseen table; ``outcomes``: the episodes behind them, default every
-    outcome logged under ``eval_dir``)."""
+    """Table, curves, example views and GIFs in one folder with a README that links them (``eval_dirs``: the
+    evaluation folders, one per run and split; ``rates``: the success rates, for the combined seen / unseen
+    table; ``outcomes``: the episodes behind them, default every outcome logged in ``eval_dirs``)."""
     report.mkdir(parents=True, exist_ok=True)
     plot_training_curves({m: r for m, r in runs.items()}, report / "training_curves.png")
     figures = []
@@ -183,11 +172,13 @@ def write_report(report: Path, runs: dict[str, Path], eval_dir: Path, data: Path
         views_figure(seen.view_images, mask, seen.view_names, report / "virtual_views.png")
         figures.append(f"![virtual views]({'virtual_views.png'})\n\n*{episode.instruction}*: the five virtual "
                        "views (top) and the target's centre-pixel mask in magenta (bottom).")
-    gifs = sorted(eval_dir.glob("*/gifs/*.gif"))
-    for picture in [*gifs, *eval_dir.glob("*/gifs/*_views.png")]:  # rollouts and their heatmap overlays
+    gifs = sorted(g for folder in eval_dirs for g in folder.glob("gifs/*.gif"))
+    overlays = [p for folder in eval_dirs for p in folder.glob("gifs/*_views.png")]
+    for picture in [*gifs, *overlays]:  # rollouts and their heatmap overlays
         shutil.copy(picture, report / picture.name)
     if outcomes is None:
-        outcomes = [o for log in sorted(eval_dir.glob("*/outcomes.jsonl")) for o in OutcomeLog(log).read()]
+        outcomes = [o for folder in eval_dirs if (folder / "outcomes.jsonl").is_file()
+                    for o in OutcomeLog(folder / "outcomes.jsonl").read()]
     if outcomes:
         success_chart(aggregate(outcomes), report / "success.png")
     write_html_report(outcomes, report / "report.html", report, "abm quickstart")
