@@ -374,3 +374,16 @@ def test_the_command_line_runs_status_and_lists(tmp_path: Path, capsys: pytest.C
     (tmp_path / "bad.yaml").write_text("name: bad\n")
     assert main(["experiment", "status", str(tmp_path / "bad.yaml")]) == 2
     assert "bad.yaml: data.tasks: is required (a list of names)" in capsys.readouterr().err
+
+
+def test_status_sees_a_training_that_holds_its_run_folder(tmp_path: Path) -> None:
+    from abm.files import FolderLock
+
+    spec, _ = _spec(tmp_path, _one_run())
+    engine = Engine(spec, root=tmp_path)
+    assert {j.id: j.state for j in engine.status()}["train/abm_oracle"] == LEFT
+    with FolderLock(engine.layout.run_dir("abm_oracle"), "abm train"):  # as `abm train` holds it while it runs
+        (engine.layout.run_dir("abm_oracle") / "log.csv").write_text("step,elapsed_s\n250,600\n")
+        job = {j.id: j for j in engine.status()}["train/abm_oracle"]
+        assert (job.state, job.note) == ("running", "step 250/3")
+    assert {j.id: j.state for j in engine.status()}["train/abm_oracle"] == LEFT
