@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from abm.experiments.spec import SPECS, ExperimentSpec, Section, VariantSpec
+from abm.experiments.spec import SPECS, ExperimentSpec, GrounderVariant, Section
 from abm.experiments.state import Layout, machines, stage_minutes
 from abm.files import sha256_file
 
@@ -270,7 +270,7 @@ class Context:
             return self.spec.runs[run].label
         return next((v.label for v in self.spec.evaluation.variants if v.name == run), run)
 
-    def variant(self, name: str) -> VariantSpec | None:
+    def variant(self, name: str) -> GrounderVariant | None:
         return next((v for v in self.spec.evaluation.variants if v.name == name), None)
 
     def method(self, name: str) -> str:

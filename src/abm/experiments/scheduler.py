@@ -27,7 +27,7 @@ from typing import Any, Protocol
 import abm
 from abm import ray_pool
 
-LOG = logging.getLogger("abm")
+log = logging.getLogger("abm")
 POLL_S = 0.5  #: how often the local runner looks at its processes (seconds)
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
 

@@ -148,7 +148,7 @@ class EvalSplit:
 
 
 @dataclass(frozen=True)
-class VariantSpec:
+class GrounderVariant:
     """A run evaluated with another grounder than it was trained with (``abm eval --grounder``).
 
     Attributes:
@@ -190,7 +190,7 @@ class EvaluationSpec:
     gifs: int = 0
     from_zoo: bool = False
     splits: tuple[EvalSplit, ...] = ()
-    variants: tuple[VariantSpec, ...] = ()
+    variants: tuple[GrounderVariant, ...] = ()
     zoo_eval: tuple[str, ...] = ()
     device: str = "cpu"
 
@@ -769,7 +769,7 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         grounder = one.choice("grounder", ("clip", "oracle", "tracking"))
         if variant != f"{base}@{grounder}":
             raise v.error(f"a variant is named RUN@GROUNDER ({base}@{grounder}), got {variant!r}")
-        variants.append(VariantSpec(name=variant, run=base, grounder=grounder, label=one.text("label", variant),
+        variants.append(GrounderVariant(name=variant, run=base, grounder=grounder, label=one.text("label", variant),
                                     description=one.text("description", "")))
         one.done()
     evaluation = EvaluationSpec(episodes=e.integer("episodes", 25), repeats=e.integer("repeats", 1),
