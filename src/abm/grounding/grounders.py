@@ -266,11 +266,14 @@ class ClipGrounder:
         return unit
 
     def text_features(self, prompts: Sequence[str]) -> np.ndarray:
-        """``(K, D)`` float32 unit-length text features (memoised per prompt)."""
+        """``(K, D)`` float32 unit-length text features (memoised per prompt).
+
+        Each prompt is encoded on its own: in a batch, the padding to the longest prompt and the batch size change
+        the float sums in the last bits, so a prompt's features (and a borderline mask) would depend on which
+        prompts happened to be encoded with it first."""
         todo = [p for p in dict.fromkeys(prompts) if p not in self._text_memory]
-        if todo:
-            feats = self.backbone.text_features(todo).cpu().numpy()
-            self._text_memory.update(zip(todo, feats, strict=True))
+        for prompt in todo:
+            self._text_memory[prompt] = self.backbone.text_features([prompt]).cpu().numpy()[0]
         return np.stack([self._text_memory[p] for p in prompts]) if prompts else np.zeros((0, 0), np.float32)
 
     def skill_embeddings(self, texts: Sequence[str]) -> torch.Tensor:

@@ -352,6 +352,9 @@ def match_object(words: Sequence[str], obj: ObjectWords, scene_words: frozenset[
             start = -1 if nxt < 0 else start + 1 + nxt
         if start >= 0:
             covered[start:start + len(alias)] = [True] * len(alias)
+    head = tokens[-1]  # the noun that says what kind of thing is meant ("the purple teapot")
+    if not covered[-1] and head not in COLOURS and head not in obj.nouns and head not in obj.generic:
+        return 0.0  # a teapot is not a block, whatever its colour: never trade the kind for a colour match
     gain = weight = 0.0
     against = False
     for word, done in zip(tokens, covered, strict=True):
