@@ -170,3 +170,49 @@ def test_every_run_writes_the_recipe_that_retrains_it(tmp_path, monkeypatch) -> 
     assert main(["train", "--config", str(recipe), "--synthetic", "1", "--out", str(tmp_path / "b")]) == 0
     first, again = seen
     assert dataclasses.replace(again, out=first.out) == first
+
+
+@pytest.mark.parametrize("text, option, flag_value, expected", [
+    ("lr: .inf\n", "lr", "inf", "expected a finite number > 0, got 'inf'"),
+    ("lr: .nan\n", "lr", "nan", "expected a finite number > 0, got 'nan'"),
+    ("steps: true\n", "steps", "true", "expected a whole number from 1 to 1000000000, got 'true'"),
+    ("steps: 0\n", "steps", "0", "expected a whole number from 1 to 1000000000, got '0'"),
+    ("batch: 2.5\n", "batch", "2.5", "expected a whole number from 1 to 1000000000, got '2.5'"),
+    ("optimizer: sgd\n", "optimizer", None, "expected one of adamw, lamb, got 'sgd'"),
+    ("augment: 'no'\n", "augment", None, "expected true or false, got 'no'"),
+    ("steps: null\n", "steps", None, "expected a value, got null"),
+    ("tasks: []\n", "tasks", None, "expected at least one value, got an empty list"),
+    ("policy:\n  workspace_center: [0.5, 0]\n", "policy.workspace_center", None,
+     "expected a list of 3 values, got [0.5, 0]"),
+    ("policy:\n  dropout: 1.5\n", "policy.dropout", "1.5", "expected a finite number >= 0 and <= 1, got '1.5'"),
+    ("policy:\n  resolution: yes\n", "policy.resolution", "true", "expected a whole number from 1 to 1000000000"),
+])
+def test_recipe_values_pass_the_checks_of_their_flags(tmp_path, monkeypatch, capsys, text, option, flag_value,
+                                                       expected) -> None:
+    """One schema for flags and recipe files: a value a flag refuses is refused in a recipe, with the same words,
+    before anything runs (`lr: .inf` trained NaN to exit 0, `steps: true` trained one step)."""
+    import abm.cli.commands.train as loop  # the command's `train` (abm.train.loop.train)
+    from abm.cli import build_parser, main
+
+    ran = []
+    monkeypatch.setattr(loop, "train", lambda cfg, episodes=None: ran.append(cfg) or {
+        "steps": 0, "final_loss": {}, "checkpoint": ""})
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text(text)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--config", str(recipe), "--method", "abm", "--synthetic", "1", "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and ran == [] and "Traceback" not in err
+    (line,) = err.strip().splitlines()
+    assert line.startswith(f"abm: error: recipe {recipe}: {option}: {expected}"), line
+    assert "fix the value in the recipe" in line
+    if flag_value is not None:  # the flag's own check, word for word
+        action = next(a for a in build_parser()._subparsers._group_actions[0].choices["train"]._actions
+                      if a.dest == option.replace("policy.", "policy__"))
+        with pytest.raises(SystemExit):
+            main(["train", action.option_strings[0], flag_value, "--method", "abm", "--synthetic", "1"])
+        assert f"argument {action.option_strings[0]}: {expected}" in capsys.readouterr().err
+    recipe.write_text("lr: 1e-3\nsteps: 2\npolicy:\n  dropout: 0.5\n")  # YAML reads 1e-3 as text: still a number
+    assert main(["train", "--config", str(recipe), "--method", "abm", "--synthetic", "1",
+                 "--out", str(tmp_path / "ok")]) == 0
+    assert (ran[0].lr, ran[0].steps, ran[0].policy_overrides) == (1e-3, 2, {"dropout": 0.5})

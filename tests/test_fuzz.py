@@ -15,6 +15,7 @@ from abm.data.episode_store import EpisodeFormatError, load_episode, read_info
 from abm.grounding.instruction import InstructionError, decompose_instruction
 from abm.policy.checkpoint import load_checkpoint
 from abm.sim.splits import SplitFileError, load_splits
+from conftest import TINY_POLICY
 
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
@@ -167,13 +168,105 @@ def _bad_inputs(tmp: Path) -> list[tuple[list[str], str]]:
     ]
 
 
-def test_every_command_gives_one_error_line_for_bad_input(tmp_path, capsys) -> None:
-    for argv, needle in _bad_inputs(tmp_path):
+def _bad_files(tmp: Path, run: Path) -> list[tuple[list[str], str]]:
+    """``(argv, the start of the expected message)`` of bad files, each given to the commands that read it: the
+    message names the file (or the option) and the fix (issue 38, item 7)."""
+    import hashlib
+    import json
+    import os
+    import pickle
+
+    import h5py
+
+    from abm.data.episode_store import save_episode
+    from abm.train.synthetic import synthetic_episodes
+    from abm.viewer.browser import find_chromium
+
+    tmp.mkdir(parents=True, exist_ok=True)
+    recipe_tag, recipe_bad = tmp / "tag.yaml", tmp / "broken.yaml"
+    recipe_tag.write_text(f"lr: !!python/object/apply:os.system ['touch {tmp / 'ran'}']\n")
+    recipe_bad.write_text("lr: [1, 2\nsteps: 3\n")
+    dataset = tmp / "dataset"
+    (dataset / "meta").mkdir(parents=True)
+    (dataset / "meta" / "info.json").write_text("[1, 2]")
+    zoo = tmp / "zoo"
+    zoo.mkdir()
+    (zoo / "m.pt").write_bytes(b"m")
+    (zoo / "index.json").write_text(json.dumps([{"name": "m", "file": "m.pt", "size_bytes": "big",
+                                                 "sha256": hashlib.sha256(b"m").hexdigest()}]))
+    data = tmp / "typed"
+    save_episode(synthetic_episodes(1, 32)[0], data / "ep.h5")
+    episode = data / "ep.h5"
+    with h5py.File(episode, "r+") as f:
+        f.attrs["seed"] = "abc"
+    typed = f"{episode}: attribute 'seed' is 'abc' (text), expected a whole number; the file was damaged or edited"
+    (tmp / "empty").mkdir()
+    evil = tmp / "evil.pt"
+    evil.write_bytes(pickle.dumps(type("Evil", (), {"__reduce__": lambda self: (os.system, ("true",))})(),
+                                  protocol=2))
+    ckpt = next((run / "checkpoints").glob("step_*.pt"))
+    train = ["train", "--method", "abm", "--steps", "1", "--no-progress"]
+    cases = [
+        (["train", "--config", str(recipe_tag), "--method", "abm", "--synthetic", "1", "--out", str(tmp / "t1")],
+         f"{recipe_tag}: not a valid recipe (YAML error at line 1, column 5: the tag !!python/object/apply:os.system "
+         "would build a Python object); remove the tag"),
+        (["train", "--config", str(recipe_bad), "--method", "abm", "--synthetic", "1", "--out", str(tmp / "t2")],
+         f"{recipe_bad}: not a valid recipe (YAML error at line 2, column 6: expected ',' or ']', but got ':'"),
+        (["data", "import", "--format", "lerobot", str(dataset), "--out", str(tmp / "imported")],
+         str(dataset / "meta" / "info.json")),
+        (["zoo", "list", "--zoo", str(zoo)],
+         f"{zoo / 'index.json'}: entry 0 (m): 'size_bytes' is 'big', expected a whole number >= 0: fix the entry"),
+        (["calibrate", "--recording", str(tmp), "--camera", "front", "--out", str(tmp / "c.yaml"),
+          "--board", "5x7:-0.04:0.03:DICT_4X4_50"],
+         "argument --board: '5x7:-0.04:0.03:DICT_4X4_50': the square side is in metres and must be > 0"),
+        ([*train, "--data", str(data), "--out", str(tmp / "t3")], typed),
+        (["ground", "--episode", str(episode), "--out", str(tmp / "g1")], typed),
+        (["data", "export", "--format", "lerobot", "--data", str(data), "--out", str(tmp / "e1")], typed),
+        ([*train, "--data", str(tmp / "empty"), "--out", str(tmp / "t4")],
+         f"no episodes in {tmp / 'empty'} (no *.h5 episode files in it or its folders)"),
+        (["train", "--method", "abm", "--synthetic", "2", "--camera-resolution", "32", "--steps", "3", "--batch", "2",
+          "--lr", "3e-3", "--warmup", "1", "--out", str(run), "--resume", "--no-progress",
+          *[f"--set={k}={v}" for k, v in TINY_POLICY.items() if k != "width"], "--set=width=64"],
+         f"{ckpt}: the checkpoint was trained with other policy settings than this model in 1 field(s): width: "
+         "checkpoint 32, model 64. Build the model with the checkpoint's values (--set width=32), or train a new run"),
+        (["quickstart", "--methods", "foo", "--out", str(tmp / "q")], "argument --methods: invalid choice: 'foo'"),
+        (["export", "--run", str(evil), "--out", str(tmp / "x.pt")],
+         f"refusing to load {evil}: it holds Python objects other than tensors and plain data (it names the Python "
+         "object posix.system), which an abm checkpoint never does (it may be crafted to run code)"),
+    ]
+    if find_chromium() is not None:  # without --screenshot, a file that loaded would be served until stopped
+        cases.append((["view", "--episode", str(episode), "--screenshot", str(tmp / "s.png")], typed))
+    return cases
+
+
+def test_every_command_gives_one_error_line_for_bad_input(tmp_path, capsys, tiny_run) -> None:
+    bad_files = _bad_files(tmp_path / "files", tiny_run)
+    for argv, needle in [*_bad_inputs(tmp_path), *bad_files]:
         try:
             rc = cli_main(argv)
         except SystemExit as exit_info:
             rc = exit_info.code
-        _one_error_line(rc, capsys.readouterr().err, needle)
+        line = _one_error_line(rc, capsys.readouterr().err, needle)
+        for unclear in ("weights_only", " ?:", "None", "<unicode string>", "Traceback"):
+            assert unclear not in line, (unclear, line)
+    assert not (tmp_path / "files" / "ran").exists()
+
+
+def test_a_write_that_fails_names_its_file(tmp_path, capsys) -> None:
+    """A failed write names no file (`cannot use ?: File too large`): the command names the one it wrote."""
+    import resource
+    import signal
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    previous = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (2048, hard))
+    try:
+        rc = cli_main(["ground", "--out", str(tmp_path / "g")])
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, previous)
+    line = _one_error_line(rc, capsys.readouterr().err, f"cannot write {tmp_path / 'g'}/camera_")
+    assert line.endswith(".png: File too large; the file size limit of this process was reached (ulimit -f)")
 
 
 def test_viewer_exits_with_one_line_on_a_busy_port_or_without_chromium(tmp_path, capsys, monkeypatch) -> None:

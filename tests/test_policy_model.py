@@ -106,8 +106,16 @@ def test_config_errors_and_compatibility() -> None:
     assert PolicyConfig.from_dict(small.to_dict()) == small
     with pytest.raises(ValueError, match="variant 'abm' but the model is 'rvt'"):
         check_compatible(small, PolicyConfig.from_preset("small", "rvt"))
-    with pytest.raises(ValueError, match="preset 'small' does not match the model preset 'paper'"):
-        check_compatible(small, PolicyConfig.from_preset("paper", "abm"))
+    with pytest.raises(ValueError, match=r"^ck.pt: the checkpoint was trained with other policy settings than this "
+                       r"model in 8 field\(s\): resolution: checkpoint 96, model 220; patch_size: .*width: checkpoint "
+                       r"128, model 512;.* \(--set resolution=96 --set patch_size=8 --set width=128 .*\), or train"):
+        check_compatible(small, PolicyConfig.from_preset("paper", "abm"), "ck.pt")
+    custom = PolicyConfig.from_preset("small", "abm", width=64)  # both 'small+custom': the fields tell them apart
+    with pytest.raises(ValueError, match=r"in 1 field\(s\): width: checkpoint 64, model 32\. .*--set width=64\)") \
+            as err:
+        check_compatible(custom, PolicyConfig.from_preset("small", "abm", width=32))
+    assert "preset" not in str(err.value) and "small" not in str(err.value)
+    check_compatible(small, PolicyConfig.from_dict({**small.to_dict(), "preset": "small+custom"}))  # a label only
 
 
 @pytest.mark.parametrize("local", [False, True])

@@ -92,3 +92,59 @@ def test_a_ray_address_that_does_not_answer_is_a_clear_error(tmp_path, capsys):
     assert "does not answer" in capsys.readouterr().err
     assert main(_gen(tmp_path / "d", "ray", extra=["--ray-address", "nonsense"])) == 2
     assert "host:port" in capsys.readouterr().err
+
+
+def test_an_address_that_accepts_but_never_answers_fails_within_30_s_in_one_line(tmp_path):
+    """A port that accepts TCP connections but never speaks (not a Ray head, or a hung one): one line, well within
+    30 s, and none of Ray's own log lines (Ray itself retries for minutes)."""
+    import socket
+    import threading
+
+    held = []
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        port = server.getsockname()[1]
+
+        def accept() -> None:
+            while True:
+                try:
+                    held.append(server.accept()[0])  # keep it open, say nothing
+                except OSError:
+                    return
+
+        threading.Thread(target=accept, daemon=True).start()
+        src = os.path.dirname(os.path.dirname(os.path.abspath(__import__("abm").__file__)))
+        start = time.monotonic()
+        done = subprocess.run([sys.executable, "-m", "abm.cli", *_gen(tmp_path / "d", "ray",
+                                                                      extra=["--ray-address", f"127.0.0.1:{port}"])],
+                              capture_output=True, text=True, timeout=120,
+                              env={**os.environ, "PYTHONPATH": src})
+        elapsed = time.monotonic() - start
+    for conn in held:
+        conn.close()
+    assert held, "the command never connected"
+    assert done.returncode == 2 and elapsed < 30, (done.returncode, elapsed, done.stderr)
+    assert done.stderr.splitlines() == [
+        f"abm: error: --ray-address 127.0.0.1:{port}: something accepts connections there but did not answer the Ray "
+        "(gRPC) handshake within 10 s, so it is not a Ray head (or it hangs); give the head's GCS address "
+        "(`ray status` on the head prints it, port 6379 by default) or ray://host:10001"]
+    assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("words", [
+    ["data", "generate", "--task", "pick_block", "--split", "seen", "--episodes", "1", "--out", "d"],
+    ["data", "generate", "--task", "pick_block", "--split", "seen", "--episodes", "1", "--out", "d", "--backend",
+     "local"],
+    ["eval", "--run", "r", "--tasks", "pick_block"],
+    ["experiment", "run", "quickstart"],
+])
+def test_a_ray_address_without_the_ray_backend_is_refused(words, capsys):
+    """Given without --backend ray, --ray-address was silently ignored (the work ran locally)."""
+    with pytest.raises(SystemExit) as exit_info:
+        main([*words, "--ray-address", "10.0.0.1:6379"])
+    err = capsys.readouterr().err
+    command = " ".join(w for w in words[:2] if not w.startswith("-") and w not in ("d", "r", "quickstart"))
+    assert exit_info.value.code == 2 and err.splitlines() == [
+        "abm: error: --ray-address 10.0.0.1:6379 is only used with --backend ray (this command runs --backend local, "
+        f"which would ignore it): add --backend ray, or leave --ray-address out (see abm {command} --help)"]

@@ -312,14 +312,74 @@ RECIPE_REFUSED: dict[str, str] = {
 }
 
 
+_SWITCHES = (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse.BooleanOptionalAction)
+
+
+def recipe_value(action: argparse.Action, value: Any) -> Any:
+    """A recipe's ``value`` for the option ``action``, checked as the command line checks it: the option's own
+    ``type`` (so the same ranges: ``lr: .inf`` and ``steps: true`` are refused like ``--lr inf`` and
+    ``--steps true``), its ``choices``, one value or a list as the option takes, ``true``/``false`` for a switch.
+
+    Raises:
+        argparse.ArgumentTypeError: what is expected and what the recipe gave.
+    """
+    if value is None:
+        if action.default is None and not action.required:
+            return None
+        raise argparse.ArgumentTypeError("expected a value, got null (leave the key out to keep the default)")
+    if isinstance(action, _SWITCHES):
+        if not isinstance(value, bool):
+            raise argparse.ArgumentTypeError(f"expected true or false, got {value!r}")
+        return value
+    many = action.nargs in ("+", "*") or isinstance(action.nargs, int) or isinstance(action, argparse._AppendAction)
+    if not many:
+        return _recipe_item(action, value)
+    items = value if isinstance(value, list) else [value]
+    if isinstance(action.nargs, int) and len(items) != action.nargs:
+        raise argparse.ArgumentTypeError(f"expected a list of {action.nargs} values, got {value!r}")
+    if action.nargs == "+" and not items:
+        raise argparse.ArgumentTypeError("expected at least one value, got an empty list")
+    return [_recipe_item(action, item) for item in items]
+
+
+def _recipe_item(action: argparse.Action, value: Any) -> Any:
+    if isinstance(value, dict | list):
+        raise argparse.ArgumentTypeError(f"expected one value, got {value!r}")
+    if isinstance(value, bool):  # YAML's true/yes/on: never a number, a path or a name
+        if callable(action.type) and action.type not in (str, Path):
+            try:  # the option's own words for what it expects
+                action.type(str(value).lower())
+            except argparse.ArgumentTypeError:
+                raise
+            except (TypeError, ValueError):
+                pass
+        raise argparse.ArgumentTypeError(f"expected {_expected(action)}, got {str(value).lower()}")
+    text = value if isinstance(value, str) else str(value)
+    try:
+        converted = action.type(text) if callable(action.type) and action.type is not str else text
+    except argparse.ArgumentTypeError:
+        raise
+    except (TypeError, ValueError) as err:
+        raise argparse.ArgumentTypeError(f"expected {_expected(action)}, got {value!r} ({err})") from None
+    if action.choices is not None and converted not in action.choices:
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(map(str, action.choices))}, got {value!r}")
+    return converted
+
+
+def _expected(action: argparse.Action) -> str:
+    name = getattr(action.type, "__name__", "")
+    return {"int": "a whole number", "float": "a number"}.get(name, "a path" if action.type is Path else "text")
+
+
 def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
     """Make the values of ``--config FILE`` the defaults of the command it is given to, so flags override it.
 
     Only for commands with a ``--config`` option. The file maps option names (``lr``, ``checkpoint_every`` or
     ``checkpoint-every``) to values; a nested mapping fills the options whose destination starts with the
     command's ``config_sections[name]`` prefix (``policy:`` -> the policy flags). Options the file sets are no
-    longer required on the command line. Bad files end the command with a usage error, and so do the keys of
-    :data:`RECIPE_REFUSED` (``overwrite``) and an empty path.
+    longer required on the command line. Every value passes the checks its flag has (:func:`recipe_value`: the
+    same ranges, choices and types). Bad files end the command with a usage error naming the file, the key and
+    what is expected, and so do the keys of :data:`RECIPE_REFUSED` (``overwrite``) and an empty path.
     """
     sub, tokens = parser, list(argv)
     while True:  # descend to the (sub-)command the arguments name
@@ -353,8 +413,12 @@ def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
                 sub.error(f"recipe {given[-1]}: {key!r} cannot be set in a recipe: {RECIPE_REFUSED[action.dest]}")
             if action.type is Path and isinstance(v, str) and not v.strip():
                 sub.error(f"recipe {given[-1]}: {key} is an empty path; give a path, or leave the key out")
-            if isinstance(action.type, type) and action.type is not str and v is not None:
-                v = [action.type(x) for x in v] if isinstance(v, list) else action.type(v)
+            try:
+                v = recipe_value(action, v)
+            except argparse.ArgumentTypeError as err:
+                name = key if dest == key else f"{key}.{dest.removeprefix(sections.get(key, ''))}"
+                flag = action.option_strings[0] if action.option_strings else name
+                sub.error(f"recipe {given[-1]}: {name}: {err} (the same check as {flag}); fix the value in the recipe")
             action.default = v
             action.required = False
     if unknown:

@@ -27,25 +27,140 @@ def load_torch_data(path: str | Path, what: str, allowed_globals: Sequence[Any] 
                     map_location: Any = "cpu") -> Any:
     """``torch.load(path, weights_only=True)``: tensors and plain data only, so a crafted file cannot run code.
 
+    The file's bytes are checked first (:func:`check_torch_archive`): a changed byte is refused before
+    ``torch.load`` reads it, which itself would load most damaged tensors without a word.
+
     Args:
         what: what the file should be, for the messages (``"abm policy checkpoint"``).
         allowed_globals: extra classes the file may hold (``torch.serialization.safe_globals``).
 
     Raises:
-        ValueError: the file holds other Python objects (``refusing to load ...``) or cannot be read.
+        ValueError: the file holds other Python objects (``refusing to load ...``), is damaged (its bytes do not
+            match the checksums in it) or cannot be read.
     """
     import torch
 
+    check_torch_archive(path, what)
     try:
         with torch.serialization.safe_globals(list(allowed_globals)):
             return torch.load(path, map_location=map_location, weights_only=True)
     except pickle.UnpicklingError as err:
+        found = re.search(r"GLOBAL ([\w.]+)", str(err))
+        if found:
+            raise ValueError(
+                f"refusing to load {path}: it holds Python objects other than tensors and plain data (it names the "
+                f"Python object {found.group(1)}), which an {what} never does (it may be crafted to run code); abm "
+                "never loads such a file: use one written by abm (abm train, abm export, abm clip train)") from None
         raise ValueError(
-            f"refusing to load {path}: it holds Python objects other than tensors and plain data, which an "
-            f"{what} never does (it may be crafted to run code). Details: {str(err).splitlines()[0]}"
-        ) from err
+            f"refusing to load {path}: it is not the plain data torch.save writes ({_refused_object(err)}); the file "
+            f"is damaged, not an {what}, or crafted to run code: use one written by abm (abm train, abm export, abm "
+            "clip train)") from None
     except Exception as err:  # noqa: BLE001 - any other reading failure means a corrupt file
-        raise ValueError(f"cannot read {what} {path}: {err}") from err
+        raise ValueError(f"cannot read {what} {path}: {_without_torch_hints(str(err))}; the file is damaged or not "
+                         f"an {what}") from None
+
+
+_TORCH_HINT = re.compile(r"weights_only|safe_globals|add_safe_globals|trusted source|torch\.load|documentation|"
+                         r"file an issue", re.IGNORECASE)
+
+
+def _refused_object(err: BaseException) -> str:
+    """What torch's weights-only unpickler refused, in abm's words (never torch's advice to retry with
+    ``weights_only=False``, which would run the file's code)."""
+    text = str(err)
+    found = re.search(r"Unsupported operand (\d+)", text)
+    if found:
+        return f"pickle operation {found.group(1)}, which plain data never uses"
+    return _without_torch_hints(text) or "data torch's weights-only reader refuses"
+
+
+def _without_torch_hints(text: str) -> str:
+    """The lines of a torch error that state the problem, without its hints (retry with ``weights_only=False``,
+    allow-list a class, read the documentation)."""
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    kept = [line for line in lines if not _TORCH_HINT.search(line)]
+    return " ".join(kept)[:300]
+
+
+SEAL_PREFIX = b"abm-sha256:"
+_EOCD = b"PK\x05\x06"  # end of a zip file's central directory: 22 bytes, then the archive comment
+_SEAL = re.compile(re.escape(SEAL_PREFIX) + rb"[0-9a-f]{64}")
+
+
+def seal_torch_archive(path: str | Path) -> None:
+    """Record the sha256 of a file ``torch.save`` just wrote in the file itself (its zip archive comment), so
+    :func:`check_torch_archive` refuses any changed byte. ``torch.load`` reads the sealed file as before."""
+    path = Path(path)
+    with path.open("r+b") as f:
+        size = f.seek(0, os.SEEK_END)
+        f.seek(max(0, size - 22))
+        tail = f.read(22)
+        if len(tail) != 22 or not tail.startswith(_EOCD) or tail[20:22] != b"\0\0":
+            raise ValueError(f"{path} is not a zip archive without a comment (torch.save's format); cannot seal it")
+        f.seek(0)
+        digest = hashlib.sha256()
+        while block := f.read(1 << 20):
+            digest.update(block)
+        comment = SEAL_PREFIX + digest.hexdigest().encode()
+        f.seek(size - 2)
+        f.write(len(comment).to_bytes(2, "little") + comment)
+
+
+def check_torch_archive(path: str | Path, what: str = "file") -> bool:
+    """Check the bytes of a file written by ``torch.save`` before it is loaded.
+
+    A file sealed by :func:`seal_torch_archive` (every checkpoint abm writes) must match the sha256 it holds,
+    which covers every byte. Another zip archive (older checkpoints, the committed model zoo) must match the
+    CRC-32 of every member (``zipfile.ZipFile.testzip``), which covers every byte of its contents. A file in
+    torch's legacy format (not a zip) has no checksums.
+
+    Returns:
+        ``True`` when every byte was checked (a sealed file), ``False`` otherwise.
+
+    Raises:
+        ValueError: naming the file, when a check fails.
+    """
+    import zipfile
+
+    path = Path(path)
+    damaged = ("the file was changed or damaged after it was written (a partial copy or download, a bad disk): "
+               "restore it from where it came from, or write it again (abm train, abm export)")
+    try:
+        with path.open("rb") as f:
+            head = f.read(4)
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(0, size - (22 + 65535)))
+            tail = f.read()
+    except OSError as err:
+        raise ValueError(f"cannot read {what} {path}: {err.strerror or err}") from None
+    if not head.startswith(b"PK") and not zipfile.is_zipfile(path):
+        return False  # torch's legacy (pickle) format: no checksums; torch.load checks what it can
+    end = tail.rfind(_EOCD)
+    comment = tail[end + 22:] if end >= 0 else b""
+    if end < 0 or int.from_bytes(tail[end + 20:end + 22], "little") != len(comment):
+        raise ValueError(f"{path}: the end of its zip archive is damaged; {damaged}")
+    if comment:
+        if not _SEAL.fullmatch(comment):
+            raise ValueError(f"{path}: its zip archive comment is not abm's sha256 record; {damaged}")
+        body = size - len(tail) + end + 20  # every byte before the comment's length, which was 0 when sealed
+        digest = hashlib.sha256()
+        with path.open("rb") as f:
+            remaining = body
+            while remaining and (block := f.read(min(1 << 20, remaining))):
+                digest.update(block)
+                remaining -= len(block)
+        digest.update(b"\0\0")
+        if digest.hexdigest().encode() != comment[len(SEAL_PREFIX):]:
+            raise ValueError(f"{path} does not match the sha256 recorded in it when it was written; {damaged}")
+        return True
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, NotImplementedError) as err:
+        raise ValueError(f"{path}: its zip archive cannot be read ({err}); {damaged}") from None
+    if bad is not None:
+        raise ValueError(f"{path}: {bad} inside it does not match its CRC-32; {damaged}")
+    return False
 
 
 class DuplicateKeyError(ValueError):
@@ -100,11 +215,30 @@ def parse_yaml(text: str, source: str | Path, what: str) -> Any:
             f"{source}: the key {key!r} appears twice in one section of the {what} (lines {first} and {again}); "
             "YAML would silently keep only the last one: remove or merge one of them") from None
     except yaml.YAMLError as err:
-        detail = " ".join(str(err).split())
-        raise ValueError(f"{source}: not a valid {what} (YAML error: {detail})") from None
+        problem, fix = _yaml_problem(err)
+        raise ValueError(f"{source}: not a valid {what} (YAML error{problem}); {fix}") from None
     finally:
         if loader is not None:
             loader.dispose()
+
+
+def _yaml_problem(err: Exception) -> tuple[str, str]:
+    """``(where and what is wrong, the fix)`` of a PyYAML error, in the file's terms (PyYAML names the text
+    ``<unicode string>`` and a tag by its long form)."""
+    import yaml
+
+    mark = getattr(err, "problem_mark", None) or getattr(err, "context_mark", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    problem = " ".join(str(getattr(err, "problem", None) or err).split())
+    tag = re.search(r"constructor for the tag '([^']+)'", problem)
+    if isinstance(err, yaml.constructor.ConstructorError) and tag:
+        name = tag.group(1).replace("tag:yaml.org,2002:", "!!")
+        if name.startswith("!!python"):
+            return (f"{where}: the tag {name} would build a Python object",
+                    "remove the tag (abm reads plain data only and never builds objects from a file)")
+        return f"{where}: unknown tag {name}", "remove the tag"
+    context = " ".join(str(getattr(err, "context", None) or "").split())
+    return f"{where}: {problem}{f', {context}' if context else ''}", "fix the YAML there"
 
 
 def load_yaml(path: str | Path, what: str) -> Any:

@@ -25,16 +25,39 @@ from concurrent.futures import Future
 from typing import Any
 
 CONNECT_TIMEOUT_S = 5.0
+#: how long the Ray head may take to answer the start of the gRPC (HTTP/2) handshake that every Ray connection
+#: begins with; a gRPC server answers at once, before any request
+HANDSHAKE_TIMEOUT_S = 10.0
+#: an HTTP/2 client's connection preface and an empty SETTINGS frame (RFC 9113, 3.4 and 6.5)
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+_SETTINGS_FRAME = 4
 
 
 def add_backend_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--backend local|ray`` and ``--ray-address`` (abm data generate and abm eval)."""
+    """``--backend local|ray`` and ``--ray-address`` (abm data generate, abm eval, abm experiment run).
+
+    A parser with a ``post_parse_checks`` list (abm's :class:`abm.cli.Parser`) also refuses ``--ray-address``
+    without ``--backend ray`` (:func:`backend_arguments_problem`) when the command line is parsed."""
     parser.add_argument("--backend", default="local", choices=["local", "ray"],
                         help="where the --workers run: local processes (default) or Ray actors, each owning its "
                              "simulator (pip install 'abm[ray]')")
     parser.add_argument("--ray-address", default=None,
-                        help="Ray cluster to join (host:port of the head, ray://host:10001, or auto); default: "
-                             "start a local Ray with --workers CPUs")
+                        help="Ray cluster to join with --backend ray (host:port of the head, ray://host:10001, or "
+                             "auto); default: start a local Ray with --workers CPUs")
+    checks = getattr(parser, "post_parse_checks", None)
+    if isinstance(checks, list):
+        checks.append(backend_arguments_problem)
+
+
+def backend_arguments_problem(args: argparse.Namespace) -> str | None:
+    """Why the parsed ``--backend`` / ``--ray-address`` do not go together (``None`` when they do): an address
+    is only used by ``--backend ray``, so without it the address would be silently ignored."""
+    address = getattr(args, "ray_address", None)
+    backend = getattr(args, "backend", "local")
+    if address is not None and backend != "ray":
+        return (f"--ray-address {address} is only used with --backend ray (this command runs --backend {backend}, "
+                "which would ignore it): add --backend ray, or leave --ray-address out")
+    return None
 
 
 class RayBackendError(RuntimeError):
@@ -51,11 +74,38 @@ def _check_address(address: str) -> None:
         raise RayBackendError(f"--ray-address {address!r}: give host:port of the Ray head (e.g. 10.0.0.1:6379), "
                               "ray://host:10001, or auto")
     try:
-        with socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S):
-            pass
+        with socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S) as conn:
+            answer = _http2_answer(conn)
     except OSError as err:
         raise RayBackendError(f"--ray-address {address}: the Ray head does not answer ({err}); start it with "
                               "`ray start --head` on that machine or check the address") from None
+    if answer is None:
+        raise RayBackendError(f"--ray-address {address}: something accepts connections there but did not answer the "
+                              f"Ray (gRPC) handshake within {HANDSHAKE_TIMEOUT_S:g} s, so it is not a Ray head (or it "
+                              "hangs); give the head's GCS address (`ray status` on the head prints it, port 6379 by "
+                              "default) or ray://host:10001")
+    if not answer:
+        raise RayBackendError(f"--ray-address {address}: the program listening there does not speak Ray's protocol "
+                              "(gRPC); give the head's GCS address (`ray status` on the head prints it, port 6379 by "
+                              "default) or ray://host:10001")
+
+
+def _http2_answer(conn: socket.socket) -> bool | None:
+    """Send the start of an HTTP/2 connection (what gRPC, and so every Ray connection, begins with) and wait for
+    the server's SETTINGS frame: ``True`` when it came, ``False`` for another answer or a closed connection,
+    ``None`` when nothing came within :data:`HANDSHAKE_TIMEOUT_S`."""
+    conn.settimeout(HANDSHAKE_TIMEOUT_S)
+    try:
+        conn.sendall(_HTTP2_PREFACE)
+        header = b""
+        while len(header) < 9:
+            block = conn.recv(9 - len(header))
+            if not block:
+                return False
+            header += block
+    except TimeoutError:
+        return None
+    return header[3] == _SETTINGS_FRAME
 
 
 def init_ray(address: str | None, num_cpus: int) -> Any:

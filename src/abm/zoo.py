@@ -6,10 +6,11 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
-from abm.files import sha256_file
+from abm.files import is_inside, sha256_file
 
 DEFAULT_ZOO = Path("models")
 #: the methods ``abm zoo eval`` compares, one model of each (:func:`pick`)
@@ -17,22 +18,60 @@ COMPARED_METHODS = ("abm", "rvt")
 
 
 class ZooError(ValueError):
-    """The zoo folder is missing, has no index, or a file does not match its recorded checksum."""
+    """The zoo folder is missing, has no index, an index entry cannot be trusted (no sha256, a file outside the
+    zoo, a size that is not a number), or a file does not match its recorded checksum."""
 
 
 def read_index(zoo: Path) -> list[dict[str, Any]]:
-    """The zoo's entries (``ZOO/index.json``)."""
+    """The zoo's entries (``ZOO/index.json``), each checked (:func:`check_entry`).
+
+    Raises:
+        ZooError: one line naming the index, the entry and the fix: no index, not JSON, not a list of entries,
+            or an entry without a sha256, with a file outside the zoo folder or a size that is not a number.
+    """
     path = zoo / "index.json"
     if not path.is_file():
         raise ZooError(f"no model zoo index at {path}: run `abm experiment run paper_tables` (it exports the "
                        "models and writes the index) or pass --zoo DIR")
     try:
-        entries = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ZooError(f"{path} is not valid JSON ({err})") from err
-    if not isinstance(entries, list) or not all(isinstance(e, dict) and "name" in e for e in entries):
-        raise ZooError(f"{path} must be a list of entries with a 'name'")
+        entries = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise ZooError(f"{path} is not valid JSON ({err}): restore it with git checkout, or rewrite it with "
+                       "abm experiment run paper_tables") from None
+    if not isinstance(entries, list):
+        raise ZooError(f"{path} must be a list of entries (objects with a 'name', a 'file' and its 'sha256'), got "
+                       f"{type(entries).__name__}: restore it with git checkout")
+    for i, entry in enumerate(entries):
+        check_entry(zoo, entry, f"{path}: entry {i}")
     return entries
+
+
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+def check_entry(zoo: Path, entry: object, where: str) -> None:
+    """Raise :class:`ZooError` (starting with ``where``) unless ``entry`` is an index entry abm can trust: a
+    ``name``, a ``file`` (default: the name) that stays inside the zoo folder, the file's ``sha256``, and
+    numbers where the listing reads them (``size_bytes``, ``steps``)."""
+    if not isinstance(entry, dict) or not isinstance(entry.get("name"), str) or not entry["name"].strip():
+        raise ZooError(f"{where}: expected an object with a 'name' (text), got {entry!r:.80}: fix the entry, or "
+                       "restore the index with git checkout")
+    where = f"{where} ({entry['name']})"
+    file = entry.get("file", entry["name"])
+    if not isinstance(file, str) or not file.strip() or Path(file).is_absolute() or not is_inside(zoo / file, zoo) \
+            or (zoo / file).resolve() == zoo.resolve():
+        raise ZooError(f"{where}: 'file' {file!r} points outside the zoo folder {zoo}; an entry names a file inside "
+                       "it (e.g. 'abm_clip.pt'), so fix the entry or restore the index with git checkout")
+    digest = entry.get("sha256")
+    if not isinstance(digest, str) or not _SHA256.fullmatch(digest):
+        got = "has no 'sha256'" if digest is None else f"has 'sha256' {digest!r:.80}, not 64 hex digits"
+        raise ZooError(f"{where} {got}; every zoo file is checked against the sha256 of its bytes: add it "
+                       f"(sha256sum {zoo / file}) or rewrite the index with abm experiment run paper_tables")
+    for key in ("size_bytes", "steps"):
+        value = entry.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+            raise ZooError(f"{where}: {key!r} is {value!r:.80}, expected a whole number >= 0: fix the entry, or "
+                           "rewrite the index with abm experiment run paper_tables")
 
 
 def entry_path(zoo: Path, entry: dict[str, Any]) -> Path:
@@ -45,11 +84,14 @@ def file_sha256(path: Path) -> str:
 
 
 def verify(zoo: Path, entry: dict[str, Any]) -> Path:
-    """The entry's file, after checking it exists and matches its sha256."""
+    """The entry's file, after checking the entry (:func:`check_entry`), that the file exists and that it
+    matches its sha256."""
+    check_entry(zoo, entry, f"{zoo / 'index.json'}: entry")
     path = entry_path(zoo, entry)
     if not path.exists():
-        raise ZooError(f"{path} is listed in {zoo / 'index.json'} but missing")
-    if entry.get("sha256") and file_sha256(path) != entry["sha256"]:
+        raise ZooError(f"{path} is listed in {zoo / 'index.json'} but missing: restore it with git checkout, or "
+                       "re-export it")
+    if file_sha256(path) != entry["sha256"]:
         raise ZooError(f"{path} does not match its recorded sha256 (a partial download or a changed file): "
                        "restore it with git checkout, or re-export it")
     return path

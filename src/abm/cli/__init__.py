@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import io
 import logging
 import sys
 import typing
@@ -65,6 +66,17 @@ class Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs) -> None:
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
+        #: checks of options that go together, run once this (sub-)command's arguments are parsed: each returns
+        #: the problem (a usage error) or ``None`` (e.g. ``abm.ray_pool.backend_arguments_problem``)
+        self.post_parse_checks: list[Callable[[argparse.Namespace], str | None]] = []
+
+    def parse_known_args(self, args: typing.Any = None, namespace: typing.Any = None) -> typing.Any:
+        parsed, extras = super().parse_known_args(args, namespace)
+        for check in self.post_parse_checks:
+            problem = check(parsed)
+            if problem:
+                self.error(problem)
+        return parsed, extras
 
     def error(self, message: str) -> typing.NoReturn:
         self.exit(2, f"abm: error: {message} (see {self.prog} --help)\n")
@@ -126,6 +138,28 @@ def command_function(func: str | Callable[[argparse.Namespace], int | None]
     return getattr(importlib.import_module(module), name)
 
 
+def file_in_traceback(err: BaseException) -> str | None:
+    """The file an ``OSError`` without a file name was about (a failed ``write`` or ``close`` names none): the
+    open file closest to where it was raised, found among the local variables of its frames (and of the errors
+    it was raised from, e.g. PIL's failed flush inside its failed close); ``None`` if there is none."""
+    seen: set[int] = set()
+    error: BaseException | None = err
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        frames = []
+        tb = error.__traceback__
+        while tb is not None:
+            frames.append(tb.tb_frame)
+            tb = tb.tb_next
+        for frame in reversed(frames):  # innermost first
+            for value in frame.f_locals.values():
+                name = getattr(value, "name", None) if isinstance(value, io.IOBase) else None
+                if isinstance(name, str) and name and not name.startswith("<"):
+                    return name
+        error = error.__context__ or error.__cause__
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -144,7 +178,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as err:  # a path or the disk: the user's to fix (other OS errors are bugs: traceback)
         if err.errno not in USER_ERRNOS:
             raise
-        print(f"abm: error: {write_error(err.filename or '?', err, verb='use')}", file=sys.stderr)
+        # a failed write or close names no file: the open file where it failed does
+        path = err.filename or file_in_traceback(err) or "a file of the command's output"
+        print(f"abm: error: {write_error(path, err, verb='use' if err.filename else 'write')}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("abm: interrupted", file=sys.stderr)

@@ -22,6 +22,7 @@ from abm.cli.train import POLICY_DEST, parse_override
 from abm.configuration import CAMERA_RESOLUTION, add_config_arguments, load_recipe
 from abm.experiments.spec import ExperimentSpec, load_spec
 from abm.policy.config import PolicyConfig
+from abm.policy.variants import VARIANTS
 
 #: The quickstart's training recipe (``configs/quickstart.yaml``; also ``abm train --config quickstart``): steps,
 #: batch, optimiser, lr, warm-up, checkpoint interval, and under ``policy`` the small preset's changes: 48-pixel
@@ -79,7 +80,8 @@ class QuickstartConfig:
 
     out: Path = field(default_factory=lambda: Path(spec().out))
     tasks: list[str] = field(default_factory=lambda: list(spec().data.tasks))
-    methods: list[str] = field(default_factory=lambda: [run.method for run in spec().runs.values()])
+    methods: list[str] = field(default_factory=lambda: [run.method for run in spec().runs.values()],
+                               metadata={"choices": sorted(VARIANTS)})  # refused when parsed, before any work
     episodes: int = field(default_factory=lambda: spec().data.episodes)
     steps: int = field(default_factory=lambda: recipe()["steps"])
     batch: int = field(default_factory=lambda: recipe()["batch"])

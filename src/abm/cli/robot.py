@@ -4,9 +4,49 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from abm.configuration import MAX_KEYFRAMES, clip_model_help, int_range, seed_int
+
+BOARD_FORMAT = "XxY:SQUARE_M:MARKER_M:DICTIONARY, e.g. 5x7:0.04:0.03:DICT_4X4_50"
+
+
+def parse_board_text(text: str) -> tuple[tuple[int, int], float, float, str]:
+    """``((x, y), square_m, marker_m, dictionary)`` of a ``--board`` value, checked: at least 2 x 2 squares (at
+    most 1000 each), a square side in ``(0, 1]`` m, a marker side above 0 and smaller than the square, and an ArUco
+    dictionary name (``DICT_...``).
+
+    Raises:
+        argparse.ArgumentTypeError: what is wrong, and the expected form.
+    """
+    parts = str(text).split(":")
+    if len(parts) != 4:
+        raise argparse.ArgumentTypeError(f"expected {BOARD_FORMAT}, got {text!r}")
+    squares, square, marker, dictionary = (part.strip() for part in parts)
+    try:
+        sx, sy = (int(v) for v in squares.lower().split("x"))
+        square_m, marker_m = float(square), float(marker)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {BOARD_FORMAT}, got {text!r}") from None
+    if not (2 <= sx <= 1000 and 2 <= sy <= 1000):
+        raise argparse.ArgumentTypeError(f"{text!r}: the board needs 2 to 1000 squares each way, got {sx}x{sy}")
+    if not (math.isfinite(square_m) and 0 < square_m <= 1):
+        raise argparse.ArgumentTypeError(f"{text!r}: the square side is in metres and must be > 0 and <= 1, got "
+                                         f"{square}")
+    if not (math.isfinite(marker_m) and 0 < marker_m < square_m):
+        raise argparse.ArgumentTypeError(f"{text!r}: the marker side is in metres and must be > 0 and smaller than "
+                                         f"the square ({square}), got {marker}")
+    if not dictionary.startswith("DICT_"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected an ArUco dictionary name such as DICT_4X4_50, got "
+                                         f"{dictionary!r}")
+    return (sx, sy), square_m, marker_m, dictionary
+
+
+def board_spec(text: str) -> str:
+    """The argparse ``type`` of ``--board``: the text, once :func:`parse_board_text` accepts it."""
+    parse_board_text(text)
+    return text
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -55,6 +95,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     c.add_argument("--recording", type=Path, required=True, help="recording folder")
     c.add_argument("--camera", required=True, help="camera name (or serial) in the recording")
     c.add_argument("--out", type=Path, required=True, help="calibration YAML to write or update")
-    c.add_argument("--board", default="5x7:0.04:0.03:DICT_4X4_50",
+    c.add_argument("--board", type=board_spec, default="5x7:0.04:0.03:DICT_4X4_50",
                    help="squares XxY : square m : marker m : ArUco dictionary (default: 5x7:0.04:0.03:DICT_4X4_50)")
     c.set_defaults(func="abm.cli.commands.robot:calibrate")

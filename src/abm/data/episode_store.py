@@ -28,8 +28,12 @@ File layout (``FORMAT_VERSION`` 2); ``K`` keyframes, per camera ``H x W`` pixels
 
 The trajectory group is optional (files without it are keyframe-only), so it did not change the version.
 
-Every dataset carries a ``crc32`` attribute (CRC-32 of its values) that :func:`verify_episode` and
-``abm data info`` check.
+Every dataset carries a ``crc32`` attribute (CRC-32 of its values), and the root an ``attrs_crc32`` attribute
+(JSON: the CRC-32 of every attribute of every object, the datasets' ``crc32`` aside, and of the names, types and
+shapes of the datasets), that :func:`verify_episode`
+and ``abm data info`` check; :func:`check_episodes` remembers which files passed and checks a file again whenever
+its bytes may have changed. Readers check each attribute's type (a number where a number belongs), so a file
+edited by hand is one error naming the file and the attribute.
 
 Version 2 (labels are the orientation the arm reached, in the canonical member of their symmetry
 class; see docs/benchmark.md) replaced version 1, whose grasp yaw labels could be the 180-degree flip
@@ -61,7 +65,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from abm.files import WriteError, write_error, write_text_atomic
+from abm.files import WriteError, sha256_file, write_error, write_text_atomic
 from abm.types import (
     TASK_DATA_VERSIONS,
     TASK_VERSION_KEY,
@@ -158,6 +162,7 @@ def save_episode(episode: Episode, path: str | os.PathLike[str]) -> None:
             if episode.trajectory is not None:
                 _write_trajectory(f.create_group("trajectory"), episode.trajectory, camera_names)
             f.visititems(_store_checksum)
+            f.attrs[ATTRS_CHECKSUM] = json.dumps(_attribute_crcs(f), sort_keys=True)
         if tmp.is_symlink():  # a link planted at the temporary name would send the write elsewhere
             tmp.unlink()
         tmp.write_bytes(buffer.getbuffer())
@@ -223,7 +228,7 @@ def _read_trajectory(f: h5py.File, path: Path, camera_names: list[str]) -> Traje
                           observations=[_read_observation(g, k, camera_names) for k in range(n)],
                           joint_positions=g["joint_positions"][()], joint_actions=g["joint_actions"][()],
                           ee_actions=g["ee_actions"][()], keyframe_frames=g["keyframe_frames"][()])
-    except (KeyError, OSError, ValueError, IndexError) as err:
+    except (KeyError, OSError, ValueError, IndexError, TypeError) as err:
         raise EpisodeFormatError(f"{path}: the dense trajectory cannot be read ({err})") from None
 
 
@@ -244,15 +249,86 @@ def _store_checksum(name: str, obj: h5py.Group | h5py.Dataset) -> None:
         obj.attrs["crc32"] = _dataset_crc32(obj)
 
 
+ATTRS_CHECKSUM = "attrs_crc32"
+
+
+def _attribute_bytes(value: Any) -> bytes:
+    """The bytes of an HDF5 attribute value as h5py reads it, its type included (a number that became text
+    changes them)."""
+    if isinstance(value, str):
+        return b"s" + value.encode("utf-8", "surrogatepass")
+    if isinstance(value, bytes):
+        return b"b" + value
+    array = np.asarray(value)
+    if array.dtype.kind in "OSU":
+        return b"o" + repr(array.shape).encode() + b"\0".join(
+            x if isinstance(x, bytes) else str(x).encode("utf-8", "surrogatepass") for x in array.ravel())
+    return b"n" + array.dtype.str.encode() + repr(array.shape).encode() + np.ascontiguousarray(array).tobytes()
+
+
+LAYOUT_KEY = "(layout)"  # in the attribute checksums: the names, types and shapes of the groups and datasets
+
+
+def _attribute_crcs(f: h5py.File) -> dict[str, int]:
+    """CRC-32 of every attribute of every object of an open episode file (``name`` for the root's,
+    ``object:name`` for the others'), except the checksums themselves, and of the file's layout
+    (:data:`LAYOUT_KEY`: a dataset renamed, added or removed changes it)."""
+    import h5py
+
+    crcs = {key: zlib.crc32(_attribute_bytes(value)) for key, value in f.attrs.items() if key != ATTRS_CHECKSUM}
+    layout: list[str] = []
+
+    def visit(name: str, obj: h5py.Group | h5py.Dataset) -> None:
+        is_dataset = isinstance(obj, h5py.Dataset)
+        layout.append(f"{name} {obj.dtype.str} {obj.shape}" if is_dataset else f"{name}/")
+        for key, value in obj.attrs.items():
+            if not (key == "crc32" and is_dataset):
+                crcs[f"{name}:{key}"] = zlib.crc32(_attribute_bytes(value))
+
+    f.visititems(visit)
+    crcs[LAYOUT_KEY] = zlib.crc32("\n".join(sorted(layout)).encode("utf-8", "surrogatepass"))
+    return crcs
+
+
+def _check_attributes(f: h5py.File, path: Path) -> bool:
+    """Compare the attributes with the CRC-32s stored when the file was written; ``False`` for a file written
+    before abm stored them."""
+    stored_text = f.attrs.get(ATTRS_CHECKSUM)
+    if stored_text is None:
+        return False
+    try:
+        stored = json.loads(stored_text)
+        stored = {str(k): int(v) for k, v in stored.items()}
+    except (TypeError, ValueError, AttributeError):
+        raise EpisodeFormatError(f"{path}: its attribute checksums ({ATTRS_CHECKSUM!r}) cannot be read; the file "
+                                 f"is corrupt {_REGENERATE}") from None
+    now = _attribute_crcs(f)
+    changed = sorted(k if k != LAYOUT_KEY else "the names, types or shapes of its datasets"
+                     for k in stored.keys() & now.keys() if stored[k] != now[k])
+    added, removed = sorted(now.keys() - stored.keys()), sorted(stored.keys() - now.keys())
+    if changed or added or removed:
+        what = "; ".join(part for part in (
+            f"changed: {', '.join(changed)}" if changed else "", f"added: {', '.join(added)}" if added else "",
+            f"removed: {', '.join(removed)}" if removed else "") if part)
+        raise EpisodeFormatError(f"{path}: attributes do not match their checksums ({what}); the file was changed "
+                                 f"after it was written {_REGENERATE}")
+    return True
+
+
+_REGENERATE = "(delete it and run `abm data generate` again to replace it, or import it again)"
+
+
 def verify_episode(path: str | os.PathLike[str]) -> bool:
     """Read every dataset of an episode file and compare it with the CRC-32 stored when it was written.
 
+    The attributes (task, split, seed, instruction, metadata, ...) are compared with their CRC-32s too.
+
     Returns:
-        ``True`` if every dataset was checked, ``False`` if the file has no checksums (written by an
-        older abm) but everything could be read.
+        ``True`` if every dataset and attribute was checked, ``False`` if the file lacks some checksums (written
+        by an older abm) but everything could be read.
 
     Raises:
-        EpisodeFormatError: a dataset cannot be read or its checksum does not match.
+        EpisodeFormatError: a dataset cannot be read, or a dataset or attribute does not match its checksum.
     """
     import h5py
 
@@ -277,19 +353,37 @@ def verify_episode(path: str | os.PathLike[str]) -> bool:
             raise
         except Exception as err:  # noqa: BLE001 - h5py/zlib raise many types for damaged data
             raise EpisodeFormatError(f"{path}: dataset {name} cannot be read ({err}); the file is corrupt") from None
-    return missing == 0
+        try:
+            attributes_checked = _check_attributes(f, path)
+        except EpisodeFormatError:
+            raise
+        except Exception as err:  # noqa: BLE001 - h5py raises many types for damaged attributes
+            raise EpisodeFormatError(f"{path}: its attributes cannot be read ({err}); the file is corrupt "
+                                     f"{_REGENERATE}") from None
+    return missing == 0 and attributes_checked
 
 
 VERIFIED_RECORD = ".abm_verified.json"
+#: up to this many bytes of episodes, :func:`check_episodes` reads every file that passed before again (sha256 of
+#: its bytes, ~1 GB/s) rather than trusting its size and times
+FULL_CHECK_BYTES = 1 << 30
+
+
+def _stamp(stat: os.stat_result) -> list[int]:
+    """What changes when a file's bytes may have: its size, modification and status-change times, and inode.
+    The status-change time cannot be set back (``touch -d`` / ``os.utime`` set it to now), so an edit that
+    keeps the size and puts the modification time back still changes the stamp."""
+    return [stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns, stat.st_ino]
 
 
 def check_episodes(paths: Sequence[str | os.PathLike[str]], root: str | os.PathLike[str] | None = None
                    ) -> list[tuple[Path, str]]:
     """Verify the checksums of episode files (:func:`verify_episode`); ``(path, reason)`` of each bad one.
 
-    A file that passed keeps its name, size and modification time in ``ROOT/.abm_verified.json``, so it
-    is read again only once it changes: the first check of a store reads every byte once, later ones
-    only look at the files' sizes and times.
+    A file that passed is remembered in ``ROOT/.abm_verified.json`` with its size, times, inode and the sha256 of
+    its bytes. It is verified again when any of them changed: while the files checked total at most
+    :data:`FULL_CHECK_BYTES`, every file's bytes are hashed again (an edit that keeps the size and times is
+    found); above that, the stamp (:func:`_stamp`, whose status-change time no edit can keep) decides.
     """
     record_path = Path(root) / VERIFIED_RECORD if root is not None else None
     try:
@@ -297,23 +391,38 @@ def check_episodes(paths: Sequence[str | os.PathLike[str]], root: str | os.PathL
         record = record if isinstance(record, dict) else {}
     except (OSError, ValueError):
         record = {}
+    files = [Path(p) for p in paths]
+    try:
+        full = sum(p.stat().st_size for p in files) <= FULL_CHECK_BYTES
+    except OSError:
+        full = True
     bad: list[tuple[Path, str]] = []
-    passed = 0
-    for p in map(Path, paths):
+    changed = False
+    for p in files:
         key = str(p.relative_to(root)) if root is not None and p.is_relative_to(root) else str(p)
+        entry = record.get(key)
         try:
-            stat = p.stat()
-            stamp = [stat.st_size, stat.st_mtime_ns]
-            if record.get(key) == stamp:
-                continue
+            stamp = _stamp(p.stat())
+            if isinstance(entry, dict) and entry.get("stamp") == stamp:
+                if not full:
+                    continue
+                digest = sha256_file(p)
+                if digest == entry.get("sha256"):
+                    continue
+            else:
+                digest = sha256_file(p)
             verify_episode(p)
+            if _stamp(p.stat()) != stamp:  # written while it was checked: check it next time
+                record.pop(key, None)
+                changed = True
+                continue
         except (OSError, EpisodeFormatError) as err:
-            record.pop(key, None)
+            changed |= record.pop(key, None) is not None
             bad.append((p, str(err)))
             continue
-        record[key] = stamp
-        passed += 1
-    if record_path is not None and passed:
+        record[key] = {"stamp": stamp, "sha256": digest}
+        changed = True
+    if record_path is not None and changed:
         try:
             write_text_atomic(record_path, json.dumps(record, indent=0, sort_keys=True))
         except WriteError:
@@ -330,16 +439,20 @@ def _open(path: Path) -> h5py.File:
         f = h5py.File(path, "r")
     except OSError as err:
         raise EpisodeFormatError(f"{path}: not a readable HDF5 episode file ({err})") from None
-    version = f.attrs.get("format_version")
-    if version is None:
+    try:
+        version = f.attrs.get("format_version")
+        if version is None:
+            raise EpisodeFormatError(f"{path}: missing 'format_version' attribute (not an abm episode file)")
+        version = _typed(path, "format_version", version, "integer")
+    except BaseException:
         f.close()
-        raise EpisodeFormatError(f"{path}: missing 'format_version' attribute (not an abm episode file)")
-    if int(version) != FORMAT_VERSION:
+        raise
+    if version != FORMAT_VERSION:
         f.close()
         hint = (" Version 1 demonstrations have inconsistent gripper-yaw labels; regenerate them with "
-                "`abm data generate` (same arguments, into a new folder)." if int(version) < FORMAT_VERSION
+                "`abm data generate` (same arguments, into a new folder)." if version < FORMAT_VERSION
                 else " Upgrade abm to read it.")
-        raise EpisodeFormatError(f"{path}: episode format version {int(version)} is not supported "
+        raise EpisodeFormatError(f"{path}: episode format version {version} is not supported "
                                  f"(this abm reads version {FORMAT_VERSION}).{hint}")
     problem = _task_version_problem(f)
     if problem is not None:
@@ -385,15 +498,59 @@ def _attr(f: h5py.File, path: Path, key: str) -> Any:  # an HDF5 attribute: str,
         return f.attrs[key]
     except KeyError:
         raise EpisodeFormatError(f"{path}: missing attribute {key!r}") from None
+    except Exception as err:  # noqa: BLE001 - h5py raises many types for a damaged attribute
+        raise EpisodeFormatError(f"{path}: attribute {key!r} cannot be read ({err}); the file is corrupt "
+                                 f"{_REGENERATE}") from None
+
+
+_EXPECTED = {"integer": "a whole number", "text": "text", "flag": "true or false (a boolean)"}
+
+
+def _typed(path: Path, key: str, value: Any, kind: str) -> Any:
+    """An attribute value as ``kind`` (``integer``, ``text``, ``flag``), or :class:`EpisodeFormatError` naming
+    the file, the attribute, what it holds and what it should."""
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if kind == "integer" and isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_):
+        return int(value)
+    if kind == "text" and isinstance(value, str):
+        return str(value)
+    if kind == "text" and isinstance(value, bytes):
+        try:
+            return value.decode("utf-8")
+        except UnicodeDecodeError:
+            pass
+    if kind == "flag" and (isinstance(value, bool | np.bool_) or (isinstance(value, int | np.integer)
+                                                                   and int(value) in (0, 1))):
+        return bool(value)
+    shown = repr(value.tolist() if isinstance(value, np.ndarray | np.generic) else value)
+    shown = shown if len(shown) <= 60 else shown[:57] + "..."
+    raise EpisodeFormatError(f"{path}: attribute {key!r} is {shown} ({_type_name(value)}), expected "
+                             f"{_EXPECTED[kind]}; the file was damaged or edited after it was written {_REGENERATE}")
+
+
+def _type_name(value: Any) -> str:
+    if isinstance(value, np.ndarray):
+        return f"an array of shape {value.shape}"
+    if isinstance(value, str | bytes):
+        return "text"
+    if isinstance(value, bool | np.bool_):
+        return "a boolean"
+    if isinstance(value, int | np.integer):
+        return "a whole number"
+    if isinstance(value, float | np.floating):
+        return "a real number"
+    return type(value).__name__
 
 
 def _info(f: h5py.File, path: Path) -> EpisodeInfo:
-    return EpisodeInfo(path=path, task=str(_attr(f, path, "task")), split=str(_attr(f, path, "split")),
-                       variation=int(_attr(f, path, "variation")),
-                       instruction=str(_attr(f, path, "instruction")),
-                       num_keyframes=int(_attr(f, path, "num_keyframes")),
-                       success=bool(_attr(f, path, "success")), seed=int(_attr(f, path, "seed")),
-                       cameras=_camera_signature(f, path))
+    def get(key: str, kind: str) -> Any:
+        return _typed(path, key, _attr(f, path, key), kind)
+
+    return EpisodeInfo(path=path, task=get("task", "text"), split=get("split", "text"),
+                       variation=get("variation", "integer"), instruction=get("instruction", "text"),
+                       num_keyframes=get("num_keyframes", "integer"), success=get("success", "flag"),
+                       seed=get("seed", "integer"), cameras=_camera_signature(f, path))
 
 
 def _camera_signature(f: h5py.File, path: Path) -> str:
@@ -435,11 +592,32 @@ def _read_step(f: h5py.File, path: Path, k: int, camera_names: list[str]) -> tup
     return obs, action
 
 
-def _json_attr(f: h5py.File, path: Path, key: str) -> Any:  # parsed JSON
+#: what each JSON attribute holds: a mapping or a list, and the type of its values
+_JSON_ATTRS: dict[str, tuple[type, str]] = {
+    "object_names": (dict, "a JSON object of object ids (whole numbers) to names"),
+    "target_names": (list, "a JSON list of names"), "camera_names": (list, "a JSON list of camera names"),
+    "metadata": (dict, "a JSON object"),
+}
+
+
+def _json_attr(f: h5py.File, path: Path, key: str) -> Any:  # parsed JSON, of the type _JSON_ATTRS says
+    text = _typed(path, key, _attr(f, path, key), "text")
     try:
-        return json.loads(_attr(f, path, key))
+        value = json.loads(text)
     except json.JSONDecodeError as err:
-        raise EpisodeFormatError(f"{path}: attribute {key!r} is not valid JSON ({err})") from None
+        raise EpisodeFormatError(f"{path}: attribute {key!r} is not valid JSON ({err}); the file was damaged or "
+                                 f"edited after it was written {_REGENERATE}") from None
+    kind, expected = _JSON_ATTRS.get(key, (object, "JSON"))
+    good = isinstance(value, kind)
+    if good and key == "object_names":
+        good = all(isinstance(v, str) and k.strip().lstrip("-").isdigit() for k, v in value.items())
+    elif good and kind is list:
+        good = all(isinstance(v, str) for v in value)
+    if not good:
+        shown = text if len(text) <= 60 else text[:57] + "..."
+        raise EpisodeFormatError(f"{path}: attribute {key!r} is {shown}, expected {expected}; the file was damaged "
+                                 f"or edited after it was written {_REGENERATE}")
+    return value
 
 
 def load_episode(path: str | os.PathLike[str]) -> Episode:
@@ -451,12 +629,13 @@ def load_episode(path: str | os.PathLike[str]) -> Episode:
         camera_names = _json_attr(f, path, "camera_names")
         steps = [_read_step(f, path, k, camera_names) for k in range(info.num_keyframes)]
         object_names = {int(k): v for k, v in _json_attr(f, path, "object_names").items()}
+        target_names, metadata = list(_json_attr(f, path, "target_names")), _json_attr(f, path, "metadata")
+        trajectory = _read_trajectory(f, path, camera_names)
         try:
             return Episode(task=info.task, variation=info.variation, split=info.split,
-                           instruction=info.instruction, object_names=object_names,
-                           target_names=list(_json_attr(f, path, "target_names")), steps=steps,
-                           success=info.success, seed=info.seed, metadata=_json_attr(f, path, "metadata"),
-                           trajectory=_read_trajectory(f, path, camera_names))
+                           instruction=info.instruction, object_names=object_names, target_names=target_names,
+                           steps=steps, success=info.success, seed=info.seed, metadata=metadata,
+                           trajectory=trajectory)
         except ValueError as err:
             raise EpisodeFormatError(f"{path}: invalid episode ({err})") from None
 
@@ -581,6 +760,20 @@ class EpisodeStore:
         splits = set(splits) if splits is not None else None
         return [i for i, e in enumerate(self.episodes)
                 if (tasks is None or e.task in tasks) and (splits is None or e.split in splits)]
+
+    def nothing_selected(self, tasks: Iterable[str] | None = None, splits: Iterable[str] | None = None) -> str:
+        """The message for a :meth:`select` that found nothing: what was asked for, what the store holds, the fix."""
+        asked = [f"task {', '.join(tasks)}" if tasks else "", f"split {', '.join(splits)}" if splits else ""]
+        wanted = " and ".join(a for a in asked if a)
+        if not self.episodes:
+            return (f"no episodes in {self.root} (no *{EPISODE_SUFFIX} episode files in it or its folders): give the "
+                    "folder abm data generate or abm data import wrote")
+        held: dict[str, int] = {}
+        for e in self.episodes:
+            held[f"{e.task}/{e.split}"] = held.get(f"{e.task}/{e.split}", 0) + 1
+        listing = ", ".join(f"{k} ({n})" for k, n in sorted(held.items()))
+        return (f"no episodes of {wanted or 'any task'} in {self.root}; it holds {listing}: choose among those "
+                "(--tasks / --splits), or generate the missing ones with abm data generate")
 
     def check_consistent(self, indices: Iterable[int]) -> None:
         """Raise :class:`EpisodeFormatError` if the episodes were recorded with different cameras."""

@@ -162,8 +162,8 @@ def _read_h5_names(path: Path) -> tuple[dict[int, str], list[str]] | None:
         with h5py.File(path, "r") as f:
             names = {int(k): str(v) for k, v in json.loads(f.attrs["object_names"]).items()}
             return names, [str(t) for t in json.loads(f.attrs["target_names"])]
-    except (ImportError, OSError, KeyError, ValueError):
-        return None
+    except (ImportError, OSError, KeyError, ValueError, AttributeError, TypeError):
+        return None  # the caller reads the whole episode, whose reader names the file and what is wrong
 
 
 class StepSampler(Sampler[tuple[int, int]]):

@@ -11,10 +11,16 @@ A checkpoint is a ``torch.save`` dict::
 
 Runs keep them as ``RUN/checkpoints/step_00001000.pt``. Loading uses ``torch.load(weights_only=True)``:
 tensors and plain data only, so a crafted file is refused instead of running its code.
+
+Every checkpoint is checked byte for byte before it is loaded: the files abm writes carry the sha256 of their
+bytes (:func:`abm.files.seal_torch_archive`), a file listed in a model zoo index next to it (``index.json``)
+must match the sha256 the index records, and any other zip checkpoint the CRC-32 of each of its members
+(:func:`abm.files.check_torch_archive`).
 """
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 from typing import Any
@@ -22,7 +28,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from abm.files import atomic_path, load_torch_data
+from abm.files import atomic_path, is_inside, load_torch_data, seal_torch_archive, sha256_file
 
 try:
     from numpy._core.multiarray import _reconstruct
@@ -45,10 +51,13 @@ def checkpoint_path(run_dir: str | Path, step: int) -> Path:
 
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
-    """Write atomically (temporary file + rename), so an interruption never leaves a broken checkpoint."""
+    """Write atomically (temporary file + rename), so an interruption never leaves a broken checkpoint; the file
+    records the sha256 of its bytes (:func:`abm.files.seal_torch_archive`), which every load checks."""
     path = Path(path)
-    with atomic_path(path) as tmp, tmp.open("wb") as fh:  # Python file: a full disk raises OSError
-        torch.save({"format": FORMAT, "version": VERSION, **payload}, fh)
+    with atomic_path(path) as tmp:
+        with tmp.open("wb") as fh:  # Python file: a full disk raises OSError
+            torch.save({"format": FORMAT, "version": VERSION, **payload}, fh)
+        seal_torch_archive(tmp)
     return path
 
 
@@ -81,6 +90,7 @@ def resolve_checkpoint(run_or_ckpt: str | Path) -> Path:
 def load_checkpoint(run_or_ckpt: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """Load and sanity-check a checkpoint (file or run folder)."""
     path = resolve_checkpoint(run_or_ckpt)
+    check_zoo_sha256(path)
     # weights_only: tensors and plain data only, so a crafted file cannot run code. Checkpoints
     # written before the numpy RNG state was stored as a tensor also hold numpy arrays.
     data = load_torch_data(path, "abm checkpoint", _NUMPY_ARRAY_GLOBALS, map_location)
@@ -90,6 +100,37 @@ def load_checkpoint(run_or_ckpt: str | Path, map_location: str | torch.device = 
         raise ValueError(f"{path} has checkpoint version {data['version']}; this abm reads up to {VERSION}")
     data["path"] = str(path)
     return data
+
+
+ZOO_INDEX = "index.json"
+
+
+def check_zoo_sha256(path: str | Path) -> None:
+    """Refuse a model file whose folder's zoo index (``index.json``, :mod:`abm.zoo`) lists it with another
+    sha256, so a zoo model is checked byte for byte however it is loaded (``abm eval --run models/X.pt`` too).
+    A folder without an index, or an index that does not list the file, checks nothing here."""
+    path = Path(path)
+    index = path.parent / ZOO_INDEX
+    if not index.is_file():
+        return
+    try:
+        entries = json.loads(index.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise ValueError(f"{index} (the model zoo index next to {path.name}) cannot be read ({err}); restore it "
+                         "with git checkout, or rewrite it with abm experiment run paper_tables") from None
+    for entry in entries if isinstance(entries, list) else []:
+        if not isinstance(entry, dict):
+            continue
+        file = entry.get("file", entry.get("name"))
+        if not isinstance(file, str) or not file or Path(file).is_absolute() or not is_inside(index.parent / file,
+                                                                                               index.parent):
+            continue
+        if (index.parent / file).resolve() != path.resolve():
+            continue
+        if not isinstance(entry.get("sha256"), str) or sha256_file(path) != entry["sha256"]:
+            raise ValueError(f"{path} does not match the sha256 that {index} records for it (a changed byte, a "
+                             "partial download or another file): restore it with git checkout, or re-export it")
+        return
 
 
 TRAINING_STATE_KEYS = ("optimizer", "scheduler", "rng")

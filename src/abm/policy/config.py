@@ -19,6 +19,7 @@ ignore-collision heads. ``small`` is sized from docs/notes on a 2-core CPU (~8 s
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -189,17 +190,22 @@ class PolicyConfig:
         return cls(**data)
 
 
-def check_compatible(stored: PolicyConfig, wanted: PolicyConfig) -> None:
-    """Raise ``ValueError`` naming the difference when a checkpoint's config does not match a model's."""
+def check_compatible(stored: PolicyConfig, wanted: PolicyConfig, source: str | None = None) -> None:
+    """Raise ``ValueError`` naming the checkpoint (``source``), each differing field with both values, and the
+    fix, when a checkpoint's config does not match a model's."""
+    where = f"{source}: " if source else ""
     if stored.variant != wanted.variant:
         raise ValueError(
-            f"checkpoint is of variant {stored.variant!r} but the model is {wanted.variant!r}; "
+            f"{where}checkpoint is of variant {stored.variant!r} but the model is {wanted.variant!r}; "
             f"train or load a {wanted.variant!r} checkpoint (known variants: {sorted(VARIANTS)})"
         )
     a, b = stored.to_dict(), wanted.to_dict()
-    diffs = [f"{k}: checkpoint {a[k]!r} vs model {b[k]!r}" for k in a if k != "extra" and a[k] != b[k]]
-    if diffs:
+    fields = [k for k in a if k not in ("extra", "preset") and a[k] != b.get(k)]
+    if fields:
+        diffs = "; ".join(f"{k}: checkpoint {a[k]!r}, model {b.get(k)!r}" for k in fields)
+        sets = " ".join(f"--set {k}={json.dumps(a[k], separators=(',', ':'))}" for k in fields)
         raise ValueError(
-            f"checkpoint preset {stored.preset!r} does not match the model preset {wanted.preset!r}: "
-            + "; ".join(diffs)
+            f"{where}the checkpoint was trained with other policy settings than this model in {len(fields)} "
+            f"field(s): {diffs}. Build the model with the checkpoint's values ({sets}), or train a new run into "
+            "another folder"
         )

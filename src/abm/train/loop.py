@@ -178,7 +178,7 @@ def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None, data: 
     store = EpisodeStore(data)
     indices = store.select(tasks=cfg.tasks, splits=splits)
     if not indices:
-        raise ValueError(f"no episodes in {data} for tasks {cfg.tasks} and splits {splits}")
+        raise ValueError(store.nothing_selected(cfg.tasks, splits))
     store.check_consistent(indices)
     if cfg.verify:
         bad = check_episodes([store.episodes[i].path for i in indices], cfg.data)
@@ -355,7 +355,7 @@ class Trainer:
             ifd_dim = getattr(g, "feature_dim", None) or getattr(getattr(g, "backbone", None), "embed_dim", None)
         self.policy_config = build_policy_config(cfg, encoder.dim, ifd_dim)
         if ckpt is not None:
-            check_compatible(PolicyConfig.from_dict(ckpt["policy_config"]), self.policy_config)
+            check_compatible(PolicyConfig.from_dict(ckpt["policy_config"]), self.policy_config, ckpt["path"])
         self.policy = KeyframePolicy(self.policy_config, encoder, gconfig, cfg.camera_names).to(device)
         if device.type == "cpu" and self.policy.use_cpu_bf16(cfg.bf16) and dinfo.main:
             log.info("abm train: bf16 autocast on the CPU (--bf16 %s)", cfg.bf16)

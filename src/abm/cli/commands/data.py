@@ -130,7 +130,7 @@ def _ground(args: argparse.Namespace) -> int:
         store = EpisodeStore(args.data)
         indices = store.select(tasks=args.tasks, splits=args.splits)
         if not indices:
-            raise CommandError(f"no episodes in {args.data} for tasks {args.tasks or 'any'} and splits {args.splits}")
+            raise CommandError(store.nothing_selected(args.tasks, args.splits))
         store.check_consistent(indices)
     except EpisodeFormatError as err:
         raise CommandError(str(err)) from None

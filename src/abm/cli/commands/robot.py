@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from abm.cli import CommandError
+from abm.cli.robot import parse_board_text
 from abm.files import LinkError, refuse_links
 from abm.grounding.grounders import override_spec
 from abm.policy import KeyframePolicy
@@ -19,12 +20,10 @@ from abm.robot.run import NoTargetError, RobotConfig, run_robot
 def parse_board(text: str):
     """``"5x7:0.04:0.03:DICT_4X4_50"`` -> :class:`abm.robot.calibration.BoardSpec`."""
     try:
-        squares, square, marker, dictionary = text.split(":")
-        sx, sy = (int(v) for v in squares.lower().split("x"))
-        return BoardSpec((sx, sy), float(square), float(marker), dictionary)
-    except ValueError:
-        raise ValueError(f"--board {text!r}: expected XxY:SQUARE_M:MARKER_M:DICTIONARY, e.g. "
-                         "5x7:0.04:0.03:DICT_4X4_50") from None
+        squares, square, marker, dictionary = parse_board_text(text)
+    except argparse.ArgumentTypeError as err:
+        raise ValueError(f"--board {err}") from None
+    return BoardSpec(squares, square, marker, dictionary)
 
 
 def calibrate(args: argparse.Namespace) -> int:

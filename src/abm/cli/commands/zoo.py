@@ -23,7 +23,7 @@ def list_zoo(args: argparse.Namespace) -> int:
         except ZooError as err:
             status, bad = f"FAILED: {err}", bad + 1
         print(f"{e['name']:20s} {e.get('method', '?'):18s} {str(e.get('grounder', '–')):18s} "
-              f"{str(e.get('steps', '–')):>6s} {e.get('size_bytes', 0) / 1e6:6.1f}  {status}")
+              f"{str(e.get('steps', '–')):>6s} {(e.get('size_bytes') or 0) / 1e6:6.1f}  {status}")
     if bad:
         raise ZooError(f"{bad} zoo file(s) failed verification")
     return 0
