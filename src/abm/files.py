@@ -66,7 +66,7 @@ _TORCH_HINT = re.compile(r"weights_only|safe_globals|add_safe_globals|trusted so
 
 def _refused_object(err: BaseException) -> str:
     """What torch's weights-only unpickler refused, in abm's words (never torch's advice to retry with
-    ``weights_only=False``, which would run the file's code)."""
+    weights-only loading turned off, which would run the file's code)."""
     text = str(err)
     found = re.search(r"Unsupported operand (\d+)", text)
     if found:
@@ -75,8 +75,8 @@ def _refused_object(err: BaseException) -> str:
 
 
 def _without_torch_hints(text: str) -> str:
-    """The lines of a torch error that state the problem, without its hints (retry with ``weights_only=False``,
-    allow-list a class, read the documentation)."""
+    """The lines of a torch error that state the problem, without its hints (retry with weights-only loading
+    turned off, allow-list a class, read the documentation)."""
     lines = [line.strip() for line in text.splitlines() if line.strip()]
     kept = [line for line in lines if not _TORCH_HINT.search(line)]
     return " ".join(kept)[:300]
