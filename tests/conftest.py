@@ -14,12 +14,19 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+
+# No command resolves its default grounder to the checkout's benchmark CLIP (models/benchmark-clip) in the tests:
+# the commands that name no grounder fall to the oracle, as on a machine without CLIP weights
+# (abm.grounding.default; the tests of that order set their own).
+os.environ.setdefault("ABM_BENCHMARK_CLIP", str(Path(tempfile.gettempdir()) / "abm-tests-no-benchmark-clip"))
 
 TINY_POLICY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
                "decoder_channels": 4, "lang_dim": 16}

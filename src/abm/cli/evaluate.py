@@ -32,7 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
     p.add_argument("--gifs", type=count, default=0, help="save front-camera GIFs of this many episodes per task")
     p.add_argument("--out", type=Path, default=None,
-                   help="with one --split: the folder of its outcomes and tables (default: FIRST_RUN/eval_SPLIT); "
+                   help="with one --split: the folder of its outcomes and tables (default: FIRST_RUN/eval_SPLIT "
+                   "for a training run folder, else runs/eval/NAME/eval_SPLIT: never models/ or the package); "
                    "with several: the parent of one eval_SPLIT folder per split and of the combined table "
-                   "eval_summary.md/.json (default: the first run's folder)")
+                   "eval_summary.md/.json (default: the first run's folder, or runs/eval/NAME)")
     p.set_defaults(func="abm.cli.commands.evaluate:run")

@@ -36,9 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the synthetic scene (without --episode)")
     p.add_argument("--instruction", help="instruction, in plain words ('grab the yellow one'; default: the "
                    "episode's, or one naming a scene object)")
-    p.add_argument("--grounder", choices=("oracle", "clip"), default="oracle", help="grounder (default oracle)")
+    p.add_argument("--grounder", choices=("oracle", "clip"), default=None,
+                   help="grounder (default: --clip-model if given, else the pretrained CLIP if cached, else the "
+                   "committed benchmark CLIP (models/benchmark-clip), else the oracle with a warning)")
     p.add_argument("--clip-model", default=None,
-                   help=clip_model_help("of --grounder clip (needs them locally unless --allow-download)"))
+                   help=clip_model_help("of the CLIP grounder (needs them locally unless --allow-download)",
+                                        default="the pretrained CLIP if cached, else the benchmark CLIP"))
     p.add_argument("--allow-download", action="store_true", help="let transformers download CLIP weights")
     p.add_argument("--normalization", choices=("raw", "minmax", "softmax"), default=None,
                    help="heatmap normalisation (default softmax)")

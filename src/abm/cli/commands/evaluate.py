@@ -3,12 +3,23 @@
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 from pathlib import Path
 
+import abm
 from abm.cli import CommandError
 from abm.configuration import config_from_args
 from abm.data.episode_store import EpisodeStore
-from abm.evaluation.results import EpisodeOutcome, OutcomeLog, combined_table, markdown_table, write_json
+from abm.evaluation.policies import checkpoint_clips
+from abm.evaluation.results import (
+    EpisodeOutcome,
+    OutcomeLog,
+    combined_table,
+    eval_seed,
+    markdown_table,
+    write_json,
+)
 from abm.evaluation.runner import (
     EvalJob,
     EvalSettings,
@@ -18,6 +29,7 @@ from abm.evaluation.runner import (
     same_file_runs,
 )
 from abm.files import FolderLock
+from abm.grounding.default import default_grounder
 from abm.policy.checkpoint import load_checkpoint
 from abm.ray_pool import RayBackendError
 from abm.sim.splits import load_splits
@@ -54,9 +66,6 @@ def trained_tasks(runs: list[Path]) -> list[str] | None:
 def plan_tasks(args: argparse.Namespace) -> dict[str, list[str]]:
     """Split -> tasks to evaluate on it: ``--tasks`` on every split, else the runs' trained tasks on the splits
     that define objects for them (see :func:`trained_tasks`)."""
-    import logging
-
-
     splits = list(dict.fromkeys(args.split))
     if args.tasks:
         unknown = [t for t in args.tasks if t not in TASKS]
@@ -80,9 +89,6 @@ def plan_tasks(args: argparse.Namespace) -> dict[str, list[str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import logging
-
-
     for r in args.run:
         if not r.exists():
             raise CommandError(f"run {r} does not exist (give a training run folder or a checkpoint file)")
@@ -91,9 +97,12 @@ def run(args: argparse.Namespace) -> int:
     args.run = [Path(r) for r in same_file_runs(args.run)]  # a file named twice is one run (one table row)
     plan = plan_tasks(args)
     _check_setup(args, plan)
-    base = args.run[0] if args.run[0].is_dir() else args.run[0].parent
+    _eval_grounder(args)
+    base = default_eval_base(args.run[0])
     single = len(plan) == 1 and len(set(args.split)) == 1
     parent = args.out or base
+    if args.out is None:
+        logging.getLogger("abm").info("abm eval: no --out: results under %s", parent)
     outs = {split: (args.out or base / f"eval_{split}") if single else parent / f"eval_{split}" for split in plan}
     for out in [*outs.values(), parent]:
         if out.exists() and not out.is_dir():
@@ -107,11 +116,16 @@ def run(args: argparse.Namespace) -> int:
         check_same_evaluation(OutcomeLog(outs[split] / "outcomes.jsonl").read(),
                               [EvalJob("", "", t, split, 0, 0, 0, settings=settings.signature()) for t in tasks],
                               outs[split], record=False)
+    protocol = eval_protocol(args, plan, settings)
+    logging.getLogger("abm").info("abm eval: protocol: %d episodes x %d repeats per task and split, scene seeds %s "
+                                  "(the same for every method and task), settings %s", args.episodes, args.repeats,
+                                  protocol["seeds_text"], protocol["settings"])
     rates = []
     outcomes: list[EpisodeOutcome] = []
     for split, tasks in plan.items():
         try:
             with FolderLock(outs[split], "abm eval"):  # one writer per results folder
+                (outs[split] / "protocol.json").write_text(json.dumps(protocol, indent=1) + "\n")
                 found = evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers,
                                  settings, gifs=args.gifs, backend=args.backend, ray_address=args.ray_address,
                                  collect=outcomes)
@@ -136,6 +150,61 @@ def run(args: argparse.Namespace) -> int:
     if crashes:  # a crash is not a measurement: the tables are written, but the command fails
         raise CommandError(f"{crashes}; outcomes: {', '.join(str(o / 'outcomes.jsonl') for o in outs.values())}")
     return 0
+
+
+def default_eval_base(run: Path) -> Path:
+    """Where ``abm eval`` writes without ``--out``: a training run folder's own (``RUN/eval_SPLIT``), else
+    ``runs/eval/NAME`` (NAME: the checkpoint's stem or the folder's name) — never the model zoo (a folder holding
+    ``index.json``, or inside one) nor the installed package."""
+    folder = run if run.is_dir() else None
+    if folder is not None and (folder / "config.json").is_file() and not _protected(folder):
+        return folder
+    return Path("runs") / "eval" / (run.stem if run.is_file() else run.resolve().name)
+
+
+def _protected(folder: Path) -> bool:
+    where = folder.resolve()
+    package = Path(abm.__file__).resolve().parent
+    return where.is_relative_to(package) or any((p / "index.json").is_file() for p in (where, *where.parents))
+
+
+def eval_seeds(episodes: int, repeats: int) -> list[list[int]]:
+    """The scene seeds of the protocol, one list per repeat (:func:`abm.evaluation.results.eval_seed`)."""
+    return [[eval_seed(r, e) for e in range(episodes)] for r in range(repeats)]
+
+
+def eval_protocol(args: argparse.Namespace, plan: dict[str, list[str]], settings: EvalSettings) -> dict:
+    """What an evaluation measured, written as ``protocol.json`` beside its outcomes: runs, tasks per split,
+    episodes, repeats, the scene seeds and the settings, and the command that reproduces it."""
+    seeds = eval_seeds(args.episodes, args.repeats)
+    runs = " ".join(f"--run {r}" for r in args.run)
+    command = (f"abm eval {runs} --split {' '.join(plan)} --episodes {args.episodes} --repeats {args.repeats}"
+               + (f" --tasks {' '.join(args.tasks)}" if args.tasks else "")
+               + (f" --grounder {args.grounder}" if getattr(args, "grounder", None) else "")
+               + (f" --clip-model {args.clip_model}" if getattr(args, "clip_model", None) else "")
+               + (f" --max-steps {args.max_steps}" if getattr(args, "max_steps", None) is not None else ""))
+    ranges = [f"{row[0]}-{row[-1]}" for row in seeds]
+    return {"runs": [str(r) for r in args.run], "tasks": plan, "episodes": args.episodes, "repeats": args.repeats,
+            "seeds": seeds, "seeds_text": ", ".join(ranges), "settings": settings.signature(), "command": command}
+
+
+def _eval_grounder(args: argparse.Namespace) -> None:
+    """Say which grounder the rollouts use; ``--grounder clip|tracking`` without ``--clip-model`` on a checkpoint
+    that names no CLIP takes one in the order every command uses (:func:`abm.grounding.default.default_grounder`)."""
+    log = logging.getLogger("abm")
+    kind = getattr(args, "grounder", None)
+    if kind is None:
+        log.info("abm eval: grounder: each checkpoint's own (the one it was trained with; --grounder overrides)")
+        return
+    if kind in ("clip", "tracking") and not args.clip_model and any(not checkpoint_clips(r) for r in args.run):
+        try:
+            choice = default_grounder(None, str(args.device), clip_only=True)
+        except ValueError as err:
+            raise CommandError(str(err)) from None
+        args.clip_model = choice.model
+        log.info("%s", choice.startup_line("eval"))
+        return
+    log.info("abm eval: grounder: %s%s (--grounder)", kind, f" {args.clip_model}" if args.clip_model else "")
 
 
 def _check_setup(args: argparse.Namespace, plan: dict[str, list[str]]) -> None:

@@ -28,6 +28,7 @@ from abm.data.episode_store import load_episode
 from abm.files import write_text_atomic
 from abm.geometry import Workspace, fuse_cameras
 from abm.grounding.decision import decide_target
+from abm.grounding.default import default_grounder
 from abm.grounding.grounders import make_grounder
 from abm.grounding.instruction import InstructionError, decompose_instruction
 from abm.grounding.mask_field import mask_views
@@ -113,6 +114,16 @@ def run(args: argparse.Namespace) -> int:
     workspace = Workspace()
     cloud = fuse_cameras(obs, workspace)
 
+    if args.grounder != "oracle":  # no --grounder, or clip without --clip-model: the order every command uses
+        try:
+            choice = default_grounder(args.clip_model, str(args.device), download=args.allow_download,
+                                      clip_only=args.grounder == "clip")
+        except ValueError as err:
+            raise CommandError(str(err)) from None
+        args.grounder, args.clip_model = choice.kind, choice.model
+        print(choice.startup_line("ground"))
+    else:
+        print("abm ground: grounder: oracle (--grounder oracle: simulator segmentation, ground-truth masks)")
     options: dict[str, Any] = {}
     if args.grounder == "clip":
         options = dict(device=args.device, allow_download=args.allow_download, cache=args.cache)

@@ -5,14 +5,13 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 from abm.cli.quickstart import SPEC, QuickstartConfig, recipe
 from abm.cli.train import POLICY_DEST
-from abm.configuration import CPU_CLIP_MODEL, GPU_CLIP_MODEL, config_from_args, overrides_from_args
+from abm.configuration import config_from_args, overrides_from_args
 from abm.data.episode_store import EpisodeStore
 from abm.evaluation.html_report import write_html_report
 from abm.evaluation.plots import success_chart
@@ -21,71 +20,30 @@ from abm.evaluation.results import EpisodeOutcome, OutcomeLog, aggregate, combin
 from abm.evaluation.runner import crash_summary, write_tables
 from abm.experiments.spec import EvalSplit, ExperimentSpec, Resources, RunSpec, load_spec
 from abm.experiments.stages import Engine
-from abm.grounding.clip import ClipWeightsNotFoundError, load_clip
+from abm.grounding.default import (  # noqa: F401  (benchmark_clip_dir: also quickstart's name for it)
+    BENCHMARK_CLIP_ENV,
+    benchmark_clip_dir,
+    default_grounder,
+    hub_reachable,
+)
 from abm.policy import KeyframePolicy
 from abm.policy.config import PolicyConfig
 
-BENCHMARK_CLIP_ENV = "ABM_BENCHMARK_CLIP"
-DEFAULT_BENCHMARK_CLIP = "~/.cache/abm/benchmark-clip"
-
-
-ZOO_BENCHMARK_CLIP = Path("models/benchmark-clip")  # committed with the model zoo (abm zoo list)
-
-
-def benchmark_clip_dir() -> Path:
-    """Where the quickstart looks for the benchmark CLIP (``abm clip train --out DIR``): ``$ABM_BENCHMARK_CLIP``,
-    else the model zoo's copy in a repository checkout (``models/benchmark-clip``, relative to the working
-    folder), else ``~/.cache/abm/benchmark-clip``."""
-    if os.environ.get(BENCHMARK_CLIP_ENV):
-        return Path(os.environ[BENCHMARK_CLIP_ENV]).expanduser()
-    if (ZOO_BENCHMARK_CLIP / "config.json").is_file():
-        return ZOO_BENCHMARK_CLIP
-    return Path(DEFAULT_BENCHMARK_CLIP).expanduser()
-
-
-def hub_reachable(host: str = "huggingface.co", timeout_s: float = 3.0) -> bool:
-    """Whether the model hub answers a TCP connection within ``timeout_s`` (so a download is worth trying)."""
-    import socket
-
-    try:
-        with socket.create_connection((host, 443), timeout=timeout_s):
-            return True
-    except OSError:
-        return False
-
 
 def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict, str]:
-    """The best grounder this machine has: ``(kind, options, description for the report)``.
-
-    In order: ``--clip-model`` if given (an error if it does not load); the pretrained CLIP (from the local
-    Hugging Face cache, or fetched from the hub when it answers within 3 s, unless ``--offline``); the
-    benchmark CLIP trained on ABM-Bench renders (:func:`benchmark_clip_dir`); else the oracle grounder,
+    """The best grounder this machine has: ``(kind, options, description for the report)``, in the order every
+    command uses (:func:`abm.grounding.default.default_grounder`): ``--clip-model`` if given (an error if it does
+    not load); the pretrained CLIP (from the local Hugging Face cache, or fetched from the hub when it answers
+    within 3 s, unless ``--offline``); the benchmark CLIP (:func:`benchmark_clip_dir`); else the oracle grounder,
     with a loud warning.
     """
     online = not cfg.offline and hub_reachable()
-    tried = []
-    pretrained = GPU_CLIP_MODEL if cfg.device.startswith("cuda") else CPU_CLIP_MODEL
-    bench = benchmark_clip_dir()
-    candidates = [(cfg.clip_model, f"CLIP {cfg.clip_model}")] if cfg.clip_model else [
-        (pretrained, f"pretrained CLIP {pretrained}"),
-        (str(bench), f"benchmark CLIP trained on ABM-Bench renders ({bench}; abm clip train)"),
-    ]
-    for model, description in candidates:
-        try:
-            load_clip(model, device="cpu", allow_download=online and model == pretrained)
-        except (ClipWeightsNotFoundError, OSError) as err:
-            if cfg.clip_model:  # asked for by name: say so rather than silently run another grounder
-                raise ValueError(f"--clip-model {cfg.clip_model}: {str(err).splitlines()[0]}") from err
-            tried.append(f"{model}: {str(err).splitlines()[0]}")
-            continue
-        print(f"grounder: {description}")
-        return "clip", {"model": model}, description
-    print("WARNING: no CLIP weights found (" + "; ".join(tried) + ")\n"
-          "WARNING: using the ORACLE grounder (simulator segmentation) instead of CLIP; the masks are "
-          "ground truth, so the table measures the policy, not CLIP grounding. Provide weights with "
-          f"--clip-model DIR, or train the benchmark CLIP once: abm clip train --out {bench} "
-          "(see docs/grounding.md).", file=sys.stderr)
-    return "oracle", {}, "oracle (simulator segmentation; no CLIP weights found)"
+    try:
+        choice = default_grounder(cfg.clip_model, cfg.device, download=online)
+    except ValueError as err:
+        raise ValueError(str(err)) from None
+    print(choice.startup_line("quickstart"))
+    return choice.kind, choice.options, choice.description
 
 
 def quickstart_spec(cfg: QuickstartConfig, grounder: str) -> ExperimentSpec:

@@ -12,6 +12,8 @@ Several processes / GPUs / nodes (DistributedDataParallel; gloo on CPU, nccl on 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 import os
 from pathlib import Path
 
@@ -25,6 +27,7 @@ from abm.configuration import (
 from abm.data.episode_store import held_out_overlap
 from abm.evaluation.report import plot_training_curves
 from abm.files import FolderLock
+from abm.grounding.default import default_grounder
 from abm.policy.checkpoint import check_export_target, export_checkpoint, resolve_checkpoint
 from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
@@ -33,8 +36,6 @@ from abm.train.synthetic import synthetic_episodes
 
 
 def run_export(args: argparse.Namespace) -> int:
-    import logging
-
     import torch
 
 
@@ -46,6 +47,32 @@ def run_export(args: argparse.Namespace) -> int:
     logging.getLogger("abm").info("exported %s (%.1f MiB) -> %s (%.1f MiB)", src, src.stat().st_size / 2**20,
                                   out, out.stat().st_size / 2**20)
     return 0
+
+
+def train_grounder(args: argparse.Namespace) -> tuple[str, str | None]:
+    """``(grounder, clip model)`` of a training whose command line names no ``--grounder``: a resumed run's own,
+    the oracle for ``--synthetic`` episodes, else :func:`abm.grounding.default.default_grounder` (the order every
+    command uses, so ``abm train --config quickstart`` trains with the grounder the quickstart uses). The choice
+    is printed before any work."""
+    main = int(os.environ.get("RANK", "0")) == 0
+    saved = Path(args.out) / "config.json" if args.out else None
+    if args.resume and saved is not None and saved.is_file():
+        train = json.loads(saved.read_text()).get("train", {})
+        grounder, model = train.get("grounder", "oracle"), (train.get("grounder_options") or {}).get("model")
+        if main:
+            print(f"abm train: grounder: {grounder}{f' {model}' if model else ''} (the resumed run's own)")
+        return grounder, args.clip_model or model
+    if args.data is None:
+        if main:
+            print("abm train: grounder: oracle (--synthetic episodes; give --grounder clip for CLIP masks)")
+        return "oracle", args.clip_model
+    try:
+        choice = default_grounder(args.clip_model, str(args.device))
+    except ValueError as err:
+        raise CommandError(str(err)) from None
+    if main:
+        print(choice.startup_line("train"))
+    return choice.kind, choice.model or args.clip_model
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,6 +92,11 @@ def run(args: argparse.Namespace) -> int:
         overrides = check_overrides(PolicyConfig, dict(args.overrides))
     except ValueError as err:
         raise CommandError(str(err)) from None
+    if args.warmup is not None and args.warmup >= args.steps:
+        logging.getLogger("abm").warning("abm train: --warmup %d is not shorter than --steps %d: the learning rate "
+                                         "never reaches its peak", args.warmup, args.steps)
+    if args.grounder is None:
+        args.grounder, args.clip_model = train_grounder(args)
     cfg = config_from_args(
         TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
         grounder_options={k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v})
