@@ -52,7 +52,8 @@ def test_the_committed_paper_tables_report_regenerates_from_the_committed_outcom
         assert (root / name).read_bytes() == (REPO / name).read_bytes(), f"{name} differs from its regeneration"
     block = rep.block_of((REPO / "README.md").read_text(), "paper-tables")
     assert "| **average** | **21.2** | **9.5** |" in block and "| stack | 27.2 | 14.8 | 0.54 | 72.8 | 54.9 |" in block
-    assert block.startswith("Written by `abm experiment run paper_tables` ([configs/experiments/paper_tables.yaml]")
+    assert block.startswith(
+        "Written by `abm experiment run paper_tables` ([src/abm/configs/experiments/paper_tables.yaml]")
     # the report stage adds no machine: only stages that ran work record one
     assert (root / SPEC.kept / "machines.txt").read_bytes() == (REPO / SPEC.kept / "machines.txt").read_bytes()
 
@@ -150,7 +151,8 @@ def test_zoo_index_describes_exported_models(tmp_path: Path) -> None:
     assert again[0]["train_minutes"] == 120.0 and again[0]["sha256"] == hashlib.sha256(b"other").hexdigest()
     row = "| abm_oracle | ABM, oracle mask (upper bound) | abm | oracle | 5000 | 120.0 |"
     text = rep.zoo_readme(SPEC, layout, again)
-    assert row in text and "([configs/experiments/paper_tables.yaml](../configs/experiments/paper_tables.yaml))" in text
+    assert row in text and ("([src/abm/configs/experiments/paper_tables.yaml]"
+                            "(../src/abm/configs/experiments/paper_tables.yaml))") in text
 
 
 def _kf_row(task: str, kind: str, split: str, cm: float, deg: float) -> dict:

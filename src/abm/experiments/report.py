@@ -735,14 +735,29 @@ WRITERS: dict[str, Callable[[Context, Section], list[str]]] = {
 }
 
 
+#: the sections that write a table of outcomes: each is followed by the command that reproduces it
+TABLE_KINDS = ("per_task", "per_run", "averages", "success_rows", "outcome_tables", "keyframe_rows")
+
+
+def reproduce(ctx: Context) -> str:
+    """The line under every generated table: the command that reproduces it."""
+    name = ctx.spec.name if ctx.spec.path.resolve().parent == SPECS else spec_name(ctx.spec, ctx.layout)
+    return (f"Reproduce: `abm experiment run {name}` (every stage, resuming from the kept outcomes; "
+            f"`abm experiment run {name} --stages report` rewrites this table from them alone).")
+
+
 def blocks(ctx: Context, sections: Sequence[Section]) -> list[str]:
-    """The paragraphs of ``sections``, in order (empty ones left out)."""
+    """The paragraphs of ``sections``, in order (empty ones left out); a table is followed by
+    :func:`reproduce`'s line."""
     out = []
     for section in sections:
         writer = WRITERS.get(section.kind)
         if writer is None:
             raise ValueError(f"{ctx.spec.path}: the report cannot write {section.kind!r} sections yet")
-        out += [b for b in writer(ctx, section) if b]
+        written = [b for b in writer(ctx, section) if b]
+        out += written
+        if written and section.kind in TABLE_KINDS:
+            out.append(reproduce(ctx))
     return out
 
 
@@ -797,9 +812,10 @@ def records(spec: ExperimentSpec, cells: Cells) -> list[dict[str, Any]]:
 
 
 def spec_name(spec: ExperimentSpec, layout: Layout) -> str:
-    """The spec's file as a reader finds it: ``configs/experiments/NAME.yaml`` for a built-in one."""
+    """The spec's file as a reader finds it: ``src/abm/configs/experiments/NAME.yaml`` for a built-in one (the
+    checkout's ``configs/`` is a symlink to ``src/abm/configs``, which GitHub does not follow in links)."""
     if spec.path.resolve().parent == SPECS:
-        return f"configs/experiments/{spec.path.name}"
+        return f"src/abm/configs/experiments/{spec.path.name}"
     return layout.show(spec.path.resolve())
 
 
