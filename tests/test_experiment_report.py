@@ -195,7 +195,9 @@ def test_the_timed_zoo_eval_enters_the_report_once_it_ran(tmp_path: Path) -> Non
     (layout.zoo_eval / "seconds").write_text("545\n")
     ctx = rep.Context(SPEC, rep.collect(SPEC, layout), layout)
     (text,) = rep._zoo_eval(ctx, _kind("zoo_eval"))
-    assert "took 9 min" in text and "| abm_clip | 60.0 (3/5) |" in text and "5 episodes each" in text
+    assert "took 9 min" in text and "| abm_clip | 60.0 (3/5) |" in text
+    assert "(pick_block; 5 episodes per task and split)" in text
+    assert "`abm zoo eval --tasks pick_block --episodes 5` reproduces it" in text
 
 
 def test_weakest_keyframes_ranks_kinds_by_their_median_error_over_tasks() -> None:
