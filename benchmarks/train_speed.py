@@ -63,6 +63,8 @@ def main() -> None:
     p.add_argument("--compile", action="store_true", help="run the network through torch.compile (compile time "
                    "falls in the untimed warm-up steps and is reported as compile_s)")
     p.add_argument("--bf16", default="off", choices=["auto", "on", "off"], help="bf16 autocast on CPU (default off)")
+    p.add_argument("--profile", type=int, default=0, metavar="ROWS", help="after the timed steps, profile 3 more "
+                   "steps with torch.profiler and print the ROWS operators with the most self CPU time")
     p.add_argument("--against", default=None, metavar="REF", help="also run the benchmark from a git worktree of REF, "
                    "at the same time, and compare")
     p.add_argument("--record", type=Path, default=None, metavar="FILE", help="with --against: append both rows to "
@@ -135,6 +137,18 @@ def main() -> None:
         "machine": describe_machine(),
         "gpu": torch.cuda.get_device_name() if device.type == "cuda" else None,
     }
+    if args.profile:
+        from torch.profiler import ProfilerActivity, profile
+
+        batch = next(iter(torch.utils.data.DataLoader(ds, batch_size=args.batch, collate_fn=collate)))
+        with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as prof:
+            for _ in range(3):
+                loss, _ = policy.compute_loss(batch)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+        print(prof.key_averages(group_by_input_shape=True).table(sort_by="self_cpu_time_total",
+                                                                 row_limit=args.profile, max_name_column_width=40))
     print(json.dumps(result))
 
 

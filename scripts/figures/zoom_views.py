@@ -45,10 +45,11 @@ def main() -> None:
     cfg = policy.config
     rows = [
         label(hstack([label(upscale(v, 2), n) for v, n in zip(coarse, seen.view_names, strict=True)]),
-              f"coarse stage: {cfg.resolution}² views of the {cfg.workspace_size:g} m workspace, coarse heatmap"),
+              f"coarse stage: {cfg.resolution}x{cfg.resolution} views of the {cfg.workspace_size:g} m workspace, "
+              "coarse heatmap"),
         label(hstack([label(upscale(v, 2 * factor), n) for v, n in zip(zoomed, seen.view_names, strict=True)]),
-              f"zoomed stage: {cfg.zoom_resolution}² views of a {cfg.zoom_size:g} m cube around the coarse point, "
-              "fine heatmap"),
+              f"zoomed stage: {cfg.zoom_resolution}x{cfg.zoom_resolution} views of a {cfg.zoom_size:g} m cube around "
+              "the coarse point, fine heatmap"),
     ]
     err = np.linalg.norm(seen.action.position - label_action.position) * 100
     title = (f'{args.task}, "{episode.instruction}", {args.keyframe} keyframe: predicted point '
