@@ -214,7 +214,7 @@ def test_failure_reasons_and_the_html_report(tmp_path) -> None:
     (gifs / views_name(outcomes[1])).write_bytes(b"PNG")
     page = write_html_report(outcomes, tmp_path / "report.html", gifs).read_text()
     assert page.count("_views.png") == 2 and "gifs/abm_pick_block_seen_001_views.png" in page  # link + image
-    assert "<td>abm</td><td>pick_block</td><td>seen</td><td>50.0 ± 0.0</td>" in page
+    assert "<td>abm</td><td>pick_block</td><td>seen</td><td>50.0</td>" in page
     assert "<th>grasp missed</th>" in page and "<th>timeout</th>" in page
     assert page.count("<img ") == 3 and "src='gifs/abm_pick_block_seen_001.gif'" in page
     assert "http" not in page  # nothing fetched from the network
@@ -301,3 +301,17 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
     assert cli_main(["eval", "--run", str(run), "--split", "seen", "--episodes", "1", "--repeats", "1",
                      "--workers", "1", "--out", str(tmp_path / "ev")]) == 0
     assert json.loads((tmp_path / "ev" / "results.json").read_text())[0]["successes"] == 1
+
+
+def test_rollouts_log_the_target_decision_of_every_step(shared_tiny_run):
+    """A mask policy's outcome holds, per step, the decision ``abm run`` takes on the grounder's answer (the
+    oracle finds the scene's target with confidence 1); evaluation acts either way."""
+    from abm.evaluation import runner
+
+    job = runner.EvalJob(str(shared_tiny_run), "abm", "pick_block", "seen", 0, 0, eval_seed(0, 0))
+    outcome = runner.run_job(job, runner.EvalSettings(max_steps=2, resolution=32))
+    assert outcome.error == "" and outcome.steps >= 1
+    assert len(outcome.grounding) == outcome.steps
+    first = outcome.grounding[0]
+    assert set(first) == {"found", "confidence", "target", "reason"}
+    assert first["found"] is True and first["confidence"] == 1.0 and first["target"] == outcome.target

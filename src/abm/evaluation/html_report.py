@@ -66,7 +66,8 @@ def write_html_report(outcomes: Sequence[EpisodeOutcome], path: str | Path, gif_
              f"<style>{_STYLE}</style></head><body><h1>{html.escape(title)}</h1>"]
 
     parts.append("<h2>Success rate (%)</h2>")
-    rows = [[html.escape(r.method), html.escape(r.task), html.escape(r.split), f"{r.mean:.1f} ± {r.std:.1f}",
+    rows = [[html.escape(r.method), html.escape(r.task), html.escape(r.split),
+             f"{r.mean:.1f}" + (f" ± {r.std:.1f}" if len(r.per_repeat) > 1 else ""),  # no "± 0.0" for one repeat
              str(r.episodes), str(r.errors)] for r in aggregate(outcomes)]
     parts.append(_table(["method", "task", "split", "success", "episodes", "crashed"], rows))
     for name, alt in (("success.png", "success rate per task, split and method; error bars: std over repeats"),

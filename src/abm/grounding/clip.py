@@ -20,11 +20,12 @@ speed measurements (same cost as the real ones).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Union
@@ -473,6 +474,20 @@ def _image_stats(folder: Path) -> tuple[tuple[float, ...], tuple[float, ...]]:
     return CLIP_MEAN, CLIP_STD
 
 
+@contextlib.contextmanager
+def _quiet_transformers() -> Iterator[None]:
+    """transformers' progress bars off (its "Loading weights" bar), as they were afterwards."""
+    from transformers.utils import logging as hf_logging
+
+    was = hf_logging.is_progress_bar_enabled()
+    hf_logging.disable_progress_bar()  # type: ignore[no-untyped-call]
+    try:
+        yield
+    finally:
+        if was:
+            hf_logging.enable_progress_bar()  # type: ignore[no-untyped-call]
+
+
 def load_clip(
     name_or_path: str = DEFAULT_MODEL,
     device: str | torch.device | None = None,
@@ -516,8 +531,9 @@ def load_clip(
     else:
         source, mean_std = name_or_path, (CLIP_MEAN, CLIP_STD)
     try:
-        model = CLIPModel.from_pretrained(source, local_files_only=local_only)
-        tokenizer = CLIPTokenizer.from_pretrained(source, local_files_only=local_only)
+        with _quiet_transformers():  # no "Loading weights" progress bar in the commands' logs
+            model = CLIPModel.from_pretrained(source, local_files_only=local_only)
+            tokenizer = CLIPTokenizer.from_pretrained(source, local_files_only=local_only)
     except OSError as err:
         reason = "not in the local cache, downloads disabled" if local_only else f"download failed: {err}"
         raise ClipWeightsNotFoundError(_missing_weights_message(name_or_path, reason)) from err

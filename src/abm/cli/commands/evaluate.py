@@ -137,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         table = combined_table(rates)
         (parent / "eval_summary.md").write_text(
-            f"Success, % (mean ± std over {args.repeats} repeats; successes / episodes); {args.episodes} "
+            f"Success, % ({f'mean ± std over {args.repeats} repeats' if args.repeats > 1 else 'one repeat'}; "
+            f"successes / episodes); {args.episodes} "
             f"episodes per task, split and repeat; settings {settings.signature()}; per-split folders: "
             + ", ".join(f"[{o.name}]({o.name}/results.md)" for o in outs.values()) + "\n\n" + table + "\n")
         write_json(rates, parent / "eval_summary.json")

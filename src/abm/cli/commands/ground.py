@@ -114,7 +114,10 @@ def run(args: argparse.Namespace) -> int:
     workspace = Workspace()
     cloud = fuse_cameras(obs, workspace)
 
-    if args.grounder != "oracle":  # no --grounder, or clip without --clip-model: the order every command uses
+    if args.clip_model and args.grounder in (None, "clip"):  # named: loading it says what is wrong, if anything
+        args.grounder = "clip"
+        print(f"abm ground: grounder: CLIP {args.clip_model} (--clip-model)")
+    elif args.grounder != "oracle":  # no --grounder, or clip without --clip-model: the order every command uses
         try:
             choice = default_grounder(args.clip_model, str(args.device), download=args.allow_download,
                                       clip_only=args.grounder == "clip")
