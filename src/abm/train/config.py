@@ -15,6 +15,12 @@ if TYPE_CHECKING:
     from abm.grounding.config import GrounderConfig
 
 
+#: options that control a run, not what it trains: left out of the recipe a run writes (RUN/recipe.yaml), so a
+#: recipe reused for another run never resumes, overwrites, skips checks or shares a cache by accident
+RUN_CONTROL = ("out", "resume", "accept_changed_config", "overwrite", "progress", "verify", "cache_dir", "log_every",
+               "keep_checkpoints", "workers")
+
+
 @dataclass
 class TrainConfig:
     """Options of one training run (the ``abm train`` flags). The defaults are the measured CPU recipe
@@ -120,12 +126,13 @@ class TrainConfig:
         return json.loads(json.dumps(dataclasses.asdict(self), default=str))
 
     def to_recipe(self) -> dict[str, Any]:
-        """These options as a recipe (``abm train --config FILE``): every set option but the run folder's
-        (``out``, ``resume``, ``overwrite``, ``progress``), policy overrides under ``policy``, the CLIP options
-        as ``clip_model`` / ``clip_device``. Every run writes its own to ``RUN/recipe.yaml``."""
+        """These options as a recipe (``abm train --config FILE``): every set option but the run controls
+        (:data:`RUN_CONTROL`: the run folder, resuming, logging, checks, caches), policy overrides under
+        ``policy``, the CLIP options as ``clip_model`` / ``clip_device``. Every run writes its own to
+        ``RUN/recipe.yaml``."""
         data = self.to_dict()
         recipe = {k: v for k, v in data.items() if v is not None and k not in (
-            "out", "resume", "overwrite", "progress", "grounder_options", "policy_overrides")}
+            *RUN_CONTROL, "grounder_options", "policy_overrides")}
         recipe.update({f"clip_{k}": v for k, v in data["grounder_options"].items() if k in ("model", "device")})
         if data["policy_overrides"]:
             recipe["policy"] = data["policy_overrides"]
