@@ -159,5 +159,10 @@ def test_abm_eval_records_its_protocol():
     protocol = eval_protocol(args, {"seen": ["pick_block"]}, EvalSettings())
     assert protocol["seeds"] == [[eval_seed(r, e) for e in range(3)] for r in range(2)]
     assert protocol["seeds_text"] == f"{eval_seed(0, 0)}-{eval_seed(0, 2)}, {eval_seed(1, 0)}-{eval_seed(1, 2)}"
-    assert protocol["command"].startswith("abm eval --run models/abm_clip.pt --split seen --episodes 3 --repeats 2")
+    assert protocol["command"] == ("abm eval --run models/abm_clip.pt --split seen --episodes 3 --repeats 2 "
+                                   f"--max-steps {EvalSettings().max_steps} --resolution {EvalSettings().resolution}")
+    one = argparse.Namespace(**{**vars(args), "episodes": 1, "repeats": 1, "tasks": ["pick_block"]})
+    protocol = eval_protocol(one, {"seen": ["pick_block"]}, EvalSettings(grounder="oracle"))
+    assert protocol["seeds_text"] == str(eval_seed(0, 0))
+    assert "--tasks pick_block --grounder oracle" in protocol["command"]
     json.dumps(protocol)

@@ -179,12 +179,12 @@ def eval_protocol(args: argparse.Namespace, plan: dict[str, list[str]], settings
     episodes, repeats, the scene seeds and the settings, and the command that reproduces it."""
     seeds = eval_seeds(args.episodes, args.repeats)
     runs = " ".join(f"--run {r}" for r in args.run)
+    flags = {"grounder": settings.grounder, "clip-model": settings.clip_model, "max-steps": settings.max_steps,
+             "resolution": settings.resolution, "splits": settings.splits_path}
     command = (f"abm eval {runs} --split {' '.join(plan)} --episodes {args.episodes} --repeats {args.repeats}"
                + (f" --tasks {' '.join(args.tasks)}" if args.tasks else "")
-               + (f" --grounder {args.grounder}" if getattr(args, "grounder", None) else "")
-               + (f" --clip-model {args.clip_model}" if getattr(args, "clip_model", None) else "")
-               + (f" --max-steps {args.max_steps}" if getattr(args, "max_steps", None) is not None else ""))
-    ranges = [f"{row[0]}-{row[-1]}" for row in seeds]
+               + "".join(f" --{flag} {value}" for flag, value in flags.items() if value is not None))
+    ranges = [f"{row[0]}-{row[-1]}" if len(row) > 1 else str(row[0]) for row in seeds]
     return {"runs": [str(r) for r in args.run], "tasks": plan, "episodes": args.episodes, "repeats": args.repeats,
             "seeds": seeds, "seeds_text": ", ".join(ranges), "settings": settings.signature(), "command": command}
 
