@@ -58,6 +58,9 @@ class EpisodeOutcome:
             outcomes can be compared beyond success (``""`` in older logs and for crashed rollouts).
         code: digest of the abm source that rolled the episode out (:func:`abm.evaluation.policies.code_digest`;
             ``""`` in older logs): outcomes of two commands are only comparable when it matches.
+        grounding: per step of a mask policy, the target decision ``abm run`` would have taken on the grounder's
+            answer (:func:`abm.grounding.decision.decide_target`: ``found``, ``confidence``, ``target``,
+            ``reason``); evaluation logs it and acts anyway. Empty for variants without a mask and in older logs.
     """
 
     method: str
@@ -78,6 +81,7 @@ class EpisodeOutcome:
     target: str = ""
     trajectory: str = ""
     code: str = ""
+    grounding: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def key(self) -> tuple[str, str, str, int, int, str, str]:

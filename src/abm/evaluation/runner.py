@@ -42,6 +42,7 @@ from abm.evaluation.settings import EvalSettings
 from abm.files import write_text_atomic
 from abm.geometry import project_to_camera
 from abm.grounding.conditioning import split_roles
+from abm.grounding.decision import GroundingRecorder
 from abm.grounding.visualize import hstack, label, overlay_views, upscale, vstack
 from abm.policy.checkpoint import load_checkpoint, resolve_checkpoint
 from abm.progress import Progress
@@ -87,6 +88,7 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
     start = time.perf_counter()
     steps = 0
     instruction = target = ""
+    grounding: list[dict[str, Any]] = []
     try:
         with rollout_state(job.seed):
             policy = _load_policy(job.checkpoint or job.run, settings)
@@ -95,14 +97,22 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                 instruction, target = env.instruction, ", ".join(env.target_names)
                 policy.reset()
                 explained: list[Any] = []
+                # the decision abm run takes on each step's grounding, logged (evaluation acts anyway)
+                recorder = GroundingRecorder(policy.grounder if policy.sample_options()["mask"] else None)
 
                 def act(obs: Any) -> Any:
                     if not job.gif_path:
-                        return policy.act(obs, env.instruction, env.object_names)
-                    explained.append(policy.explain(obs, env.instruction, env.object_names))
-                    return explained[-1].action
+                        action = policy.act(obs, env.instruction, env.object_names)
+                    else:
+                        explained.append(policy.explain(obs, env.instruction, env.object_names))
+                        action = explained[-1].action
+                    decision = recorder.record()
+                    if decision is not None:
+                        grounding.append({k: decision[k] for k in ("found", "confidence", "target", "reason")})
+                    return action
 
-                episode = run_policy(env, act)
+                with recorder:
+                    episode = run_policy(env, act)
         steps = len(episode.steps)
         meta = episode.metadata
         held = bool(meta.get("held_target"))
@@ -115,7 +125,8 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                               checkpoint=job.checkpoint, settings=job.settings, failure=failure,
                               subgoals=subgoal_results(_roles(episode), held, bool(episode.success)),
                               instruction=instruction, target=target,
-                              trajectory=trajectory_digest(a for _, a in episode.steps), code=code_digest())
+                              trajectory=trajectory_digest(a for _, a in episode.steps), code=code_digest(),
+                              grounding=grounding)
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
         text = " ".join(f"{type(err).__name__}: {err}".split())
         tb = traceback.format_exc(limit=3).strip().splitlines()
