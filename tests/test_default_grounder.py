@@ -166,3 +166,25 @@ def test_abm_eval_records_its_protocol():
     assert protocol["seeds_text"] == str(eval_seed(0, 0))
     assert "--tasks pick_block --grounder oracle" in protocol["command"]
     json.dumps(protocol)
+
+
+def _outcome(method: str, episode: int, success: bool, repeat: int = 0, error: str = ""):
+    from abm.evaluation.results import EpisodeOutcome
+
+    return EpisodeOutcome(method, "pick_block", "seen", repeat, episode, 1000 + episode, success, 1, 0.0,
+                          error=error)
+
+
+def test_gifs_show_a_fixed_mix_of_successes_and_failures():
+    from abm.cli.commands.evaluate import gif_choice
+
+    wins = [1, 3, 4, 6]
+    outcomes = [_outcome("abm", e, e in wins) for e in range(8)] + [_outcome("abm", 0, True, repeat=1)]
+    shown = lambda n: [(o.episode, o.success) for o in gif_choice(outcomes, n)]  # noqa: E731
+    assert shown(1) == [(1, True)]
+    assert shown(2) == [(0, False), (1, True)]
+    assert shown(3) == [(0, False), (1, True), (3, True)]
+    assert shown(4) == [(0, False), (1, True), (2, False), (3, True)]
+    only_losses = [_outcome("rvt", e, False) for e in range(3)] + [_outcome("rvt", 3, False, error="crash")]
+    assert [o.episode for o in gif_choice(only_losses, 2)] == [0, 1]  # topped up; a crash is never shown
+    assert len(gif_choice(outcomes + only_losses, 1)) == 2  # per method

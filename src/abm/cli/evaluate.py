@@ -30,7 +30,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int_range(1, 256), default=WORKERS, help="parallel rollout processes")
     add_backend_arguments(p)  # --backend local|ray, --ray-address
     add_config_arguments(p, EvalSettings)  # --device, --grounder, --resolution, --max-steps, --splits
-    p.add_argument("--gifs", type=count, default=0, help="save front-camera GIFs of this many episodes per task")
+    p.add_argument("--gifs", type=count, default=0,
+                   help="save front-camera GIFs of this many episodes per method and task: of repeat 0 in episode "
+                   "order, the first ceil(N/2) successes and floor(N/2) failures (topped up from the other kind), "
+                   "rolled out again after the evaluation")
     p.add_argument("--out", type=Path, default=None,
                    help="with one --split: the folder of its outcomes and tables (default: FIRST_RUN/eval_SPLIT "
                    "for a training run folder, else runs/eval/NAME/eval_SPLIT: never models/ or the package); "

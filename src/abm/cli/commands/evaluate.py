@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import abm
 from abm.cli import CommandError
 from abm.configuration import config_from_args
 from abm.data.episode_store import EpisodeStore
+from abm.evaluation.html_report import write_html_report
 from abm.evaluation.policies import checkpoint_clips
 from abm.evaluation.results import (
     EpisodeOutcome,
@@ -24,8 +26,12 @@ from abm.evaluation.runner import (
     EvalJob,
     EvalSettings,
     check_same_evaluation,
+    checkpoint_of,
     crash_summary,
     evaluate,
+    method_labels,
+    plan_jobs,
+    run_job,
     same_file_runs,
 )
 from abm.files import FolderLock
@@ -126,9 +132,12 @@ def run(args: argparse.Namespace) -> int:
         try:
             with FolderLock(outs[split], "abm eval"):  # one writer per results folder
                 (outs[split] / "protocol.json").write_text(json.dumps(protocol, indent=1) + "\n")
+                found_now: list[EpisodeOutcome] = []
                 found = evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers,
-                                 settings, gifs=args.gifs, backend=args.backend, ray_address=args.ray_address,
-                                 collect=outcomes)
+                                 settings, backend=args.backend, ray_address=args.ray_address, collect=found_now)
+                outcomes += found_now
+                if args.gifs:
+                    record_gifs(args.run, tasks, split, outs[split], args.episodes, args.gifs, settings, found_now)
         except RayBackendError as err:
             raise CommandError(str(err)) from None
         rates += [r for r in found if r.split == split and r.task in tasks]
@@ -206,6 +215,48 @@ def _eval_grounder(args: argparse.Namespace) -> None:
         log.info("%s", choice.startup_line("eval"))
         return
     log.info("abm eval: grounder: %s%s (--grounder)", kind, f" {args.clip_model}" if args.clip_model else "")
+
+
+def gif_choice(outcomes: list[EpisodeOutcome], n: int) -> list[EpisodeOutcome]:
+    """The episodes ``--gifs N`` shows, per method, task and split: a fixed mix chosen by rule, not by looking —
+    of repeat 0's episodes in episode order, the first ceil(N/2) successes and the first floor(N/2) failures,
+    topped up from the other kind when one has too few (crashed episodes are never shown)."""
+    groups: dict[tuple[str, str, str], list[EpisodeOutcome]] = {}
+    for o in sorted(outcomes, key=lambda o: (o.method, o.task, o.split, o.episode)):
+        if o.repeat == 0 and not o.error:
+            groups.setdefault((o.method, o.task, o.split), []).append(o)
+    chosen = []
+    for group in groups.values():
+        wins = [o for o in group if o.success]
+        losses = [o for o in group if not o.success]
+        want_wins = min(len(wins), max((n + 1) // 2, n - len(losses)))
+        picked = wins[:want_wins] + losses[:n - want_wins]
+        chosen += sorted(picked, key=lambda o: o.episode)
+    return chosen
+
+
+def record_gifs(runs: list[Path], tasks: list[str], split: str, out: Path, episodes: int, n: int,
+                settings: EvalSettings, outcomes: list[EpisodeOutcome]) -> None:
+    """Roll the episodes :func:`gif_choice` picks out again with a GIF and its heatmap overlays (``out/gifs``;
+    a rollout depends on the model, task, split, seed and settings alone, so it is the same episode); the ones
+    already there are kept."""
+    log = logging.getLogger("abm")
+    chosen = {(o.method, o.task, o.episode): o for o in gif_choice(outcomes, n)}
+    labels = method_labels(runs)
+    checkpoints = {str(r): checkpoint_of(r) for r in runs}
+    jobs = [replace(j, checkpoint=checkpoints[j.run], settings=settings.signature())
+            for j in plan_jobs(runs, tasks, split, episodes, 1, out, episodes, labels)
+            if (j.method, j.task, j.episode) in chosen and not Path(j.gif_path).is_file()]
+    if jobs:
+        log.info("abm eval: %d GIF(s) of %s, per method and task: successes and failures of repeat 0 in episode "
+                 "order (--gifs %d)", len(jobs), split, n)
+    for job in jobs:
+        again = run_job(job, settings)
+        if again.success != chosen[(job.method, job.task, job.episode)].success:
+            log.warning("abm eval: the GIF of %s %s episode %d ended otherwise than its evaluated rollout",
+                        job.method, job.task, job.episode)
+    if jobs:  # the page written with the tables, again with the GIFs
+        write_html_report(outcomes, out / "report.html", out / "gifs")
 
 
 def _check_setup(args: argparse.Namespace, plan: dict[str, list[str]]) -> None:
