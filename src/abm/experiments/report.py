@@ -740,10 +740,6 @@ WRITERS: dict[str, Callable[[Context, Section], list[str]]] = {
 }
 
 
-#: the sections that write a table of outcomes: each is followed by the command that reproduces it
-TABLE_KINDS = ("per_task", "per_run", "averages", "success_rows", "outcome_tables", "keyframe_rows")
-
-
 def reproduce(ctx: Context) -> str:
     """The line under every generated table: the command that reproduces it."""
     name = ctx.spec.name if ctx.spec.path.resolve().parent == SPECS else spec_name(ctx.spec, ctx.layout)
@@ -761,7 +757,8 @@ def blocks(ctx: Context, sections: Sequence[Section]) -> list[str]:
             raise ValueError(f"{ctx.spec.path}: the report cannot write {section.kind!r} sections yet")
         written = [b for b in writer(ctx, section) if b]
         out += written
-        if written and section.kind in TABLE_KINDS:
+        table = any("\n|---" in b or b.startswith("|---") for b in written)
+        if table and section.kind != "zoo_eval":  # a section that wrote a table (zoo_eval names its own command)
             out.append(reproduce(ctx))
     return out
 
