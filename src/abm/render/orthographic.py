@@ -169,9 +169,11 @@ class OrthographicRenderer:
         cam = torch.einsum("mk,vjk->mvj", points[bi, ni] - self.center, self.axes)  # (M, V, 3)
         uv = (cam[..., :2] / self.half + 1.0) * (res / 2.0) - 0.5
         depth = cam[..., 2] + self.half
-        pix = torch.floor(uv + 0.5).long().clamp_(0, res - 1)  # (M, V, 2)
+        # pixel indices in int32 (half the memory traffic of int64; < 2^31 for any batch that fits in memory),
+        # the z-buffer key (depth level, point index) in int64
+        pix = torch.floor(uv + 0.5).int().clamp_(0, res - 1)  # (M, V, 2)
         key = (depth.clamp(0.0, 2 * self.half) / (2 * self.half) * (_DEPTH_LEVELS - 1)).long() * n + ni.unsqueeze(1)
-        base = (bi.unsqueeze(1) * v + torch.arange(v, device=self.device)) * res  # (M, V)
+        base = (bi.int().unsqueeze(1) * v + torch.arange(v, device=self.device, dtype=torch.int32)) * res  # (M, V)
         sentinel = torch.iinfo(torch.int64).max
         if self.splat_radius:
             r = self.splat_radius
@@ -180,11 +182,11 @@ class OrthographicRenderer:
             cols = pix[..., 0:1] + du.reshape(-1)  # (M, V, K)
             rows = pix[..., 1:2] + dv.reshape(-1)
             keep = (cols >= 0) & (cols < res) & (rows >= 0) & (rows < res)
-            lin = (base.unsqueeze(-1) + rows.clamp(0, res - 1)) * res + cols.clamp(0, res - 1)
+            lin = ((base.unsqueeze(-1) + rows.clamp(0, res - 1)) * res + cols.clamp(0, res - 1)).long()
             # Splats falling off the view get the sentinel key, which never wins the minimum.
             key = torch.where(keep, key.unsqueeze(-1), sentinel)
         else:
-            lin = (base + pix[..., 1]) * res + pix[..., 0]
+            lin = ((base + pix[..., 1]) * res + pix[..., 0]).long()
 
         zbuf = torch.full((b * v * res * res,), sentinel, dtype=torch.int64, device=self.device)
         zbuf.scatter_reduce_(0, lin.reshape(-1), key.reshape(-1), reduce="amin", include_self=True)
@@ -194,7 +196,7 @@ class OrthographicRenderer:
         source = torch.where(occupied, pixel_batch * n + zbuf % n, 0)
         channels = [rgb, points] + ([extra] if extra is not None else [])
         gathered = torch.cat([c.reshape(b * n, -1).index_select(0, source) for c in channels], dim=-1)
-        gathered = torch.where(occupied.unsqueeze(1), gathered, 0.0)  # background 0
+        gathered.masked_fill_(~occupied.unsqueeze(1), 0.0)  # background 0
         out = gathered.view(b, v, res, res, -1).permute(0, 1, 4, 2, 3)
         occupied = occupied.view(b, v, res, res)
 
