@@ -25,13 +25,3 @@ def describe_machine() -> str:
         pass
     return text
 
-
-def cpu_supports_bf16() -> bool:
-    """Whether oneDNN reports native bf16 on this CPU (AVX512-BF16 / AMX). Without it, bf16 autocast on
-    the CPU is emulated and measured 5-10x slower than float32 (docs/performance.md)."""
-    import torch  # kept out of the module top: `abm.machine` is imported by light command modules
-
-    try:
-        return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
-    except (AttributeError, RuntimeError):  # a torch build without the oneDNN query
-        return False

@@ -44,7 +44,6 @@ from abm.grounding.config import (
     grounder_config_from_dict,
     merge_grounder_configs,
 )
-from abm.machine import cpu_supports_bf16
 from abm.policy.checkpoint import load_checkpoint, save_checkpoint
 from abm.policy.config import PolicyConfig
 from abm.policy.heads import decode_output, decode_translation, policy_loss, translation_targets
@@ -354,11 +353,14 @@ class KeyframePolicy(nn.Module):
         return self
 
     def use_cpu_bf16(self, mode: str = "auto") -> bool:
-        """bf16 autocast on CPU: ``on``, ``off`` or ``auto`` (on only where oneDNN reports native bf16
-        support, e.g. AVX512-BF16 / AMX; elsewhere bf16 is 5-10x slower than float32). Returns the choice."""
+        """bf16 autocast on CPU: ``on``, ``off`` or ``auto`` (= off on the CPU). Returns the choice.
+
+        ``auto`` stays in float32: with the channels-last network, bf16 autocast made a training step 1.3x slower
+        even on a CPU where oneDNN reports native bf16 (the casts of the full-resolution maps cost more than the
+        bf16 matrix products save; docs/performance.md), and emulated bf16 is 5-10x slower. ``on`` forces it."""
         if mode not in ("auto", "on", "off"):
             raise ValueError(f"bf16 mode must be 'auto', 'on' or 'off', not {mode!r}")
-        self.cpu_bf16 = mode == "on" or (mode == "auto" and cpu_supports_bf16())
+        self.cpu_bf16 = mode == "on"
         return self.cpu_bf16
 
     def run_model(self, inputs: Mapping[str, torch.Tensor], pool_weights: torch.Tensor | None = None,

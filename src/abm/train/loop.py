@@ -1,7 +1,7 @@
 """Behaviour-cloning training loop for every policy variant (single process or ``torchrun`` DDP).
 
 * AdamW (default) or LAMB (``torch_optimizer.Lamb``), linear warm-up then cosine decay, gradient-norm clipping,
-  bf16 autocast on CUDA (on CPU only with native bf16, ``--bf16``), optional ``torch.compile``.
+  bf16 autocast on CUDA (on CPU only with ``--bf16 on``), optional ``torch.compile``.
 * Data: :class:`~abm.data.keyframes.KeyframeDataset` with the deterministic
   :class:`~abm.data.keyframes.StepSampler` (rank-sharded like ``DistributedSampler``), so a run
   resumed from a checkpoint sees exactly the batches the uninterrupted run would have seen.
