@@ -60,7 +60,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                          dest_prefix=POLICY_DEST, title="policy (overrides of the --preset; saved with the run)")
     p.add_argument("--synthetic", type=count, default=0, metavar="N",
                    help="train on N built-in synthetic block episodes instead of --data (smoke tests)")
-    p.add_argument("--clip-model", help=clip_model_help("for --grounder clip / --language clip"))
+    p.add_argument("--clip-model", help=clip_model_help(
+        "for --grounder clip / --language clip (given without --grounder: the CLIP grounder)",
+        default="the pretrained CLIP if cached, else the benchmark CLIP"))
     p.add_argument("--clip-device", help="device of the CLIP model (default: CUDA when available)")
     p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
                    help="override a policy config field, e.g. --set resolution=64 (repeatable)")
