@@ -16,6 +16,7 @@ import json
 from typing import Any
 
 from abm.configuration import (
+    GPU_CLIP_MODEL,
     add_config_arguments,
     clip_model_help,
     count,
@@ -62,7 +63,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="train on N built-in synthetic block episodes instead of --data (smoke tests)")
     p.add_argument("--clip-model", help=clip_model_help(
         "for --grounder clip / --language clip (given without --grounder: the CLIP grounder)",
-        default="the pretrained CLIP if cached, else the benchmark CLIP"))
+        default=f"without --grounder, the grounder order's CLIP; with --grounder given, {GPU_CLIP_MODEL}"))
     p.add_argument("--clip-device", help="device of the CLIP model (default: CUDA when available)")
     p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",
                    help="override a policy config field, e.g. --set resolution=64 (repeatable)")
