@@ -21,8 +21,7 @@ HTML = re.compile(r"""(?:href|src)\s*=\s*["']([^"']+)["']""")
 EXPLICIT = re.compile(r"""<a\s+(?:name|id)\s*=\s*["']([^"']+)["']|\bid\s*=\s*["']([^"']+)["']""")
 CODE = re.compile(r"`+[^`]*`+")
 #: links to a section being written (page: target -> what is coming); remove an entry once its section is in
-PENDING = {"docs/policy.md: performance.md#where-a-training-step-goes":
-           "the section 'Where a training step goes' of docs/performance.md, being written in another change"}
+PENDING: dict[str, str] = {}
 
 
 def prose(text: str) -> list[str]:
