@@ -121,7 +121,7 @@ COLOURS: dict[str, str] = {
     **{c: c for c in ("red", "green", "blue", "yellow", "orange", "purple", "pink", "cyan", "white", "brown",
                       "black", "grey", "silver")},
     "gray": "grey", "violet": "purple", "lilac": "purple", "magenta": "pink", "turquoise": "cyan", "teal": "cyan",
-    "aqua": "cyan", "crimson": "red", "scarlet": "red", "lime": "green", "navy": "blue", "golden": "yellow",
+    "aqua": "cyan", "crimson": "red", "scarlet": "red", "lime": "green", "navy": "blue",
     "metal": "silver", "metallic": "silver", "steel": "silver", "wooden": "brown", "wood": "brown",
 }
 """Colour words -> the colour they name."""
