@@ -59,6 +59,9 @@ def evaluate_zoo(args: argparse.Namespace) -> int:
         verify(args.zoo, clip)
     check_zoo_clips(args.zoo, runs, clip)
     labels = {str(r): e["name"] for r, e in zip(runs, chosen, strict=True)}
+    grounders = ", ".join(f"{e['name']}: {e.get('grounder', 'none')}" for e in chosen)
+    clip_note = f" (the zoo's {entry_path(args.zoo, clip)}, sha256 verified)" if clip is not None else ""
+    print(f"abm zoo eval: grounder: each model's own, as trained ({grounders}){clip_note}")
     settings = EvalSettings(max_steps=args.max_steps)
     rates = []
     outcomes: list[EpisodeOutcome] = []
