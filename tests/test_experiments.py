@@ -108,7 +108,7 @@ def test_a_duplicate_key_or_a_missing_spec_is_a_clear_error(tmp_path: Path) -> N
     path.write_text("name: a\nname: b\n")
     with pytest.raises(SpecError, match="dup.yaml: the key 'name' appears twice"):
         load_spec(path)
-    with pytest.raises(FileNotFoundError, match="built-in spec: .*paper_tables"):
+    with pytest.raises(FileNotFoundError, match="built-in experiment spec: .*paper_tables"):
         load_spec("no_such_spec")
     with pytest.raises(SpecError, match="x.yaml: \\(top level\\): expected a mapping"):
         parse_spec([1, 2], Path("x.yaml"))

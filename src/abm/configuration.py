@@ -282,17 +282,23 @@ def overrides_from_args(args: argparse.Namespace, dest_prefix: str) -> dict[str,
 RECIPES = Path(__file__).parent / "configs"  # the built-in recipes (the repository's configs/ links here)
 
 
-def recipe_path(name: str | Path) -> Path:
-    """A recipe file: the path itself when it exists, else the built-in recipe of that name
-    (``quickstart`` -> ``abm/configs/quickstart.yaml``)."""
+def builtin_or_file(name: str | Path, folder: Path, kind: str) -> Path:
+    """The path itself when it is a file, else the built-in YAML of that name in ``folder``; ``FileNotFoundError``
+    naming the built-in ones otherwise (``kind``: what the file is, for the message)."""
     path = Path(name)
     if path.is_file():
         return path
-    builtin = RECIPES / (path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml")
+    builtin = folder / (path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml")
     if path.parent == Path(".") and builtin.is_file():
         return builtin
-    known = ", ".join(sorted(p.stem for p in RECIPES.glob("*.yaml")))
-    raise FileNotFoundError(f"recipe {name} not found (give a YAML file, or a built-in recipe: {known})")
+    known = ", ".join(sorted(p.stem for p in folder.glob("*.yaml")))
+    raise FileNotFoundError(f"{kind} {name} not found (give a YAML file, or a built-in {kind}: {known})")
+
+
+def recipe_path(name: str | Path) -> Path:
+    """A recipe file: the path itself when it exists, else the built-in recipe of that name
+    (``quickstart`` -> ``abm/configs/quickstart.yaml``)."""
+    return builtin_or_file(name, RECIPES, "recipe")
 
 
 def load_recipe(name: str | Path) -> dict[str, Any]:

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES, SPLITS, WORKERS, check_overrides
+from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES, SPLITS, WORKERS, builtin_or_file, check_overrides
 from abm.files import load_yaml
 from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
@@ -672,14 +672,7 @@ def _sections(reader: _Reader, key: str, runs: Sequence[str]) -> tuple[Section, 
 def spec_path(name: str | Path) -> Path:
     """A spec file: the path itself when it exists, else the built-in spec of that name
     (``paper_tables`` -> ``abm/configs/experiments/paper_tables.yaml``)."""
-    path = Path(name)
-    if path.is_file():
-        return path
-    builtin = SPECS / (path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml")
-    if path.parent == Path(".") and builtin.is_file():
-        return builtin
-    known = ", ".join(sorted(p.stem for p in SPECS.glob("*.yaml")))
-    raise FileNotFoundError(f"experiment spec {name} not found (give a YAML file, or a built-in spec: {known})")
+    return builtin_or_file(name, SPECS, "experiment spec")
 
 
 def builtin_specs() -> list[str]:

@@ -718,32 +718,22 @@ def resolve_instruction(text: str, objects: Iterable[str] | Mapping[int, str] | 
     parser = parser or default_parser()
     scene = _Scene(_scene_names(objects))
     guesses: list[Resolution] = []
-    try:
-        parsed = parser.parse(text)
-    except MultiStepInstructionError:
-        raise
-    except InstructionError:
-        pass
-    else:
-        answer = _from_parse(text, parsed, scene, "templates", 1.0)
+    rewritten = _rewrite(text)
+    readings = [(text, "templates", 1.0)]  # the templates as written, then after the synonyms
+    if rewritten != " ".join(_words(text)):
+        readings.append((rewritten, "synonyms", 0.95))
+    for reading, method, skill_confidence in readings:
+        try:
+            parsed = parser.parse(reading)
+        except MultiStepInstructionError:
+            raise
+        except InstructionError:
+            continue
+        answer = _from_parse(text, parsed, scene, method, skill_confidence)
         if answer is not None:
             guesses.append(answer)
             if answer.confidence >= min_confidence:
                 return _named(answer, scene)
-    rewritten = _rewrite(text)
-    if rewritten != " ".join(_words(text)):
-        try:
-            parsed = parser.parse(rewritten)
-        except MultiStepInstructionError:
-            raise
-        except InstructionError:
-            pass
-        else:
-            answer = _from_parse(text, parsed, scene, "synonyms", 0.95)
-            if answer is not None:
-                guesses.append(answer)
-                if answer.confidence >= min_confidence:
-                    return _named(answer, scene)
     if scene.names:
         answer = _from_words(text, scene, parser)
         if answer is not None:
