@@ -196,8 +196,11 @@ def test_hand_eye_calibration_recovers_a_known_camera(tmp_path, capsys) -> None:
     assert position_mm < 5 and angle_deg < 1, (position_mm, angle_deg)
     assert cli_main(["calibrate", "--recording", str(tmp_path / "rec"), "--camera", "top", "--out", str(out)]) == 2
     assert "not in the recording" in capsys.readouterr().err
-    assert cli_main(["calibrate", "--recording", str(tmp_path / "rec"), "--camera", "front", "--out", str(out),
-                     "--board", "5x7"]) == 2
+    with pytest.raises(SystemExit) as exit_info:  # --board is checked when the command line is parsed
+        cli_main(["calibrate", "--recording", str(tmp_path / "rec"), "--camera", "front", "--out", str(out),
+                  "--board", "5x7"])
+    assert exit_info.value.code == 2
+    assert "argument --board: expected XxY:SQUARE_M:MARKER_M:DICTIONARY" in capsys.readouterr().err
 
 
 def test_shipped_robot_examples_run_dry(checkpoint, tmp_path, capsys) -> None:
