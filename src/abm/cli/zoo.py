@@ -35,12 +35,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     lst = sub.add_parser("list", help="print the zoo's models and verify their sha256")
     lst.add_argument("--zoo", type=Path, default=DEFAULT_ZOO, help=f"zoo folder (default {DEFAULT_ZOO})")
     lst.set_defaults(func="abm.cli.commands.zoo:list_zoo")
-    ev = sub.add_parser("eval", help="evaluate the zoo's abm and rvt models on seen and unseen objects (~10 min)")
+    ev = sub.add_parser("eval", help="evaluate the zoo's abm and rvt models on seen and unseen objects "
+                        "(~7 min on 2 cores)")
     ev.add_argument("--zoo", type=Path, default=DEFAULT_ZOO, help=f"zoo folder (default {DEFAULT_ZOO})")
     ev.add_argument("--tasks", nargs="+", default=list(ZOO_EVAL_TASKS),
                     help="tasks to evaluate (default: the paper's 8 tasks)")
     ev.add_argument("--episodes", type=int_range(1, 10_000), default=ZOO_EVAL_EPISODES,
-                    help=f"seeded episodes per task and split (default {ZOO_EVAL_EPISODES}: about 10 minutes)")
+                    help=f"seeded episodes per task and split (default {ZOO_EVAL_EPISODES}: ~7 min on 2 cores)")
     ev.add_argument("--workers", type=int_range(1, 256), default=2, help="parallel rollout processes (default 2)")
     ev.add_argument("--max-steps", type=int_range(1, 100), default=8, help="keyframes per episode (default 8)")
     ev.add_argument("--out", type=Path, default=Path("out/zoo"), help="output folder (default out/zoo)")
