@@ -19,7 +19,8 @@ Data flow for a batch of ``B`` samples with ``V`` virtual views of ``H x W`` pix
    at full resolution without passing through the patch tokens) and decoded by two small convs into
    one translation logit per pixel and view. A global feature per view (max-pooled tokens and tokens
    pooled with the heatmap: the ground-truth one in training, the predicted one at inference; with
-   ``local_rotation_features`` also the full-resolution decoder features pooled with it pixel by pixel) goes
+   ``local_rotation_features`` also the full-resolution decoder features pooled with it pixel by pixel; with
+   ``rotation_crop`` also a small CNN's reading of a crop of the stem features around its most likely pixel) goes
    through an MLP to the rotation logits (3 axes x ``rotation_bins``), gripper-open and
    ignore-collision logits (2 each).
 """
@@ -102,6 +103,28 @@ class Block(nn.Module):
         return out
 
 
+def _crop_at_mode(features: torch.Tensor, prob: torch.Tensor, size: int) -> torch.Tensor:
+    """Square crops of channels-last maps centred on each map's most likely pixel, zero outside the map.
+
+    Args:
+        features: ``(N, H, W, C)`` channels-last feature maps.
+        prob: ``(N, H, W)`` a distribution per map (only its argmax is used; no gradient flows through it).
+        size: crop side ``K`` (pixels, even): the crop holds rows and columns ``[centre - K/2, centre + K/2)``.
+
+    Returns:
+        ``(N, C, K, K)`` crops (gradients flow to ``features``).
+    """
+    n, h, w, _ = features.shape
+    mode = prob.detach().flatten(1).argmax(1)
+    half = size // 2
+    offsets = torch.arange(size, device=features.device)
+    rows = (mode // w).view(n, 1, 1) + offsets.view(1, size, 1)  # in the padded map: centre - K/2 + half
+    cols = (mode % w).view(n, 1, 1) + offsets.view(1, 1, size)
+    padded = F.pad(features, (0, 0, half, half, half, half))
+    crops = padded[torch.arange(n, device=features.device).view(n, 1, 1), rows, cols]  # (N, K, K, C)
+    return crops.permute(0, 3, 1, 2)
+
+
 class MultiViewTransformer(nn.Module):
     """One model class for all variants; the variant in ``config`` decides which inputs it takes.
 
@@ -141,7 +164,12 @@ class MultiViewTransformer(nn.Module):
         self.skip = nn.Conv2d(c, dc, 1)
         self.decode = nn.Sequential(nn.GELU(), nn.Conv2d(dc, dc, 3, padding=1), nn.GELU(), nn.Conv2d(dc, 1, 1))
         out = 3 * config.rotation_bins + 2 + 2
-        per_view = 2 * d + (dc if config.local_rotation_features else 0)
+        crop = config.rotation_crop
+        self.crop_net = (nn.Sequential(  # (B*V, C, K, K) -> (B*V, d): the object's outline at full resolution
+            nn.Conv2d(c, 32, 3, padding=1), nn.GELU(), nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.GELU(),
+            nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.GELU(), nn.Flatten(), nn.Linear(64 * (crop // 4) ** 2, d),
+        ) if crop and rotation_head else None)
+        per_view = 2 * d + (dc if config.local_rotation_features else 0) + (d if self.crop_net is not None else 0)
         self.global_head = (nn.Sequential(nn.Linear(per_view * v, d), nn.GELU(), nn.Linear(d, out))
                             if rotation_head else None)
         for module in (self.stem[0], self.decode[1]):  # the 3x3 convolutions' weights in their inputs' layout
@@ -289,6 +317,8 @@ class MultiViewTransformer(nn.Module):
         parts = [tok.amax(1), pooled]
         if cfg.local_rotation_features:  # the decoder's per-pixel features at the heatmap, (B*V, dc)
             parts.append(torch.einsum("nhw,nhwc->nc", prob[:, 0].to(fine.dtype), fine))
+        if self.crop_net is not None:  # a small CNN over the stem features around the most likely pixel
+            parts.append(self.crop_net(_crop_at_mode(feat, prob[:, 0], cfg.rotation_crop)).to(tok.dtype))
         glob = torch.cat(parts, dim=-1).reshape(b, -1)
         out = self.global_head(glob)
         return PolicyOutput(
