@@ -39,8 +39,9 @@ import torch
 
 from abm.geometry import Workspace, fuse_cameras
 from abm.grounding import ClipGrounder, OracleGrounder, clip_prompt, decompose_instruction, load_clip
+from abm.grounding.config import DEFAULT_NEGATIVES
 from abm.grounding.grounders import target_point_mask
-from abm.grounding.mask_field import DEFAULT_NEGATIVES, negative_prompts, normalize_heatmap, threshold_heatmap
+from abm.grounding.mask_field import negative_prompts, normalize_heatmap, threshold_heatmap
 from abm.grounding.metrics import score_mask
 
 THRESHOLDS: dict[str, tuple[float, ...]] = {

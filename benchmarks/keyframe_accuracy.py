@@ -23,7 +23,7 @@ from pathlib import Path
 
 from abm.evaluation.keyframe_accuracy import as_records, keyframe_errors, markdown, summarise
 from abm.evaluation.runner import method_labels
-from abm.grounding.grounders import override_spec
+from abm.grounding.config import grounder_from_flags
 from abm.machine import describe_machine
 from abm.policy import KeyframePolicy
 from abm.policy.checkpoint import checkpoint_path
@@ -45,7 +45,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="write all errors and summaries as JSON")
     args = parser.parse_args()
 
-    grounder = override_spec(args.grounder, args.clip_model)
+    grounder = grounder_from_flags(args.grounder, args.clip_model)
     labels = method_labels(args.run)
     policies = {}
     for run in args.run:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from abm.evaluation.keyframe_accuracy import skill_text_probe, task_skills
 from abm.experiments.spec import load_spec
-from abm.grounding.grounders import override_spec
+from abm.grounding.config import grounder_from_flags
 from abm.machine import describe_machine
 from abm.policy import KeyframePolicy
 
@@ -45,7 +45,7 @@ def main() -> None:
     p.add_argument("--out", type=Path, default=None, help="write the rows as JSON")
     args = p.parse_args()
 
-    policy = KeyframePolicy.from_checkpoint(args.run, grounder=override_spec(args.grounder))
+    policy = KeyframePolicy.from_checkpoint(args.run, grounder=grounder_from_flags(args.grounder))
     if policy.spec.language != "skill":
         raise SystemExit(f"{args.run} is a {policy.spec.name!r} policy: it reads the whole instruction, not a "
                          "skill text; the probe needs a mask variant (abm, stack, concat-*)")

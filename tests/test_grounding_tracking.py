@@ -169,19 +169,18 @@ def test_policy_and_evaluation_select_tracking(tiny_run) -> None:
 
 
 def test_clip_model_override_keeps_the_trained_clip_options(tmp_path, tiny_policy) -> None:
-    from abm.grounding.config import ClipGrounderConfig, OracleGrounderConfig
-    from abm.grounding.grounders import override_spec
+    from abm.grounding.config import ClipGrounderConfig, OracleGrounderConfig, grounder_from_flags
     from abm.policy import KeyframePolicy
     from abm.train import TrainConfig, train
     from abm.train.synthetic import synthetic_episodes
 
     episodes = synthetic_episodes(2, camera_resolution=32)
     tiny = {k: v for k, v in tiny_policy.items() if k != "lang_dim"}  # the CLIP text width
-    train(TrainConfig(out=tmp_path, steps=1, batch=2, policy_overrides=tiny, progress=False, grounder="clip",
-                      grounder_options={"model": "tiny", "threshold": 0.4}), episodes)
+    train(TrainConfig(out=tmp_path, steps=1, batch=2, policy_overrides=tiny, progress=False,
+                      grounder=ClipGrounderConfig(model="tiny", threshold=0.4)), episodes)
     other = str(tmp_path / "elsewhere")  # a CLIP folder that was moved: only the model changes
-    spec = KeyframePolicy.from_checkpoint(tmp_path, grounder=override_spec("tracking", "tiny")).grounder_spec
+    spec = KeyframePolicy.from_checkpoint(tmp_path, grounder=grounder_from_flags("tracking", "tiny")).grounder_spec
     assert spec == {"kind": "tracking", "inner": {"kind": "clip", "model": "tiny", "threshold": 0.4}}
-    assert override_spec("clip", other) == ClipGrounderConfig(model=other)  # typed (abm.grounding.config)
-    assert override_spec("clip", other).to_dict() == {"kind": "clip", "model": other}
-    assert override_spec(None) is None and override_spec("oracle") == OracleGrounderConfig()
+    assert grounder_from_flags("clip", other) == ClipGrounderConfig(model=other)  # typed (abm.grounding.config)
+    assert grounder_from_flags("clip", other).to_dict() == {"kind": "clip", "model": other}
+    assert grounder_from_flags(None) is None and grounder_from_flags("oracle") == OracleGrounderConfig()

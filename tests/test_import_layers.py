@@ -1,5 +1,5 @@
 """Imports flow one way: types (and the small helpers machine, workers, configuration, files,
-schema, lazy, progress, ray_pool) -> geometry
+schema, lazy, progress, ray_pool, registry) -> geometry
 -> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot / viewer / zoo / gym
 -> clip_training (the benchmark CLIP's trainer) -> experiments (the experiment engine) -> cli (the command line:
 parsers in ``abm.cli.<group>``, command functions in ``abm.cli.commands.<group>``).
@@ -22,7 +22,7 @@ from abm.lazy import type_checking_exports
 
 ROOT = Path(abm.__file__).parent
 LAYERS = [
-    ("types", "machine", "workers", "configuration", "files", "schema", "lazy", "progress", "ray_pool"),
+    ("types", "machine", "workers", "configuration", "files", "schema", "lazy", "progress", "ray_pool", "registry"),
     ("geometry",),
     ("render", "grounding", "sim"),
     ("samples",),

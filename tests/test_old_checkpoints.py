@@ -98,9 +98,12 @@ def _copy_run(name: str, dest: Path) -> Path:
 
 
 def _saved_config(run: Path, **changes) -> TrainConfig:
+    """The options of an old run's config.json (the flat form: grounder, grounder_options, language), as read
+    today, with ``changes`` to the saved (flat) values."""
     saved = json.loads((run / "config.json").read_text())["train"]
+    assert isinstance(saved["grounder"], str) and "grounder_options" in saved  # the old flat form
     saved.update(out=run, cache_dir=run / "cache", resume=True, steps=2, progress=False, **changes)
-    return TrainConfig(**saved)
+    return TrainConfig.from_dict(saved)
 
 
 def test_old_run_folders_resume(episode, tmp_path) -> None:

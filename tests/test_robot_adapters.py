@@ -418,14 +418,15 @@ def test_recorded_demonstration_round_trips_through_the_episode_store(real_demo)
 
 
 def test_real_demonstrations_train_and_the_oracle_refuses_them(real_demo, tmp_path) -> None:
+    from abm.grounding.config import ClipGrounderConfig
     from abm.robot.demonstrations import check_instruction
     from abm.train import TrainConfig, train
 
     out = real_demo[1] / "data"
     # abm with the CLIP grounder (a random tiny CLIP here): grounding cache filled, then two steps
-    summary = train(TrainConfig(method="abm", data=out, out=tmp_path / "clip", steps=2, batch=2, grounder="clip",
-                                grounder_options={"model": "tiny"}, language="hash", policy_overrides=TINY_POLICY,
-                                progress=False))
+    summary = train(TrainConfig(method="abm", data=out, out=tmp_path / "clip", steps=2, batch=2,
+                                grounder=ClipGrounderConfig(model="tiny"), language="hash",
+                                policy_overrides=TINY_POLICY, progress=False))
     assert summary["steps"] == 2 and np.isfinite(summary["final_loss"]["total"])
     with pytest.raises(ValueError, match="oracle grounder needs"):  # no segmentation, no object names
         train(TrainConfig(method="abm", data=out, out=tmp_path / "abm", steps=1, batch=2, policy_overrides=TINY_POLICY,

@@ -269,8 +269,8 @@ def test_grounding_is_an_explicit_cached_step(episodes, tmp_path, capsys) -> Non
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 6
     assert cli_main(args) == 0
     assert "of 0 keyframes computed" in capsys.readouterr().out  # resumable: nothing left to do
-    summary = train(_cfg(tmp_path / "run", steps=1, data=data, grounder="clip",
-                         grounder_options={"model": "tiny", "device": "cpu"}, cache_dir=tmp_path / "cache",
+    summary = train(_cfg(tmp_path / "run", steps=1, data=data,
+                         grounder={"kind": "clip", "model": "tiny", "device": "cpu"}, cache_dir=tmp_path / "cache",
                          policy_overrides={**TINY, "lang_dim": 512}, language="hash"))
     assert summary["steps"] == 1
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 6  # training used the entries made above

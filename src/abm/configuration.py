@@ -6,7 +6,9 @@ field, continuation lines indented deeper). :func:`add_config_arguments` adds on
 builds the dataclass back from the parsed arguments. Field ``metadata`` adjusts a flag:
 
 * ``flag``: the flag name (default ``--field-name``);
-* ``choices``: allowed values; ``required``: the flag must be given (even though the field has a default);
+* ``choices``: allowed values, or a function returning them when a parser is built (a registry's names, so an
+  entry registered after the config class was defined is offered too); ``required``: the flag must be given
+  (even though the field has a default);
 * ``off_help``: the help of the ``--no-name`` switch of a ``True`` field (default ``turn off: <field text>``);
 * ``cli=False``: no flag (the command fills the field itself, e.g. from several flags).
 
@@ -14,6 +16,11 @@ Numbers are range-checked when the command line is parsed (:func:`int_range`, :f
 field's ``range`` metadata ``(low, high)`` sets it, else :data:`RANGES` by field name, else whole numbers
 are 1 .. 10**9 and reals finite and >= 0. Command modules use the same helpers for their own flags
 (:data:`positive_int`, :data:`count`, :data:`seed_int`, :data:`port_number`).
+
+A field whose value is a nested configuration of one of several kinds (a grounder's, a language encoder's:
+an object with a ``kind``) is a ``--name KIND`` flag: its ``choices`` metadata comes from the kinds' registry, its
+default shows the default's kind, and the parsed value is the kind name (the dataclass reads a name as that kind's
+defaults; the command adds the kind's options from its other flags).
 
 Booleans become switches: ``--name`` for a ``False`` default, ``--no-name`` for a ``True`` default.
 ``list[...]`` and ``tuple[X, ...]`` fields take one or more values, ``tuple[X, X, X]`` exactly three;
@@ -120,10 +127,11 @@ def field_type(f: dataclasses.Field, kind: Any) -> Any:
 
 
 def check_overrides(cls: type, overrides: dict[str, Any], option: str = "--set") -> dict[str, Any]:
-    """``KEY=VALUE`` overrides of the config dataclass ``cls``, checked like its flags.
+    """``KEY=VALUE`` overrides of the config dataclass ``cls``, checked like its flags (type, range, choices).
 
     Raises:
-        ValueError: an unknown key (the message lists the known ones) or a value of the wrong type or range.
+        ValueError: an unknown key (the message lists the known ones) or a value of the wrong type or range, or
+            not among the field's choices.
     """
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.metadata.get("cli", True)}
@@ -147,6 +155,12 @@ def check_overrides(cls: type, overrides: dict[str, Any], option: str = "--set")
                     raise argparse.ArgumentTypeError(f"expected {'a whole number' if kind is int else 'a number'}")
                 out[key] = field_type(fields[key], kind)(str(value))
             else:
+                choices = field_choices(fields[key])
+                wrong = [v for v in (value if isinstance(value, list) else [value]) if v not in choices] \
+                    if choices is not None and isinstance(value, str | list) else []
+                if wrong:
+                    raise argparse.ArgumentTypeError(f"expected one of {', '.join(map(str, choices))}, got "
+                                                     f"{wrong[0]!r}")
                 out[key] = value
         except argparse.ArgumentTypeError as err:
             raise ValueError(f"{option} {key}={value!r}: {err}") from None
@@ -187,6 +201,19 @@ def _plain(text: str) -> str:
     """Docstring markup to plain text: ``code`` -> code, :class:`abm.X` -> X, *word* -> word."""
     text = re.sub(r":\w+:`~?([\w.]+)`", lambda m: m.group(1).rsplit(".", 1)[-1], text)
     return re.sub(r"\*(\w[^*]*?)\*", r"\1", text.replace("``", ""))
+
+
+def field_choices(f: dataclasses.Field) -> Any:
+    """A field's allowed values (its ``choices`` metadata, called now when it is a function), or ``None``."""
+    choices = f.metadata.get("choices")
+    return tuple(choices()) if callable(choices) else choices
+
+
+def flag_value(value: Any) -> Any:
+    """What a field's value is on the command line: a nested configuration (an object with a ``kind`` and a
+    ``to_dict``) its kind name, anything else itself."""
+    kind = getattr(value, "kind", None)
+    return kind if isinstance(kind, str) and callable(getattr(value, "to_dict", None)) else value
 
 
 def _flag(f: dataclasses.Field) -> str:
@@ -233,7 +260,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: type, defaults: A
     for f in dataclasses.fields(cls):
         if not f.metadata.get("cli", True) or f.name in exclude:
             continue
-        default = getattr(defaults, f.name) if defaults is not None else None
+        default = flag_value(getattr(defaults, f.name)) if defaults is not None else None
         text = docs.get(f.name, "").replace("%", "%%")  # argparse formats help with %
         kind, nargs, _ = _base_type(hints[f.name])
         kwargs: dict[str, Any] = {"dest": dest_prefix + f.name, "help": text}
@@ -253,7 +280,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: type, defaults: A
         if nargs is not None:
             kwargs["nargs"] = nargs
         if "choices" in f.metadata:
-            kwargs["choices"] = f.metadata["choices"]
+            kwargs["choices"] = field_choices(f)
             kwargs.pop("metavar")
         if f.metadata.get("required"):
             kwargs["required"] = True

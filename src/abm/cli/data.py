@@ -13,6 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from abm.configuration import CAMERA_RESOLUTION, SPLITS, WORKERS, clip_model_help, float_range, int_range, seed_int
+from abm.grounding.config import GROUNDERS
 from abm.ray_pool import add_backend_arguments
 
 
@@ -94,7 +95,9 @@ def register(subparsers) -> None:
         "and `abm train --cache-dir CACHE` (abm train also fills missing entries itself). Resumable.")
     ground.add_argument("--data", required=True, type=Path, help="episode store folder")
     ground.add_argument("--cache", required=True, type=Path, help="cache folder (abm train --cache-dir)")
-    ground.add_argument("--grounder", default="clip", choices=["clip"], help="grounder (the oracle needs no cache)")
+    cached = GROUNDERS.names(cached=True)  # the others ground each sample as it is drawn (the oracle)
+    ground.add_argument("--grounder", default=cached[0], choices=cached,
+                        help="grounder whose results are cached for training (the oracle needs no cache)")
     ground.add_argument("--clip-model", help=clip_model_help("of the grounder"))
     ground.add_argument("--clip-device", help="device of the CLIP model (default: CUDA when available)")
     ground.add_argument("--features", action="store_true",

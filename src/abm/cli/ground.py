@@ -20,6 +20,7 @@ import argparse
 from pathlib import Path
 
 from abm.configuration import clip_model_help, count, float_range, int_range, seed_int
+from abm.grounding.config import CLIP_MODES, DENSE_MODES, GROUNDERS, NORMALIZATIONS, SCORINGS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -36,26 +37,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the synthetic scene (without --episode)")
     p.add_argument("--instruction", help="instruction, in plain words ('grab the yellow one'; default: the "
                    "episode's, or one naming a scene object)")
-    p.add_argument("--grounder", choices=("oracle", "clip"), default=None,
+    p.add_argument("--grounder", choices=GROUNDERS.names(per_frame=True), default=None,
                    help="grounder (default: --clip-model if given, else the pretrained CLIP if cached, else the "
                    "committed benchmark CLIP (models/benchmark-clip), else the oracle with a warning)")
     p.add_argument("--clip-model", default=None,
                    help=clip_model_help("of the CLIP grounder (needs them locally unless --allow-download)",
                                         default="the pretrained CLIP if cached, else the benchmark CLIP"))
     p.add_argument("--allow-download", action="store_true", help="let transformers download CLIP weights")
-    p.add_argument("--normalization", choices=("raw", "minmax", "softmax"), default=None,
+    p.add_argument("--normalization", choices=NORMALIZATIONS, default=None,
                    help="heatmap normalisation (default softmax)")
     p.add_argument("--threshold", type=float_range(0.0, 1.0), default=None,
                    help="mask threshold on the heatmap (default 0.7)")
-    p.add_argument("--mode", choices=("field", "proposals"), default=None,
+    p.add_argument("--mode", choices=CLIP_MODES, default=None,
                    help="clip: threshold the per-point field, or score 3-D object proposals and mark the best one")
-    p.add_argument("--dense-mode", choices=("maskclip", "clearclip", "sclip", "naclip"), default=None,
+    p.add_argument("--dense-mode", choices=DENSE_MODES, default=None,
                    help="clip: last block of the dense CLIP features")
     p.add_argument("--input-size", type=int_range(32, 2048), default=None,
                    help="clip: side the camera images are resized to")
     p.add_argument("--scales", type=int_range(32, 2048), nargs="+", default=None,
                    help="clip: extra input sides whose features are averaged in (multi-scale), e.g. --scales 256")
-    p.add_argument("--scoring", choices=("dense", "crop", "combined"), default=None,
+    p.add_argument("--scoring", choices=SCORINGS, default=None,
                    help="clip --mode proposals: score candidates by dense features, image crops or both")
     p.add_argument("--cache", type=Path, default=None, help="grounding cache folder (default: none)")
     p.add_argument("--resolution", type=int_range(16, 2048), default=220, help="virtual view side in pixels")

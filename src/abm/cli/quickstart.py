@@ -81,7 +81,7 @@ class QuickstartConfig:
     out: Path = field(default_factory=lambda: Path(spec().out))
     tasks: list[str] = field(default_factory=lambda: list(spec().data.tasks))
     methods: list[str] = field(default_factory=lambda: [run.method for run in spec().runs.values()],
-                               metadata={"choices": sorted(VARIANTS)})  # refused when parsed, before any work
+                               metadata={"choices": VARIANTS.names})  # refused when parsed, before any work
     episodes: int = field(default_factory=lambda: spec().data.episodes)
     steps: int = field(default_factory=lambda: recipe()["steps"])
     batch: int = field(default_factory=lambda: recipe()["batch"])

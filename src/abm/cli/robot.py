@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 from abm.configuration import MAX_KEYFRAMES, clip_model_help, int_range, seed_int
+from abm.grounding.config import GROUNDERS
 
 BOARD_FORMAT = "XxY:SQUARE_M:MARKER_M:DICTIONARY, e.g. 5x7:0.04:0.03:DICT_4X4_50"
 
@@ -64,9 +65,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "(absent from the scene, ambiguous, not found, unsure; by default such a step is refused before "
                    "anything moves, exit code 2)")
     p.add_argument("--steps", type=int_range(1, 10_000), default=MAX_KEYFRAMES, help="keyframes to run")
-    p.add_argument("--grounder", choices=["oracle", "clip", "tracking"], help="override the checkpoint's grounder")
-    p.add_argument("--clip-model", help=clip_model_help("of --grounder clip or tracking (default: the "
-                                                        "checkpoint's)", default=None))
+    p.add_argument("--grounder", choices=GROUNDERS.names(), help="override the checkpoint's grounder")
+    p.add_argument("--clip-model", help=clip_model_help(f"of --grounder {' or '.join(GROUNDERS.names(clip=True))} "
+                                                        "(default: the checkpoint's)", default=None))
     p.add_argument("--device", default="cpu", help="torch device of the policy")
     p.add_argument("--log", type=Path, default=Path("runs/robot_log"), help="log folder (default: runs/robot_log)")
     p.set_defaults(func="abm.cli.commands.robot:run")

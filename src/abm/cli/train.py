@@ -54,9 +54,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     for action in p._actions:  # no --grounder: the order every command uses (abm.grounding.default)
         if action.dest == "grounder":
             action.default = None
-            action.help = ("target-object grounding, oracle or clip (default: --clip-model if given, else the "
-                           "pretrained CLIP if cached, else the committed benchmark CLIP (models/benchmark-clip), "
-                           "else the oracle with a warning; --synthetic and --resume: oracle / the run's own)")
+            action.help = (f"target-object grounding, {' or '.join(action.choices or ())} (default: --clip-model if "
+                           "given, else the pretrained CLIP if cached, else the committed benchmark CLIP "
+                           "(models/benchmark-clip), else the oracle with a warning; --synthetic and --resume: "
+                           "oracle / the run's own)")
     add_config_arguments(p, PolicyConfig, overrides_only=True, exclude=("variant", "preset", "extra"),
                          dest_prefix=POLICY_DEST, title="policy (overrides of the --preset; saved with the run)")
     p.add_argument("--synthetic", type=count, default=0, metavar="N",

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from abm.configuration import clip_model_help, count, port_number, seed_int
+from abm.configuration import SPLITS, clip_model_help, count, port_number, seed_int
+from abm.grounding.config import GROUNDERS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -20,12 +21,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--episode", type=Path, help="episode file (.h5) to show")
     p.add_argument("--run", type=Path, help="training run folder or checkpoint: show its views and predictions")
     p.add_argument("--task", help="roll --run out on this ABM-Bench task instead of showing --episode")
-    p.add_argument("--split", default="seen", choices=["seen", "unseen", "compositional"], help="rollout split")
+    p.add_argument("--split", default="seen", choices=SPLITS, help="rollout split")
     p.add_argument("--seed", type=seed_int, default=1_000_000,
                    help="rollout scene seed (abm eval's outcome log lists the seed of each episode)")
     p.add_argument("--steps", type=count, nargs="+", metavar="K", help="only these steps of --episode")
-    p.add_argument("--grounder", choices=["oracle", "clip"], help="grounder (default: the checkpoint's, or oracle)")
-    p.add_argument("--clip-model", help=clip_model_help("for --grounder clip", default=None))
+    p.add_argument("--grounder", choices=GROUNDERS.names(per_frame=True),
+                   help="grounder (default: the checkpoint's, or oracle)")
+    p.add_argument("--clip-model", help=clip_model_help(
+        f"for --grounder {' or '.join(GROUNDERS.names(per_frame=True, clip=True))}", default=None))
     p.add_argument("--device", default="cpu", help="torch device of the policy")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: localhost only)")
     p.add_argument("--port", type=port_number, default=8080, help="port (default: 8080)")

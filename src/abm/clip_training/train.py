@@ -44,8 +44,8 @@ from abm.clip_training.captions import GENERIC_PARENT, OBJECT_PARENT, class_prom
 from abm.clip_training.data import OBJECT_CROP, SCENE, ClipDataset
 from abm.files import atomic_path, load_torch_data, write_text_atomic
 from abm.grounding.clip import TEXT_CONTEXT, maskclip_head, run_encoder_layer
+from abm.grounding.config import DEFAULT_NEGATIVES
 from abm.grounding.instruction import clip_prompt
-from abm.grounding.mask_field import DEFAULT_NEGATIVES
 from abm.grounding.tokenizer import char_vocab, tiny_tokenizer
 from abm.progress import Progress
 

@@ -49,7 +49,7 @@ from abm.grounding.conditioning import (
     condition_cloud,
     split_roles,
 )
-from abm.grounding.config import GrounderConfig, OracleGrounderConfig, as_grounder_config, build_grounder
+from abm.grounding.config import GROUNDERS, GrounderConfig, OracleGrounderConfig, as_grounder_config, build_grounder
 from abm.grounding.grounders import Grounder, resolved_spec
 from abm.progress import Progress
 from abm.samples import Sample, action_targets, cloud_sample, collate
@@ -271,6 +271,9 @@ class KeyframeDataset(Dataset[Sample]):
             raise ValueError("the dataset is empty: the selected episodes have no keyframes")
         self.check_inside_workspace()
         self.oracle = isinstance(self.grounder_config, OracleGrounderConfig)
+        #: masks computed here, per sample (the oracle's), not read from the cache (the grounders whose kind is
+        #: ``cached`` in :data:`abm.grounding.config.GROUNDERS`)
+        self.live = not GROUNDERS[self.grounder_config.kind].cached
         # per-episode split of the instruction: the sub-goals' objects (X, or X and Y) and the skill text;
         # each keyframe grounds the active one (abm.grounding.conditioning.active_role)
         self.targets: list[str | tuple[str, ...] | None] = []
@@ -285,9 +288,9 @@ class KeyframeDataset(Dataset[Sample]):
                 target = roles[0] if len(roles) == 1 else roles
             self.targets.append(target)
             self.skills.append(skill)
-        self._oracle: Grounder | None = None
+        self._live_grounder: Grounder | None = None
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
-        if (self.mask and not self.oracle) or self.features:
+        if (self.mask and not self.live) or self.features:
             if self.cache_dir is None:
                 raise ValueError(
                     f"grounder {self.grounder_config.kind!r} (mask field or CLIP features) needs a cache_dir "
@@ -309,8 +312,8 @@ class KeyframeDataset(Dataset[Sample]):
     # ------------------------------------------------------------------ caching
     @property
     def cached(self) -> bool:
-        """Whether conditioning is read from the on-disk cache (non-oracle grounders, CLIP features)."""
-        return self.cache_dir is not None and ((self.mask and not self.oracle) or self.features)
+        """Whether conditioning is read from the on-disk cache (cached grounders, CLIP features)."""
+        return self.cache_dir is not None and ((self.mask and not self.live) or self.features)
 
     @functools.cached_property
     def _cache_grounder(self) -> dict[str, Any]:
@@ -374,9 +377,9 @@ class KeyframeDataset(Dataset[Sample]):
 
     def _conditioned(self, j: int, k: int, obs: Observation) -> ConditionedCloud:
         if not self.cached:
-            if self.mask and self._oracle is None:
-                self._oracle = build_grounder(OracleGrounderConfig())
-            return self._scene(j, obs, self._oracle, self.mask, False)
+            if self.mask and self._live_grounder is None:
+                self._live_grounder = build_grounder(self.grounder_config)  # a live one (checked when built)
+            return self._scene(j, obs, self._live_grounder, self.mask, False)
         path = self._cache_file(j, k)
         if not path.exists():
             raise FileNotFoundError(f"grounding cache entry {path} is missing; fill the cache with abm data ground")
@@ -436,10 +439,11 @@ def ground_keyframes(
     camera_names: Sequence[str] | None = None,
     show_progress: bool = True,
 ) -> int:
-    """The explicit grounding step: run a (non-oracle) grounder once over every keyframe and cache the
+    """The explicit grounding step: run a cached grounder (its kind ``cached`` in
+    :data:`abm.grounding.config.GROUNDERS`: CLIP) once over every keyframe and cache the
     per-point mask fields (``mask``) and CLIP features (``features``) that a :class:`KeyframeDataset`
     with the same arguments reads. Resumable (existing entries are kept); returns how many keyframes
-    were computed. The oracle grounder needs no cache (it returns 0)."""
+    were computed. A live grounder (the oracle) needs no cache (it returns 0)."""
     ds = KeyframeDataset(source, workspace, grounder, split=mask, mask=mask, features=features, augment=augment,
                          cache_dir=cache_dir, camera_names=camera_names, require_cache=False)
     return ds.precompute(show_progress)

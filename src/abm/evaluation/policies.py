@@ -31,7 +31,7 @@ from typing import Any
 import torch
 
 from abm.evaluation.settings import EvalSettings
-from abm.grounding.grounders import override_spec
+from abm.grounding.config import grounder_from_flags
 from abm.policy import KeyframePolicy
 from abm.policy.checkpoint import load_checkpoint, resolve_checkpoint
 
@@ -130,7 +130,7 @@ def _build(path: Path, settings: EvalSettings) -> KeyframePolicy:
     clip_model = settings.clip_model
     if clip_model and Path(clip_model).expanduser().exists():  # the user's own path: relative to the working folder
         clip_model = str(Path(clip_model).expanduser().resolve())
-    grounder = override_spec(settings.grounder, clip_model)
+    grounder = grounder_from_flags(settings.grounder, clip_model)
     ckpt = load_checkpoint(path)
     root = clip_root(path, clip_names(ckpt.get("grounder")) + clip_names(ckpt.get("language")))
     with contextlib.chdir(root) if root is not None else contextlib.nullcontext():

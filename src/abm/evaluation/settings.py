@@ -8,6 +8,7 @@ import json
 from dataclasses import asdict, dataclass, field
 
 from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
+from abm.grounding.config import GROUNDERS, grounder_from_flags
 
 
 @dataclass(frozen=True)
@@ -26,7 +27,7 @@ class EvalSettings:
     """
 
     device: str = "cpu"
-    grounder: str | None = field(default=None, metadata={"choices": ["clip", "oracle", "tracking"]})
+    grounder: str | None = field(default=None, metadata={"choices": GROUNDERS.names})
     resolution: int = CAMERA_RESOLUTION
     max_steps: int = MAX_KEYFRAMES
     splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
@@ -34,10 +35,8 @@ class EvalSettings:
 
     def __post_init__(self) -> None:
         if self.grounder is None and self.clip_model is None:
-            return  # nothing to check (and no torch import for `abm --help`)
-        from abm.grounding.grounders import override_spec  # torch: this class builds `abm eval`'s parser at --help
-
-        override_spec(self.grounder, self.clip_model)  # a clear error for --clip-model without a CLIP grounder
+            return  # nothing to check
+        grounder_from_flags(self.grounder, self.clip_model)  # a clear error for --clip-model without a CLIP grounder
 
     def signature(self) -> str:
         """Compact JSON of the settings that change outcomes (recorded with every outcome; ``clip_model``

@@ -20,7 +20,9 @@ from typing import Any
 
 from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES, SPLITS, WORKERS, builtin_or_file, check_overrides
 from abm.files import load_yaml
+from abm.grounding.config import GROUNDERS, grounder_config_from_dict
 from abm.policy.config import PolicyConfig
+from abm.policy.language_config import LANGUAGES, default_language
 from abm.train.config import TrainConfig
 
 #: the built-in specs (``abm experiment run paper_tables``; the repository's configs/experiments/ links here)
@@ -91,24 +93,27 @@ class RunSpec:
 
     @property
     def grounder(self) -> str:
-        """The training grounder (``oracle`` or ``clip``)."""
+        """The training grounder's kind (``oracle`` or ``clip``: :data:`abm.grounding.config.GROUNDERS`)."""
         return str(self.train.get("grounder", "oracle"))
 
     @property
     def language(self) -> str:
-        """The language encoder (``hash`` or ``clip``; ``clip`` by default with the clip grounder)."""
-        return str(self.train.get("language") or ("clip" if self.grounder == "clip" else "hash"))
+        """The language encoder's kind (``hash`` or ``clip``; by default the grounder's:
+        :func:`abm.policy.language_config.default_language`)."""
+        named = self.train.get("language")
+        return str(named) if named else default_language(grounder_config_from_dict({"kind": self.grounder})).kind
 
     @property
     def needs_clip(self) -> bool:
-        """Whether training or evaluating the run needs the benchmark CLIP."""
-        return self.grounder == "clip" or self.language == "clip"
+        """Whether training or evaluating the run needs the benchmark CLIP (its grounder or language encoder
+        takes CLIP weights)."""
+        return GROUNDERS[self.grounder].clip or LANGUAGES[self.language].clip
 
     @property
     def cache(self) -> str | None:
         """The grounding cache the run trains from: ``features`` (ifd's CLIP point features), ``masks`` (the
-        CLIP mask field) or ``None`` (oracle masks need none)."""
-        if self.grounder != "clip":
+        CLIP mask field) or ``None`` (a grounder whose kind is not ``cached``, the oracle, needs none)."""
+        if not GROUNDERS[self.grounder].cached:
             return None
         return "features" if self.method == "ifd" else "masks"
 
@@ -759,7 +764,7 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         base = one.text("run")
         if base not in runs:
             raise one.error(f"{base!r} is no run of this spec (known: {', '.join(names)})", "run")
-        grounder = one.choice("grounder", ("clip", "oracle", "tracking"))
+        grounder = one.choice("grounder", GROUNDERS.names())
         if variant != f"{base}@{grounder}":
             raise v.error(f"a variant is named RUN@GROUNDER ({base}@{grounder}), got {variant!r}")
         variants.append(GrounderVariant(name=variant, run=base, grounder=grounder, label=one.text("label", variant),

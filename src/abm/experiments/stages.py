@@ -48,6 +48,7 @@ from abm.experiments.state import (
     restore_training,
     stamp,
 )
+from abm.grounding.config import GROUNDERS
 from abm.train.config import TrainConfig
 
 LOG = logging.getLogger("abm")
@@ -343,14 +344,14 @@ class Engine:
                     *(["--device", ev.device] if ev.device != "cpu" else []))
                 if variant is not None:
                     argv += ["--grounder", variant.grounder]
-                    if variant.grounder in ("clip", "tracking") and self.clip_arg():
+                    if GROUNDERS[variant.grounder].clip and self.clip_arg():
                         argv += ["--clip-model", self.clip_arg()]
                 job = Job(f"eval/{name}/{split.split}", "eval", argv, folder=folder)
                 if self.have(folder / "results.json"):
                     job.state = DONE
                 elif model is None:
                     job.state, job.note = BLOCKED, "not exported yet" if ev.from_zoo else "not trained yet"
-                elif (self.needs_clip(base) or (variant and variant.grounder != "oracle")) and not self.has_clip():
+                elif (self.needs_clip(base) or (variant and GROUNDERS[variant.grounder].clip)) and not self.has_clip():
                     job.state, job.note = BLOCKED, "no benchmark CLIP"
                 else:
                     outcomes = folder / "outcomes.jsonl"

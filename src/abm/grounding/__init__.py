@@ -32,7 +32,14 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
         random_clip,
         tiny_clip,
     )
-    from abm.grounding.config import GROUNDERS
+    from abm.grounding.config import (
+        DEFAULT_NEGATIVES,
+        DEFAULT_NORMALIZATION,
+        DEFAULT_THRESHOLD,
+        GROUNDERS,
+        NORMALIZATIONS,
+        MaskFieldConfig,
+    )
     from abm.grounding.decision import (
         MIN_CONFIDENCE,
         GroundingRecorder,
@@ -70,12 +77,7 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
         require_instruction,
     )
     from abm.grounding.mask_field import (
-        DEFAULT_NEGATIVES,
-        DEFAULT_NORMALIZATION,
-        DEFAULT_THRESHOLD,
-        NORMALIZATIONS,
         MaskField,
-        MaskFieldConfig,
         MaskViews,
         mask_confidence,
         mask_field_from_features,

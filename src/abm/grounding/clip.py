@@ -36,6 +36,7 @@ import torch.nn.functional as F
 
 from abm.configuration import GPU_CLIP_MODEL, TEST_ONLY_CLIP
 from abm.files import sha256_file
+from abm.grounding.config import DENSE_MODES
 from abm.grounding.tokenizer import tiny_tokenizer
 
 if TYPE_CHECKING:  # transformers is imported where a model is built, so importing abm stays fast
@@ -320,15 +321,6 @@ def run_encoder_layer(layer: CLIPEncoderLayer, x: torch.Tensor) -> torch.Tensor:
     return x.add_(out.view_as(x))
 
 
-DENSE_MODES: tuple[str, ...] = ("maskclip", "clearclip", "sclip", "naclip")
-"""Last-block variants for dense features (training-free; all drop the residual and the MLP of the last block):
-
-* ``maskclip``: the value path alone, no attention mixing (MaskCLIP);
-* ``clearclip``: attention from query-query similarity, ``softmax(q q^T / sqrt(d)) v`` (ClearCLIP);
-* ``sclip``: correlative self-attention, ``(softmax(q q^T / sqrt(d)) + softmax(k k^T / sqrt(d))) v`` (SCLIP);
-* ``naclip``: key-key similarity plus a Gaussian window over the patch grid, so every patch attends
-  mostly to its neighbours, ``softmax(k k^T / sqrt(d) + exp(-dist^2 / (2 sigma^2))) v`` (NACLIP).
-"""
 NACLIP_SIGMA = 5.0
 """Standard deviation of NACLIP's Gaussian window, in patches (the paper's value)."""
 

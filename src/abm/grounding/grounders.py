@@ -28,25 +28,27 @@ from numpy.typing import NDArray
 
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
-from abm.grounding.clip import DEFAULT_MODEL, DENSE_MODES, ClipBackbone, load_clip, model_fingerprint
-from abm.grounding.config import (  # noqa: F401 - the defaults live with the typed configurations
+from abm.grounding.clip import DEFAULT_MODEL, ClipBackbone, load_clip, model_fingerprint
+from abm.grounding.config import (  # the defaults live with the typed configurations
     CLIP_MODES,
     DEFAULT_CLIP_MODE,
     DEFAULT_DENSE_MODE,
     DEFAULT_INPUT_SIZE,
     DEFAULT_SCALES,
-    GROUNDERS,
+    DENSE_MODES,
     ClipGrounderConfig,
     GrounderConfig,
-    TrackingGrounderConfig,
+    MaskFieldConfig,
+    OracleGrounderConfig,
+    ProposalConfig,
     build_grounder,
     grounder_config_from_dict,
 )
 from abm.grounding.decision import normalize_name
 from abm.grounding.feature_cloud import lift_patch_features
 from abm.grounding.instruction import clip_prompt
-from abm.grounding.mask_field import MaskField, MaskFieldConfig, mask_field_from_features, negative_prompts
-from abm.grounding.proposals import ProposalConfig, object_proposals, with_base_points
+from abm.grounding.mask_field import MaskField, mask_field_from_features, negative_prompts
+from abm.grounding.proposals import object_proposals, with_base_points
 from abm.types import Observation
 
 
@@ -122,6 +124,13 @@ class OracleGrounder:
 
     name = "oracle"
 
+    @classmethod
+    def from_config(cls, config: OracleGrounderConfig, **runtime: Any) -> OracleGrounder:
+        """The oracle of its (option-less) configuration (:data:`abm.grounding.config.GROUNDERS`' builder)."""
+        if runtime:
+            raise ValueError(f"the oracle grounder takes no options, got {sorted(runtime)}")
+        return cls()
+
     def ground(
         self,
         observation: Observation,
@@ -150,7 +159,7 @@ class ClipGrounder:
             size); a larger input gives a finer patch grid (interpolated position embeddings).
         cache_features: also keep per-image patch features in the cache (memory and disk).
         allow_download: let :func:`load_clip` try the network.
-        dense_mode: last block of the dense features (:data:`abm.grounding.clip.DENSE_MODES`: ``maskclip``,
+        dense_mode: last block of the dense features (:data:`abm.grounding.config.DENSE_MODES`: ``maskclip``,
             ``clearclip``, ``sclip``, ``naclip``).
         mode: ``"field"`` (threshold the per-point heatmap) or ``"proposals"`` (score 3-D object candidates,
             mask the best one; ``config.negatives`` still decide ``found``).
@@ -201,6 +210,17 @@ class ClipGrounder:
         self.cache_features = cache_features
         self.backbone_calls = 0  # images sent through the vision encoder (for tests and profiling)
         self._text_memory: dict[str, np.ndarray] = {}
+
+    @classmethod
+    def from_config(cls, config: ClipGrounderConfig, **runtime: Any) -> ClipGrounder:
+        """The grounder of a typed configuration (:data:`abm.grounding.config.GROUNDERS`' builder); ``runtime``
+        (``backbone=`` a loaded model, ``cache=`` a cache object) overrides the constructor's arguments."""
+        kwargs: dict[str, Any] = dict(
+            model=config.model, device=config.device, config=config.mask_field_config(), cache=config.cache,
+            input_size=config.input_size, cache_features=config.cache_features,
+            allow_download=config.allow_download, dense_mode=config.dense_mode, mode=config.mode,
+            proposals=config.proposals, scales=config.scales)
+        return cls(**{**kwargs, **runtime})
 
     @property
     def model_name(self) -> str:
@@ -456,23 +476,6 @@ def resolved_spec(spec: GrounderConfig | Mapping[str, Any]) -> dict[str, Any]:
     elif out.get("kind") == "tracking" and isinstance(out.get("inner"), Mapping):
         out["inner"] = resolved_spec(out["inner"])
     return out
-
-
-def override_spec(kind: str | None, clip_model: str | None = None) -> GrounderConfig | None:
-    """The grounder spec of the ``--grounder KIND [--clip-model M]`` flags of ``abm eval`` and ``abm run``.
-
-    ``None`` keeps the checkpoint's grounder; ``clip_model`` names the CLIP weights of the ``clip`` grounder,
-    or of the grounder ``tracking`` grounds the first step with. Options it does not name (threshold,
-    normalisation) stay those stored in the checkpoint (:meth:`abm.policy.KeyframePolicy.from_checkpoint`).
-    """
-    if clip_model is None:
-        return grounder_config_from_dict({"kind": kind}) if kind else None
-    if kind == "clip":
-        return ClipGrounderConfig(model=clip_model)
-    if kind == "tracking":
-        return TrackingGrounderConfig(inner=ClipGrounderConfig(model=clip_model))
-    raise ValueError(f"--clip-model applies to --grounder clip or tracking, not {kind or 'the checkpoint default'!r}: "
-                     f"add --grounder clip to ground with {clip_model}")
 
 
 def make_grounder(kind: str = "oracle", **kwargs: Any) -> Grounder:

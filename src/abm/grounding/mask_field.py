@@ -28,56 +28,19 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from abm.grounding.config import (  # the options and their defaults live with the typed configurations
+    DEFAULT_LOGIT_SCALE,
+    DEFAULT_NORMALIZATION,
+    DEFAULT_THRESHOLD,
+    NORMALIZATIONS,
+    MaskFieldConfig,
+)
 from abm.grounding.instruction import clip_prompt
 from abm.render import binarize_mask, center_pixel_mask, soft_mask
 
 if TYPE_CHECKING:
     from abm.geometry import PointCloud
     from abm.render import OrthographicRenderer
-
-NORMALIZATIONS: tuple[str, ...] = ("raw", "minmax", "softmax")
-DEFAULT_NEGATIVES: tuple[str, ...] = ("object", "things", "stuff", "texture")
-DEFAULT_NORMALIZATION = "softmax"
-DEFAULT_THRESHOLD = 0.7
-DEFAULT_LOGIT_SCALE = 100.0
-
-
-@dataclass(frozen=True)
-class MaskFieldConfig:
-    """How a similarity heatmap becomes a mask.
-
-    Attributes:
-        normalization: ``"raw"``, ``"minmax"`` or ``"softmax"`` (see the module docstring).
-        threshold: heatmap value (after normalisation) at or above which a point is the target.
-        negatives: negative phrases for ``softmax``; each becomes the prompt ``"a photo of a <phrase>"``.
-        logit_scale: softmax temperature multiplier (CLIP's learned value is 100).
-        fallback: ``"top"`` (keep the top-scoring points when nothing passes) or ``"none"``.
-        fallback_top_k: how many points the ``"top"`` fallback keeps.
-    """
-
-    normalization: str = DEFAULT_NORMALIZATION
-    threshold: float = DEFAULT_THRESHOLD
-    negatives: tuple[str, ...] = DEFAULT_NEGATIVES
-    logit_scale: float = DEFAULT_LOGIT_SCALE
-    fallback: str = "top"
-    fallback_top_k: int = 1
-
-    def __post_init__(self) -> None:
-        if self.normalization not in NORMALIZATIONS:
-            raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {self.normalization!r}")
-        if self.fallback not in ("top", "none"):
-            raise ValueError(f"fallback must be 'top' or 'none', got {self.fallback!r}")
-        if self.fallback_top_k < 1:
-            raise ValueError(f"fallback_top_k must be >= 1, got {self.fallback_top_k}")
-        if self.normalization == "softmax" and not self.negatives:
-            raise ValueError("softmax normalisation needs at least one negative phrase")
-        object.__setattr__(self, "negatives", tuple(self.negatives))
-
-    def key(self) -> str:
-        """A stable text form used in cache keys."""
-        return (f"{self.normalization}|{self.threshold:g}|{','.join(self.negatives)}|{self.logit_scale:g}|"
-                f"{self.fallback}|{self.fallback_top_k}")
-
 
 @dataclass
 class MaskField:

@@ -41,61 +41,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-SCORINGS: tuple[str, ...] = ("dense", "crop", "combined")
-
-
-@dataclass(frozen=True)
-class ProposalConfig:
-    """How the cloud is split into candidates and how CLIP scores them.
-
-    Attributes:
-        voxel: clustering cell size (m).
-        table_height: table top height (m); None estimates it as the most common point height.
-        table_margin: points up to this height above the table top are table (m).
-        min_points: smallest candidate, in points.
-        split: also propose colour parts of a cluster and the cluster minus each large colour part (off by
-            default: at the first observations of ABM-Bench it lowered IoU, docs/grounding.md section 9).
-        color_tol: largest per-channel chromaticity (``rgb / sum``) difference of joined cells
-            (:func:`same_colour`).
-        support_share: a colour part this large (share of its cluster) counts as a possible support.
-        max_candidates: at most this many candidates (the largest clusters' candidates first).
-        scoring: ``"dense"`` (mean MaskCLIP feature of the candidate's points against the text),
-            ``"crop"`` (CLIP image embedding of the candidate's image crops) or ``"combined"``.
-        crop_weight: weight of the crop score in ``combined`` (the dense score gets ``1 - crop_weight``).
-        crop_margin: crop side = this times the larger side of the candidate's pixel box.
-        crop_cameras: crops per candidate (the cameras that see most of its points).
-        min_crop_pixels: a camera must see at least this many of the candidate's points to be cropped.
-        crop_top_k: ``combined`` crops only the candidates with the ``crop_top_k`` best dense scores (the crops'
-            CLIP forwards are most of the cost); 0 crops every candidate.
-        hand_filter: leave out the hand's points (:func:`hand_points`) when the gripper pose is known.
-    """
-
-    voxel: float = 0.01
-    table_height: float | None = None
-    table_margin: float = 0.006
-    min_points: int = 15
-    split: bool = False
-    color_tol: float = 0.05
-    support_share: float = 0.3
-    max_candidates: int = 40
-    scoring: str = "combined"
-    crop_weight: float = 0.5
-    crop_margin: float = 1.6
-    crop_cameras: int = 2
-    min_crop_pixels: int = 12
-    crop_top_k: int = 8
-    hand_filter: bool = True
-
-    def __post_init__(self) -> None:
-        if self.scoring not in SCORINGS:
-            raise ValueError(f"proposal scoring must be one of {SCORINGS}, got {self.scoring!r}")
-        if self.voxel <= 0 or self.min_points < 1 or self.crop_margin < 1 or not 0 <= self.crop_weight <= 1:
-            raise ValueError("ProposalConfig needs voxel > 0, min_points >= 1, crop_margin >= 1 and crop_weight "
-                             f"in [0, 1]; got {self}")
-
-    def key(self) -> str:
-        """A stable text form used in cache keys."""
-        return "|".join(f"{k}={getattr(self, k)}" for k in self.__dataclass_fields__)
+from abm.grounding.config import ProposalConfig  # the options live with the typed configurations
 
 
 @dataclass

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from abm.geometry import PointCloud
-from abm.grounding.config import TrackingGrounderConfig
+from abm.grounding.config import TrackingGrounderConfig, build_grounder
 from abm.grounding.mask_field import MaskField
 from abm.types import Observation
 
@@ -93,6 +93,14 @@ class TrackingGrounder:
         self.radius, self.min_kept, self.closed_below, self.color_tol = radius, min_kept, closed_below, color_tol
         self.inner_calls = 0
         self._track: _Track | None = None
+
+    @classmethod
+    def from_config(cls, config: TrackingGrounderConfig, **runtime: Any) -> TrackingGrounder:
+        """The grounder of a typed configuration (:data:`abm.grounding.config.GROUNDERS`' builder); ``runtime``
+        goes to the inner grounder."""
+        return cls(build_grounder(config.inner, **runtime), radius=config.radius, min_kept=config.min_kept,
+                   closed_below=config.closed_below, color_tol=config.color_tol, reacquire=config.reacquire,
+                   reacquire_ratio=config.reacquire_ratio)
 
     def reset(self) -> None:
         """Forget the tracked target (call at the start of every episode)."""

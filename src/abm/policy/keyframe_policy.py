@@ -36,7 +36,6 @@ from torch import nn
 from abm.geometry import Workspace, quat_to_bins
 from abm.grounding.conditioning import condition_cloud
 from abm.grounding.config import (
-    GROUNDER_CONFIGS,
     GrounderConfig,
     OracleGrounderConfig,
     as_grounder_config,
@@ -47,7 +46,8 @@ from abm.grounding.config import (
 from abm.policy.checkpoint import load_checkpoint, save_checkpoint
 from abm.policy.config import PolicyConfig
 from abm.policy.heads import decode_output, decode_translation, policy_loss, translation_targets
-from abm.policy.language import LanguageEncoder, make_language_encoder
+from abm.policy.language import LanguageEncoder
+from abm.policy.language_config import LanguageConfig, build_language_encoder
 from abm.policy.mvt import MultiViewTransformer, PolicyOutput
 from abm.policy.variants import mask_channel
 from abm.render import OrthographicRenderer
@@ -151,7 +151,8 @@ class KeyframePolicy(nn.Module):
 
     Args:
         config: variant and sizes.
-        language: language encoder, or its spec (``{"kind": "hash", ...}`` / ``{"kind": "clip", ...}``).
+        language: language encoder, its configuration (:mod:`abm.policy.language_config`) or its dict form
+            (``{"kind": "hash", ...}`` / ``{"kind": "clip", ...}``).
         grounder: grounder configuration (:mod:`abm.grounding.config`; its dict form ``{"kind": "clip", ...}``
             is read with ``grounder_config_from_dict``) or a grounder object with
             ``ground(observation, cloud, target, object_names)``; used by :meth:`act`.
@@ -161,7 +162,7 @@ class KeyframePolicy(nn.Module):
     def __init__(
         self,
         config: PolicyConfig,
-        language: LanguageEncoder | Mapping[str, Any],
+        language: LanguageEncoder | LanguageConfig | Mapping[str, Any],
         grounder: GrounderConfig | Mapping[str, Any] | Grounder | None = None,
         camera_names: Sequence[str] | None = None,
     ) -> None:
@@ -172,13 +173,14 @@ class KeyframePolicy(nn.Module):
         # those of a one-stage policy's network, so one-stage checkpoints load unchanged)
         self.model = MultiViewTransformer(config, rotation_head=not config.two_stage)
         self.zoom_model = MultiViewTransformer(config.zoom_config()) if config.two_stage else None
-        self.language = make_language_encoder(dict(language)) if isinstance(language, Mapping) else language
+        self.language = (build_language_encoder(language) if isinstance(language, Mapping | LanguageConfig)
+                         else language)
         if self.language.tokens != config.lang_tokens or self.language.dim != config.lang_dim:
             raise ValueError(
                 f"language encoder gives {self.language.tokens} x {self.language.dim} tokens but the policy "
                 f"expects {config.lang_tokens} x {config.lang_dim}"
             )
-        is_config = grounder is None or isinstance(grounder, (Mapping, *GROUNDER_CONFIGS))
+        is_config = grounder is None or isinstance(grounder, (Mapping, GrounderConfig))
         # typed configuration of the grounder (None when a grounder object was given)
         self.grounder_config: GrounderConfig | None = (
             as_grounder_config(cast("GrounderConfig | Mapping[str, Any] | None", grounder)) if is_config else None)
@@ -573,9 +575,8 @@ class KeyframePolicy(nn.Module):
             raise ValueError(f"checkpoint {ckpt['path']} is a {config.variant!r} policy, expected {expect_variant!r}")
         stored = ckpt.get("grounder")  # the dict form (file boundary)
         stored_config = grounder_config_from_dict(stored) if stored is not None else None
-        if grounder is None or isinstance(grounder, (Mapping, *GROUNDER_CONFIGS)):
-            override = (as_grounder_config(cast("GrounderConfig | Mapping[str, Any]", grounder))
-                        if grounder is not None else None)
+        if grounder is None or isinstance(grounder, (Mapping, GrounderConfig)):
+            override = as_grounder_config(grounder) if grounder is not None else None
             grounder = merge_grounder_configs(stored_config, override)
         policy = cls(config, ckpt["language"], grounder, ckpt.get("camera_names"))
         policy.load_networks(ckpt)

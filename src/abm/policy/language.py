@@ -10,6 +10,9 @@ checkpoint so :class:`~abm.policy.KeyframePolicy` can rebuild the same encoder:
   no download, and is what tests and CPU experiments use.
 * ``{"kind": "clip", ...grounder options}`` — CLIP text tokens through the grounding package's
   ``ClipGrounder.skill_embeddings`` (the paper's choice), see :class:`ClipLanguageEncoder`.
+
+Their typed configurations and the registry of kinds are :mod:`abm.policy.language_config` (light, for the
+command line); each encoder here is built from its configuration by ``from_config``.
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from abm.grounding.config import ClipGrounderConfig, build_grounder
+from abm.grounding.config import build_grounder
+from abm.policy.language_config import ClipLanguageConfig, HashLanguageConfig
 
 _WORD = re.compile(r"[a-z0-9]+")
 
@@ -56,8 +60,15 @@ class HashLanguageEncoder:
 
     def __init__(self, dim: int = 512, tokens: int = 77, seed: int = 0) -> None:
         self.dim, self.tokens, self.seed = int(dim), int(tokens), int(seed)
+        if self.dim < 1 or self.tokens < 1:
+            raise ValueError(f"the hash encoder needs dim and tokens >= 1, got {self.dim} and {self.tokens}")
         rng = np.random.default_rng([self.seed, 1])
         self._pos = rng.standard_normal((self.tokens, self.dim)).astype(np.float32) * 0.1
+
+    @classmethod
+    def from_config(cls, config: HashLanguageConfig) -> HashLanguageEncoder:
+        """The encoder of its configuration (an unset ``dim`` is 512)."""
+        return cls(512 if config.dim is None else config.dim, config.tokens, config.seed)
 
     def _word(self, word: str) -> NDArray[np.float32]:
         rng = np.random.default_rng([self.seed, zlib.crc32(word.encode())])
@@ -91,21 +102,14 @@ class ClipLanguageEncoder:
         probe = self.encode(["x"])
         self.tokens, self.dim = int(probe.shape[1]), int(probe.shape[2])
 
+    @classmethod
+    def from_config(cls, config: ClipLanguageConfig) -> ClipLanguageEncoder:
+        """The text tower of the CLIP grounder its configuration names."""
+        return cls(build_grounder(config.clip), config.to_dict())
+
     def encode(self, texts: Sequence[str]) -> torch.Tensor:
         with torch.no_grad():
             return torch.as_tensor(self.grounder.skill_embeddings(list(texts))).float().cpu()
 
     def spec(self) -> dict[str, Any]:
         return dict(self._spec)
-
-
-def make_language_encoder(spec: dict[str, Any]) -> LanguageEncoder:
-    """Build an encoder from its spec (see module docstring)."""
-    kind = spec.get("kind")
-    if kind == "hash":
-        return HashLanguageEncoder(int(spec.get("dim", 512)), int(spec.get("tokens", 77)), int(spec.get("seed", 0)))
-    if kind == "clip":
-        # the spec is the language encoder's file form: the CLIP grounder's options (whose text tower encodes)
-        grounder = build_grounder(ClipGrounderConfig.from_dict(spec))
-        return ClipLanguageEncoder(grounder, spec)
-    raise ValueError(f"unknown language encoder kind {kind!r}; use 'hash' or 'clip'")

@@ -16,12 +16,18 @@ The rendered mask channel comes from re-rendering the per-point mask field (``st
 ``concat-full``, ``abm``: binary mask; ``concat-rerendered``: the soft per-point heatmap) into the
 virtual views; :func:`mask_channel` turns the rendered ``(B, V, 2, H, W)`` [mask, heatmap] pair
 into the single channel a variant consumes.
+
+**Adding a variant**: one :func:`register_variant` entry here (a new mask form also needs its branch in
+:func:`mask_channel`), then ``python tests/test_policy_golden.py --update VARIANT`` records its golden outputs;
+``abm train --method`` offers it from :data:`VARIANTS`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
+
+from abm.registry import Registry
 
 if TYPE_CHECKING:  # torch is imported where masks are computed, so the command line starts fast
     import torch
@@ -59,22 +65,27 @@ class VariantSpec:
         return self.uses_mask
 
 
-VARIANTS: dict[str, VariantSpec] = {
-    "abm": VariantSpec("abm", "center", "stem", False, "skill"),
-    "rvt": VariantSpec("rvt", "none", "stem", False, "instruction"),
-    "ifd": VariantSpec("ifd", "none", "stem", True, "instruction"),
-    "stack": VariantSpec("stack", "binary", "input", False, "skill"),
-    "concat-rerendered": VariantSpec("concat-rerendered", "soft", "stem", False, "skill"),
-    "concat-full": VariantSpec("concat-full", "binary", "stem", False, "skill"),
-}
+#: every policy variant, by name (``abm train --method`` choices, ``PolicyConfig.variant``)
+VARIANTS: Registry[VariantSpec] = Registry("policy variant")
+
+
+def register_variant(spec: VariantSpec) -> VariantSpec:
+    """Add a variant to :data:`VARIANTS` under its name."""
+    return VARIANTS.register(spec.name, spec)
+
+
+register_variant(VariantSpec("abm", "center", "stem", False, "skill"))
+register_variant(VariantSpec("rvt", "none", "stem", False, "instruction"))
+register_variant(VariantSpec("ifd", "none", "stem", True, "instruction"))
+register_variant(VariantSpec("stack", "binary", "input", False, "skill"))
+register_variant(VariantSpec("concat-rerendered", "soft", "stem", False, "skill"))
+register_variant(VariantSpec("concat-full", "binary", "stem", False, "skill"))
 
 
 def get_variant(name: str) -> VariantSpec:
-    """The :class:`VariantSpec` called ``name``; ``ValueError`` listing the known ones otherwise."""
-    try:
-        return VARIANTS[name]
-    except KeyError:
-        raise ValueError(f"unknown policy variant {name!r}; choose from {sorted(VARIANTS)}") from None
+    """The :class:`VariantSpec` called ``name``; a ``ValueError`` listing the known ones otherwise
+    (:class:`abm.registry.UnknownNameError`)."""
+    return VARIANTS[name]
 
 
 def mask_channel(spec: VariantSpec, rendered: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:

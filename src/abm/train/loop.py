@@ -45,7 +45,7 @@ from abm.data.keyframes import (
     worker_init,
 )
 from abm.files import FolderLock, refuse_links, write_text_atomic
-from abm.grounding.config import GrounderConfig, OracleGrounderConfig, build_grounder, grounder_config_from_dict
+from abm.grounding.config import GROUNDERS, ClipGrounderConfig, build_grounder
 from abm.policy.checkpoint import (
     checkpoint_path,
     list_checkpoints,
@@ -55,7 +55,7 @@ from abm.policy.checkpoint import (
 )
 from abm.policy.config import PolicyConfig, check_compatible
 from abm.policy.keyframe_policy import LOSS_TERMS, KeyframePolicy
-from abm.policy.language import make_language_encoder
+from abm.policy.language_config import build_language_encoder
 from abm.progress import Progress
 from abm.train.config import TrainConfig
 from abm.types import Episode
@@ -159,12 +159,9 @@ def build_policy_config(cfg: TrainConfig, lang_dim: int, ifd_dim: int | None) ->
 
 
 def language_spec(cfg: TrainConfig, lang_dim: int) -> dict[str, Any]:
-    kind = cfg.language or ("clip" if cfg.grounder == "clip" else "hash")
-    if kind == "hash":
-        return {"kind": "hash", "dim": lang_dim, "tokens": 77, "seed": 0}
-    if kind == "clip":
-        return {"kind": "clip", **cfg.grounder_options}
-    raise ValueError(f"unknown language encoder {kind!r}; use 'hash' or 'clip'")
+    """The run's language encoder in its checkpoint form (:attr:`TrainConfig.language_config`, a free width set to
+    ``lang_dim``)."""
+    return cfg.language_config.with_width(lang_dim).to_dict()
 
 
 def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None, data: Path | None = None,
@@ -238,21 +235,35 @@ _RUN_FILES = ("config.json", "log.csv", "summary.json")
 # Options that shape the optimisation: ``--resume`` keeps them unless told otherwise (``--steps`` may grow; the
 # model's own options are checked by ``check_compatible``; the rest - paths, devices, logging - may change).
 RESUME_FIXED = ("tasks", "splits", "batch", "lr", "optimizer", "warmup", "min_lr_ratio", "weight_decay", "grad_clip",
-                "grounder", "grounder_options", "language", "seed", "augment", "camera_names")
+                "grounder", "language", "seed", "augment", "camera_names")
 
 
 def changed_settings(saved: dict[str, Any], cfg: TrainConfig) -> dict[str, tuple[Any, Any]]:
-    """``{option: (value in the checkpoint, value now)}`` of the :data:`RESUME_FIXED` options that differ."""
-    now = cfg.to_dict()
-    changed = {k: (saved[k], now[k]) for k in RESUME_FIXED if k in saved and saved[k] != now[k]}
-    if "grounder_options" in changed and "grounder" not in changed:
-        # compare what the options mean, not how they were written (e.g. a default named or left out)
-        try:
-            same = _grounder_config(saved) == cfg.grounder_config
-        except ValueError:
-            same = False
-        if same:
-            del changed["grounder_options"]
+    """``{option: (value in the checkpoint, value now)}`` of the :data:`RESUME_FIXED` options that differ.
+
+    ``saved`` is a checkpoint's ``train_config`` in any abm version's form (:meth:`TrainConfig.from_dict`); the
+    grounder and the language encoder are compared by what they mean (typed: a default named or left out is the
+    same option; the language encoder as the run uses it, also when it follows the grounder), and shown in their
+    dict form."""
+    if not saved:
+        return {}
+    try:
+        old = TrainConfig.from_dict(saved)
+    except ValueError:  # a grounder this version cannot read: everything about it differs
+        old = None
+    before, now = (old.to_dict() if old is not None else dict(saved)), cfg.to_dict()
+    changed = {}
+    for key in RESUME_FIXED:
+        if key not in saved:  # written before the option existed
+            continue
+        if old is None:
+            same = saved[key] == now[key]
+        elif key == "language":
+            same = old.language_config == cfg.language_config
+        else:
+            same = getattr(old, key) == getattr(cfg, key)
+        if not same:
+            changed[key] = (before[key], now[key])
     return changed
 
 
@@ -269,12 +280,6 @@ def _check_same_data(run: Path, saved: dict[str, Any], cfg: TrainConfig) -> None
         now = f"--data {new}" if new is not None else "no --data"
         raise ValueError(f"{run} was trained on {was}; --resume continues a run on the same episodes, not on "
                          f"{now}: resume with the same --data, or train into a new --out folder")
-
-
-def _grounder_config(saved: dict[str, Any]) -> GrounderConfig:
-    if saved.get("grounder", "oracle") == "oracle":
-        return OracleGrounderConfig()
-    return grounder_config_from_dict({"kind": saved["grounder"], **(saved.get("grounder_options") or {})})
 
 
 # What abm train (and abm train's training curve) writes or deletes in a run folder: none may be a symbolic link,
@@ -345,11 +350,14 @@ class Trainer:
         random.seed(cfg.seed)
         base_lang = int(cfg.policy_overrides.get("lang_dim", 512))
         self.language_spec = ckpt["language"] if ckpt is not None else language_spec(cfg, base_lang)
-        encoder = make_language_encoder(self.language_spec)
-        self.grounder_config = gconfig = cfg.grounder_config
+        encoder = build_language_encoder(self.language_spec)
+        self.grounder_config = gconfig = cfg.grounder
+        if not GROUNDERS[gconfig.kind].per_frame:
+            raise ValueError(f"grounder {gconfig.kind!r} carries state from one step of an episode to the next: "
+                             f"train with one that grounds each frame ({', '.join(GROUNDERS.names(per_frame=True))})")
         ifd_dim = None
         if cfg.method == "ifd":
-            if cfg.grounder != "clip":
+            if not isinstance(gconfig, ClipGrounderConfig):
                 raise ValueError("method 'ifd' re-renders CLIP features: use --grounder clip")
             g = build_grounder(gconfig)
             ifd_dim = getattr(g, "feature_dim", None) or getattr(getattr(g, "backbone", None), "embed_dim", None)
@@ -437,7 +445,7 @@ class Trainer:
         augment = cfg.augment if augment is None else augment
         cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else self.run / "cache"
         opts = self.policy.sample_options()
-        if dinfo.main and ((opts["mask"] and self.grounder_config.kind != "oracle") or opts["features"]):
+        if dinfo.main and ((opts["mask"] and GROUNDERS[self.grounder_config.kind].cached) or opts["features"]):
             # the explicit grounding step (what `abm data ground` does ahead of time); resumable
             made = ground_keyframes(source, self.policy.workspace, self.grounder_config, cache, mask=opts["mask"],
                                     features=opts["features"], augment=augment, camera_names=cfg.camera_names,

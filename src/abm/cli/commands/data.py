@@ -11,7 +11,7 @@ from abm.data.generate import EvaluationOnlyTaskError, expand_tasks, generate
 from abm.data.keyframes import EpisodeSource, ground_keyframes
 from abm.data.lerobot import export_lerobot, import_lerobot
 from abm.geometry import Workspace
-from abm.grounding.config import grounder_config_from_dict
+from abm.grounding.config import grounder_from_flags
 from abm.policy.config import PolicyConfig
 from abm.ray_pool import RayBackendError
 from abm.sim.assets import AssetNotFoundError
@@ -134,8 +134,7 @@ def _ground(args: argparse.Namespace) -> int:
         store.check_consistent(indices)
     except EpisodeFormatError as err:
         raise CommandError(str(err)) from None
-    grounder = grounder_config_from_dict(
-        {"kind": args.grounder, **{k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v}})
+    grounder = grounder_from_flags(args.grounder, args.clip_model, args.clip_device)
     made = ground_keyframes(EpisodeSource(store, indices), workspace, grounder, args.cache, mask=not args.features,
                             features=args.features, augment=not args.no_augment, camera_names=args.cameras)
     what = "CLIP point features" if args.features else "mask fields"

@@ -35,6 +35,7 @@ from abm.evaluation.runner import (
     same_file_runs,
 )
 from abm.files import FolderLock
+from abm.grounding.config import GROUNDERS
 from abm.grounding.default import default_grounder
 from abm.policy.checkpoint import load_checkpoint
 from abm.ray_pool import RayBackendError
@@ -199,14 +200,15 @@ def eval_protocol(args: argparse.Namespace, plan: dict[str, list[str]], settings
 
 
 def _eval_grounder(args: argparse.Namespace) -> None:
-    """Say which grounder the rollouts use; ``--grounder clip|tracking`` without ``--clip-model`` on a checkpoint
-    that names no CLIP takes one in the order every command uses (:func:`abm.grounding.default.default_grounder`)."""
+    """Say which grounder the rollouts use; ``--grounder`` of a kind that uses a CLIP (clip, tracking) without
+    ``--clip-model`` on a checkpoint that names no CLIP takes one in the order every command uses
+    (:func:`abm.grounding.default.default_grounder`)."""
     log = logging.getLogger("abm")
     kind = getattr(args, "grounder", None)
     if kind is None:
         log.info("abm eval: grounder: each checkpoint's own (the one it was trained with; --grounder overrides)")
         return
-    if kind in ("clip", "tracking") and not args.clip_model and any(not checkpoint_clips(r) for r in args.run):
+    if GROUNDERS[kind].clip and not args.clip_model and any(not checkpoint_clips(r) for r in args.run):
         try:
             choice = default_grounder(None, str(args.device), clip_only=True)
         except ValueError as err:

@@ -27,6 +27,7 @@ from abm.cli import CommandError
 from abm.data.episode_store import load_episode
 from abm.files import write_text_atomic
 from abm.geometry import Workspace, fuse_cameras
+from abm.grounding.config import GROUNDERS
 from abm.grounding.decision import decide_target
 from abm.grounding.default import default_grounder
 from abm.grounding.grounders import make_grounder
@@ -117,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
     if args.clip_model and args.grounder in (None, "clip"):  # named: loading it says what is wrong, if anything
         args.grounder = "clip"
         print(f"abm ground: grounder: CLIP {args.clip_model} (--clip-model)")
-    elif args.grounder != "oracle":  # no --grounder, or clip without --clip-model: the order every command uses
+    elif args.grounder is None or GROUNDERS[args.grounder].clip:  # no --grounder, or clip without --clip-model:
+        # the order every command uses
         try:
             choice = default_grounder(args.clip_model, str(args.device), download=args.allow_download,
                                       clip_only=args.grounder == "clip")
@@ -126,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
         args.grounder, args.clip_model = choice.kind, choice.model
         print(choice.startup_line("ground"))
     else:
-        print("abm ground: grounder: oracle (--grounder oracle: simulator segmentation, ground-truth masks)")
+        print(f"abm ground: grounder: {args.grounder} (--grounder {args.grounder}: "
+              f"{GROUNDERS[args.grounder].description})")
     options: dict[str, Any] = {}
     if args.grounder == "clip":
         options = dict(device=args.device, allow_download=args.allow_download, cache=args.cache)

@@ -9,7 +9,7 @@ from pathlib import Path
 from abm.cli import CommandError
 from abm.cli.robot import parse_board_text
 from abm.files import LinkError, refuse_links
-from abm.grounding.grounders import override_spec
+from abm.grounding.config import grounder_from_flags
 from abm.policy import KeyframePolicy
 from abm.robot.calibration import BoardSpec, calibrate_from_recording, load_calibration, save_calibration
 from abm.robot.devices import record_observations
@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise CommandError("--steps must be at least 1")
     try:
-        grounder = override_spec(args.grounder, args.clip_model)
+        grounder = grounder_from_flags(args.grounder, args.clip_model)
     except ValueError as err:
         raise CommandError(str(err)) from err
     if args.instruction is not None and not args.instruction.strip():

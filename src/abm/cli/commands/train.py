@@ -30,7 +30,7 @@ from abm.files import FolderLock
 from abm.grounding.default import default_grounder
 from abm.policy.checkpoint import check_export_target, export_checkpoint, resolve_checkpoint
 from abm.policy.config import PolicyConfig
-from abm.train.config import TrainConfig
+from abm.train.config import TrainConfig, grounding_from_flags
 from abm.train.loop import train
 from abm.train.synthetic import synthetic_episodes
 
@@ -57,8 +57,9 @@ def train_grounder(args: argparse.Namespace) -> tuple[str, str | None]:
     main = int(os.environ.get("RANK", "0")) == 0
     saved = Path(args.out) / "config.json" if args.out else None
     if args.resume and saved is not None and saved.is_file():
-        train = json.loads(saved.read_text()).get("train", {})
-        grounder, model = train.get("grounder", "oracle"), (train.get("grounder_options") or {}).get("model")
+        train = TrainConfig.from_dict(json.loads(saved.read_text()).get("train", {}))  # any abm version's form
+        grounder = train.grounder.kind
+        model = {**train.language_config.clip_options(), **train.grounder.clip_options()}.get("model")
         if main:
             print(f"abm train: grounder: {grounder}{f' {model}' if model else ''} (the resumed run's own)")
         return grounder, args.clip_model or model
@@ -97,18 +98,18 @@ def run(args: argparse.Namespace) -> int:
                                          "never reaches its peak", args.warmup, args.steps)
     if args.grounder is None:
         args.grounder, args.clip_model = train_grounder(args)
-    cfg = config_from_args(
-        TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
-        grounder_options={k: v for k, v in (("model", args.clip_model), ("device", args.clip_device)) if v})
+    try:
+        grounder, language = grounding_from_flags(args.grounder, args.language, args.clip_model, args.clip_device)
+    except ValueError as err:
+        raise CommandError(str(err)) from None
+    cfg = config_from_args(TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
+                           grounder=grounder, language=language)
     if cfg.val_data is not None and cfg.data is not None:
         overlap = held_out_overlap(cfg.data, cfg.val_data)
         if overlap:
             raise CommandError(f"{overlap}: validation episodes must be held out (other scenes, in their own "
                                "folder: abm data generate --seed with seeds the training data does not use), or "
                                "leave --val-data out")
-    if cfg.grounder == "oracle" and cfg.grounder_options:
-        if cfg.language != "clip":
-            raise CommandError("--clip-model/--clip-device need --grounder clip or --language clip")
     episodes = None
     if args.data is None:
         episodes = synthetic_episodes(args.synthetic, args.camera_resolution)

@@ -8,7 +8,7 @@ import time
 
 from abm.cli import CommandError
 from abm.data.episode_store import load_episode
-from abm.grounding.config import grounder_config_from_dict
+from abm.grounding.config import grounder_from_flags
 from abm.policy import KeyframePolicy
 from abm.viewer.browser import find_chromium, screenshot
 from abm.viewer.record import record_from_episode, record_rollout
@@ -27,10 +27,7 @@ def run(args: argparse.Namespace) -> int:
         if find_chromium() is None:
             raise CommandError("--screenshot needs Chromium, and none is on PATH: install it (Debian: apt-get "
                                "install chromium) or leave --screenshot out to serve the page")
-    grounder = None
-    if args.grounder:
-        grounder = grounder_config_from_dict(
-            {"kind": args.grounder, **({"model": args.clip_model} if args.clip_model else {})})
+    grounder = grounder_from_flags(args.grounder, args.clip_model)
     policy = None
     if args.run is not None:
         policy = KeyframePolicy.from_checkpoint(args.run, device=args.device, grounder=grounder)
