@@ -25,6 +25,7 @@ instructions reuse trained skills because colour words and nouns such as "block"
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -137,9 +138,12 @@ class SkillTemplate:
     Attributes:
         skill: the skill text with the placeholder word ``X``.
         patterns: pattern texts; ``<name>`` refers to a group of ``synonyms``.
-        tasks: benchmark tasks that use this skill (informative only).
+        tasks: benchmark tasks that use this skill: the ones a template file lists, and for the built-in
+            templates every registered task whose own instructions parse to the skill (:func:`load_templates`).
         examples: instructions shown in refusal messages as accepted phrasings of this skill.
         synonyms: the synonym groups the patterns may use.
+        places: the catalog objects the skill's text names as its place (the plate, the target pad): what a
+            mention of the place means, never its X (:mod:`abm.grounding.resolve`).
     """
 
     skill: str
@@ -147,6 +151,7 @@ class SkillTemplate:
     tasks: tuple[str, ...] = ()
     examples: tuple[str, ...] = ()
     synonyms: Synonyms = field(default_factory=dict, repr=False, compare=False)
+    places: tuple[str, ...] = ()
     _compiled: tuple[tuple[re.Pattern[str], int], ...] = field(default=(), repr=False, compare=False)
     _lead_words: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
 
@@ -324,13 +329,14 @@ class TemplateSet:
         skill is recompiled with the merged synonyms.
         """
         synonyms = _merge_synonyms(self.synonyms, other.synonyms)
-        by_skill: dict[str, tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]] = {}
+        by_skill: dict[str, tuple[tuple[str, ...], ...]] = {}
         for t in (*other.skills, *self.skills):
-            old = by_skill.get(t.skill, ((), (), ()))
-            by_skill[t.skill] = (_union(old[0], t.patterns), _union(old[1], t.tasks), _union(old[2], t.examples))
+            old = by_skill.get(t.skill, ((), (), (), ()))
+            by_skill[t.skill] = (_union(old[0], t.patterns), _union(old[1], t.tasks), _union(old[2], t.examples),
+                                 _union(old[3], t.places))
         skills = tuple(
-            SkillTemplate(skill, patterns, tasks, examples, synonyms)
-            for skill, (patterns, tasks, examples) in by_skill.items()
+            SkillTemplate(skill, patterns, tasks, examples, synonyms, places)
+            for skill, (patterns, tasks, examples, places) in by_skill.items()
         )
         return TemplateSet(
             skills,
@@ -404,6 +410,7 @@ def parse_templates(data: dict[str, Any], base_synonyms: Synonyms | None = None)
                 tuple(str(t) for t in entry.get("tasks", [])),
                 tuple(str(e) for e in entry.get("examples", [])),
                 synonyms,
+                tuple(str(p) for p in entry.get("places", [])),
             )
         )
     lists = {key: _string_list(data, key) for key in _WORD_LISTS}
@@ -426,7 +433,7 @@ def load_templates(path: str | Path | None = None, base_synonyms: Synonyms | Non
     ``<grasp>``, ...) besides its own.
     """
     if path is None:
-        return parse_templates(_builtin_data(), base_synonyms)
+        return _with_benchmark_tasks(parse_templates(_builtin_data(), base_synonyms))
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"template file not found: {path}")
@@ -443,6 +450,33 @@ def load_templates(path: str | Path | None = None, base_synonyms: Synonyms | Non
         return parse_templates(data, base_synonyms)
     except ValueError as err:
         raise ValueError(f"{path}: {err}") from None
+
+
+def _with_benchmark_tasks(templates: TemplateSet) -> TemplateSet:
+    """``templates`` with the skills the benchmark's tasks declare (``Task.skills``: entries of this file's form)
+    tried first, and every skill naming the tasks that use it: each task of :data:`abm.sim.tasks.TASKS` whose own
+    instruction templates parse to the skill. So a task names its skill nowhere but in its own module (a task whose
+    instructions parse to no skill names none, and its tests say so)."""
+    from abm.sim.tasks import TASKS  # the benchmark's tasks (sim, beside grounding): read with the built-in templates
+
+    declared = [dict(entry) for task in TASKS.values() for entry in task.skills]
+    if declared:
+        try:
+            own = parse_templates({"skills": declared}, templates.synonyms)
+        except ValueError as err:
+            raise ValueError(f"a task's skills (Task.skills): {err}") from None
+        templates = templates.merged(own)
+    parser = TemplateParser(templates)
+    users: dict[str, tuple[str, ...]] = {}
+    for name, task in TASKS.items():
+        for text in task.templates:
+            try:
+                skill = parser.parse(text.format(target="thing", container="box")).skill
+            except InstructionError:
+                continue
+            users[skill] = _union(users.get(skill, ()), (name,))
+    skills = tuple(dataclasses.replace(t, tasks=_union(t.tasks, users.get(t.skill, ()))) for t in templates.skills)
+    return dataclasses.replace(templates, skills=skills)
 
 
 def _phrase_regex(phrases: Collection[str], lookahead: str = "") -> re.Pattern[str] | None:

@@ -62,8 +62,10 @@ from abm.grounding.instruction import (
     ParsedInstruction,
     TemplateParser,
     default_parser,
+    load_templates,
 )
 from abm.sim.catalog import CATALOG
+from abm.sim.tasks import TASKS
 
 RESOLVE_MIN_CONFIDENCE = 0.5
 """Smallest confidence :func:`resolve_instruction` answers with; below it the instruction is refused."""
@@ -81,36 +83,16 @@ CLOSE_SKILL = "close X"
 RING_SKILL = "put the ring on X"
 PAN_SKILL = "take X off the frypan"
 
-SKILL_PLACES: dict[str, tuple[str, ...]] = {
-    TARGET_SKILL: ("target",),
-    PLATE_SKILL: ("plate",),
-    CONTAINER_SKILL: (),
-    TOP_SHELF_SKILL: ("shelf",),
-    BOTTOM_SHELF_SKILL: ("shelf",),
-    RACK_SKILL: ("wine rack",),
-    WATER_SKILL: ("plant",),
-    CLOSE_SKILL: ("jar lid",),
-    RING_SKILL: ("ring",),
-    PAN_SKILL: ("frypan",),
-}
-"""Each built-in skill's place objects (catalog names): what a mention of the place means, never its X."""
+SKILL_PLACES: dict[str, tuple[str, ...]] = {t.skill: t.places for t in load_templates().skills}
+"""Each built-in skill's place objects (catalog names; ``places`` in ``templates.yaml`` or a task's ``skills``): what
+a mention of the place means, never its X."""
 
 PLACES: frozenset[str] = frozenset(p for places in SKILL_PLACES.values() for p in places)
 
-TASK_CATEGORIES: dict[str, tuple[str, ...]] = {
-    "pick_block": ("block",),
-    "pick_food_to_target": ("grocery",),
-    "place_food": ("grocery",),
-    "place_block_in_plate": ("block",),
-    "put_in_container": ("grocery", "block"),
-    "put_in_shelf": ("grocery",),
-    "place_wine": ("bottle",),
-    "water_plants": ("mug",),
-    "close_jar": ("jar",),
-    "insert_peg": ("peg",),
-    "take_off_pan": ("grocery",),
-}
-"""Catalog categories of each benchmark task's X (``Task.categories``; tests check they agree)."""
+def task_categories(task: str) -> tuple[str, ...]:
+    """The catalog categories a benchmark task's X belongs to (its ``Task.categories``; none for a task the
+    benchmark does not have, e.g. one a user template file names)."""
+    return tuple(TASKS[task].categories) if task in TASKS else ()
 
 CONTAINER_CATEGORY = "container"
 """The catalog category of put_in_container's Y."""
@@ -453,7 +435,7 @@ class _Scene:
     def x_candidates(self, skill: str, tasks: Sequence[str], second: str | None = None) -> list[str]:
         """The scene's objects the skill can act on as X: its tasks' categories, or any object the catalog does not
         know that is no place (a real scene's own names); never ``second``."""
-        wanted = {c for t in tasks for c in TASK_CATEGORIES.get(t, ())}
+        wanted = {c for t in tasks for c in task_categories(t)}
         out = []
         for n in self.names:
             category = self.words[n].category
@@ -548,7 +530,7 @@ class UnresolvedInstructionError(InstructionError):
 def _task_for(tasks: Sequence[str], target: str) -> str:
     """The task among ``tasks`` whose categories include the target's (the first task otherwise)."""
     category = object_words(target).category
-    return next((t for t in tasks if category in TASK_CATEGORIES.get(t, ())), tasks[0] if tasks else "")
+    return next((t for t in tasks if category in task_categories(t)), tasks[0] if tasks else "")
 
 
 def _from_parse(text: str, parsed: ParsedInstruction, scene: _Scene, method: str, skill_confidence: float

@@ -17,7 +17,7 @@ def _tasks(args: argparse.Namespace) -> int:
     names = sorted(TASKS)
     if args.task is not None:
         if args.task not in TASKS:
-            raise CommandError(f"unknown task {args.task!r}; known tasks: {', '.join(names)}")
+            raise CommandError(str(TASKS.unknown(args.task))) from None
         names = [args.task]
     print(f"object splits: {splits.path}")
     for name in names:

@@ -1,27 +1,25 @@
-"""ABM-Bench tasks: importing this package registers every built-in task in :data:`TASKS`."""
+"""ABM-Bench tasks: importing this package imports every module in it, so each task a module registers (with
+:func:`register_task`) is in :data:`TASKS`. Adding a task is adding its module here (and its objects to the split
+file, :mod:`abm.sim.splits`); nothing lists the tasks by name.
+"""
 
-from abm.sim.tasks import (  # noqa: F401  (registration)
-    close_jar,
-    compositional,
-    insert_peg,
-    pick_block,
-    place_food,
-    place_wine,
-    put_in_container,
-    put_in_shelf,
-    take_off_pan,
-    water_plants,
-)
+import importlib
+import pkgutil
+
 from abm.sim.tasks.base import TASKS, Task, TaskInstance, register_task
+
+for _module in pkgutil.iter_modules(__path__):  # alphabetical: the order tasks are registered in
+    if _module.name != "base":
+        importlib.import_module(f"{__name__}.{_module.name}")
 
 
 def get_task(name: str, splits=None) -> Task:
-    """An instance of a registered task (``splits``: :class:`abm.sim.splits.ObjectSplits` or ``None``)."""
-    try:
-        cls = TASKS[name]
-    except KeyError:
-        raise KeyError(f"unknown task {name!r}; known tasks: {sorted(TASKS)}") from None
-    return cls(splits)
+    """An instance of a registered task (``splits``: :class:`abm.sim.splits.ObjectSplits` or ``None``).
+
+    Raises:
+        KeyError: an unknown task (:class:`abm.registry.UnknownNameError`, listing the known ones).
+    """
+    return TASKS[name](splits)
 
 
 __all__ = ["TASKS", "Task", "TaskInstance", "get_task", "register_task"]

@@ -10,6 +10,8 @@ A task is one small class registered with :func:`register_task`. It declares:
 * ``distractors``: how many other objects of the task's own split join the scene, and
   ``borrowed_distractors``: ``(task, count)`` objects taken from another task's split;
 * ``fixed_yaw``: yaw ranges (rad) of objects that must face the robot;
+* ``skills`` (optional): the instruction skills its templates use when the built-in ones
+  (``abm/grounding/templates.yaml``) do not know their wording, in that file's form;
 * ``slots`` (optional): a second object slot listed in the split file beside the targets, YAML key ->
   catalog categories (put_in_container: ``{"containers": ("container",)}``), checked when splits load,
   and :meth:`Task.check_splits` for a task's own checks of the whole split file;
@@ -33,12 +35,15 @@ from typing import Any, ClassVar
 import numpy as np
 
 from abm.geometry.rotations import GRIPPER_SYMMETRY, canonical_gripper_matrix, matrix_to_quat
+from abm.registry import Registry
 from abm.sim.catalog import catalog_entry, object_geometry
 from abm.sim.scene import PlacedObject, SceneSpec
 from abm.sim.split_file import read_splits
 from abm.types import KeyframeAction
 
-TASKS: dict[str, type[Task]] = {}
+#: every task, by name (its class); filled by importing :mod:`abm.sim.tasks`, which imports every module of the
+#: package (a task is one module with a :func:`register_task` class)
+TASKS: Registry[type[Task]] = Registry("task")
 
 # Table region where objects are placed (m, world frame).
 TABLE_X = (0.33, 0.68)
@@ -51,11 +56,9 @@ FINGER_REACH = 0.06         # m from the TCP to the outside of an open finger
 
 
 def register_task(cls: type[Task]) -> type[Task]:
-    """Class decorator adding a task to :data:`TASKS` under ``cls.name``."""
-    if cls.name in TASKS:
-        raise ValueError(f"task {cls.name!r} registered twice")
-    TASKS[cls.name] = cls
-    return cls
+    """Class decorator adding a task to :data:`TASKS` under ``cls.name`` (``ValueError`` for a name registered
+    twice)."""
+    return TASKS.register(cls.name, cls)
 
 
 @dataclass
@@ -96,6 +99,10 @@ class Task(ABC):
     evaluation_only: ClassVar[bool] = False
     #: Second object slots: split-file key -> catalog categories of its objects (see abm.sim.splits).
     slots: ClassVar[dict[str, tuple[str, ...]]] = {}
+    #: Skills of its own, when its instructions use a wording the built-in templates do not know: entries of
+    #: ``abm/grounding/templates.yaml``'s form (``skill``, ``patterns``, ``examples``, ``places``), added to the
+    #: instruction parser's (abm.grounding.instruction.load_templates).
+    skills: ClassVar[tuple[dict[str, Any], ...]] = ()
 
     def __init__(self, splits=None) -> None:
         self.splits = splits if splits is not None else read_splits(None, TASKS)
