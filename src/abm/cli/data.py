@@ -13,6 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from abm.configuration import CAMERA_RESOLUTION, SPLITS, WORKERS, clip_model_help, float_range, int_range, seed_int
+from abm.data.formats import DATASET_FORMATS
 from abm.grounding.config import GROUNDERS
 from abm.ray_pool import add_backend_arguments
 
@@ -42,8 +43,10 @@ def register(subparsers) -> None:
     add_backend_arguments(gen)
     gen.set_defaults(func="abm.cli.commands.data:_generate")
 
+    formats = DATASET_FORMATS.names()
+    format_help = "dataset format: " + "; ".join(f"{name}: {DATASET_FORMATS[name].description}" for name in formats)
     export = sub.add_parser(
-        "export", help="write abm episodes as a LeRobot v3 dataset (parquet + mp4)",
+        "export", help="write abm episodes as a dataset of another format (LeRobot v3: parquet + mp4)",
         description="Write every episode under --data as one LeRobot v3.0 dataset: meta/info.json, stats, "
         "tasks and episode parquet, frames as parquet (depth, segmentation and camera calibration lossless), "
         "camera streams as H.264 mp4. Dense episodes (generate --dense) export every control tick at the "
@@ -51,22 +54,27 @@ def register(subparsers) -> None:
         "frame_sampling: keyframes, images as PNG in the parquet, fps only an index step). Depth, segmentation "
         "and calibration are geometry.* columns, which LeRobot policies do not read as state. The instruction is "
         "the task string; keyframe.is_keyframe flags the keyframes.")
-    export.add_argument("--format", required=True, choices=["lerobot"], help="dataset format (lerobot: v3.0)")
+    export.add_argument("--format", required=True, choices=formats, help=format_help)
     export.add_argument("--data", required=True, type=Path, help="folder of abm episodes")
     export.add_argument("--out", required=True, type=Path, help="new (or empty) dataset folder")
-    export.add_argument("--frames", default="auto", choices=["auto", "dense", "keyframes"],
-                        help="dense control ticks or keyframes only (auto: dense when every episode has them)")
-    export.add_argument("--crf", type=int_range(0, 51), default=18, help="H.264 quality, 0 (best) to 51 (default 18)")
-    export.add_argument("--data-file-mb", type=float_range(0.0, low_open=True), default=100.0,
-                        help="size limit of a frame parquet file in MiB, LeRobot's data_files_size_in_mb (default "
-                             "100)")
-    export.add_argument("--video-file-mb", type=float_range(0.0, low_open=True), default=200.0,
-                        help="size limit of an mp4 file in MiB, LeRobot's video_files_size_in_mb (default 200)")
-    export.set_defaults(func="abm.cli.commands.data:_export")
+    # the options of one format (DatasetFormat.export_options): not given, the format's own default holds
+    options = (
+        export.add_argument("--frames", choices=["auto", "dense", "keyframes"],
+                            help="lerobot: dense control ticks or keyframes only (default auto: dense when every "
+                                 "episode has them)"),
+        export.add_argument("--crf", type=int_range(0, 51), help="lerobot: H.264 quality, 0 (best) to 51 (default 18)"),
+        export.add_argument("--data-file-mb", type=float_range(0.0, low_open=True),
+                            help="lerobot: size limit of a frame parquet file in MiB, LeRobot's "
+                                 "data_files_size_in_mb (default 100)"),
+        export.add_argument("--video-file-mb", type=float_range(0.0, low_open=True),
+                            help="lerobot: size limit of an mp4 file in MiB, LeRobot's video_files_size_in_mb "
+                                 "(default 200)"),
+    )
+    export.set_defaults(func="abm.cli.commands.data:_export", format_options=tuple(a.dest for a in options))
 
     imp = sub.add_parser(
-        "import", help="read a LeRobot v3 dataset (abm's own export, or another with depth and calibration) into "
-        "abm episodes",
+        "import", help="read a dataset of another format (LeRobot v3: abm's own export, or another with depth and "
+        "calibration) into abm episodes",
         description="Rebuild abm episode files (OUT/<task>/<split>/episode_<N>.h5) from a LeRobot v3.0 "
         "dataset. One written by `abm data export` comes back as exported: keyframes, dense trajectories, depth, "
         "segmentation and calibration exactly, camera images within the video codec's tolerance (exactly for "
@@ -75,8 +83,8 @@ def register(subparsers) -> None:
         "dataset needs, per camera, geometry.depth.<camera>, geometry.intrinsics.<camera> and "
         "geometry.extrinsics.<camera>, the gripper pose and opening in observation.state, and --task; its "
         "keyframes are detected (docs/datasets.md).")
-    imp.add_argument("dataset", type=Path, help="LeRobot dataset folder")
-    imp.add_argument("--format", required=True, choices=["lerobot"], help="dataset format (lerobot: v3.0)")
+    imp.add_argument("dataset", type=Path, help="dataset folder")
+    imp.add_argument("--format", required=True, choices=formats, help=format_help)
     imp.add_argument("--out", required=True, type=Path, help="output folder of abm episodes")
     imp.add_argument("--task", help="ABM-Bench task the episodes show, for a dataset not written by abm (abm's own "
                      "exports name theirs)")

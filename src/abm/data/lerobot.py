@@ -132,6 +132,16 @@ class ExportReport:
     files: list[str] = field(default_factory=list)
     """The dataset's parquet and video files (relative paths)."""
 
+    def summary(self, out: str | os.PathLike[str]) -> str:
+        """One line on what was written to ``out`` (``abm data export`` prints it)."""
+        kind = f"dense frames at {self.fps:g} fps" if self.dense else "keyframes (one frame per keyframe)"
+        data = sum(name.startswith("data/") for name in self.files)
+        videos = len(self.files) - data
+        files = f"{data} data file{'s' * (data != 1)}" + (
+            f", {videos} video file{'s' * (videos != 1)}" if videos else "")
+        return (f"{self.episodes} episodes, {self.frames} {kind} -> {out} (LeRobot v3.0, {files}, "
+                f"{self.bytes / 1e6:.1f} MB)")
+
 
 # --- features and columns ------------------------------------------------------------------------------
 

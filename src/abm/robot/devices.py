@@ -1,5 +1,5 @@
-"""Cameras and arms behind small interfaces, so the deployment loop runs on real hardware, a recording,
-the simulator or a dry run alike.
+"""Cameras and arms behind small interfaces (:class:`abm.robot.kinds.Camera`, :class:`abm.robot.kinds.Arm`), so
+the deployment loop runs on real hardware, a recording, the simulator or a dry run alike.
 
 * A camera has ``read() -> dict[str, CameraFrame]`` (RGB, metric depth, intrinsics, camera-to-base
   extrinsics) and ``object_names`` (segmentation id -> name; empty for real cameras).
@@ -59,6 +59,11 @@ class ReplayCamera:
         self.object_names = {int(k): v for k, v in meta.get("object_names", {}).items()}
         self.instruction = str(meta.get("instruction", ""))
         self.index = 0
+
+    @classmethod
+    def from_config(cls, options: Mapping[str, object]) -> ReplayCamera:
+        """From the robot file's ``cameras`` section: ``{kind: replay, path: FOLDER}``."""
+        return cls(str(options["path"]))
 
     def _load(self, k: int) -> dict[str, np.ndarray]:
         with np.load(self.folder / f"step_{k:03d}.npz", allow_pickle=False) as data:

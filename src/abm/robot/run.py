@@ -1,6 +1,6 @@
 """The deployment loop: observe -> ground -> predict -> check limits -> move, logged step by step.
 
-A robot is described by a YAML file::
+A robot is described by a YAML file (the kinds: :mod:`abm.robot.kinds`)::
 
     cameras: {kind: replay, path: recordings/demo}     # or {kind: sim}, or {kind: realsense, serials: [...],
                                                        #   calibration: calibration.yaml} (abm.robot.realsense)
@@ -37,46 +37,30 @@ from abm.grounding.instruction import (
 )
 from abm.grounding.mask_field import MaskField
 from abm.grounding.resolve import Resolution, UnresolvedInstructionError, resolve_instruction
+from abm.registry import Registry, resolve
 from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot
+from abm.robot.kinds import ARM_KINDS, CAMERA_KINDS, Arm, Camera, DeviceKind
 from abm.robot.limits import LIMITS_SCHEMA, LimitError, MotionLimits
-from abm.robot.realsense import RealSenseCamera
-from abm.robot.ur import URArm
-from abm.schema import Field, SchemaError, any_mapping, check_mapping, integer, number, strings, text, vector
-from abm.types import SPLITS, Observation
+from abm.schema import Field, SchemaError, any_mapping, check_mapping
+from abm.types import Observation
 
 log = logging.getLogger(__name__)
 
 
-# The robot file's declared schema: its sections, then each section's options per ``kind``.
+# The robot file's declared schema: its sections; each section's options per ``kind`` are its registry entry's
+# (abm.robot.kinds.CAMERA_KINDS, ARM_KINDS).
 ROBOT_SCHEMA = {"cameras": Field(any_mapping), "arm": Field(any_mapping), "limits": Field(any_mapping)}
-_SIM_OPTIONS = {"task": Field(text()), "split": Field(text(SPLITS)), "seed": Field(integer(0, 2**63 - 1)),
-                "resolution": Field(integer(8, 4096))}
-_POSITIVE = Field(number(0.0, low_open=True))
-CAMERA_KINDS: dict[str, dict[str, Field]] = {
-    "replay": {"path": Field(text(), required=True)},
-    "sim": _SIM_OPTIONS,
-    "realsense": {"serials": Field(strings, required=True), "calibration": Field(text()),
-                  "width": Field(integer(1)), "height": Field(integer(1)), "fps": Field(integer(1)),
-                  "timeout_ms": Field(integer(1)), "warmup_frames": Field(integer(0))},
-}
-ARM_KINDS: dict[str, dict[str, Field]] = {
-    "dry-run": {},
-    "sim": {**_SIM_OPTIONS, "task": Field(text(), required=True)},
-    "ur": {"host": Field(text(), required=True), "speed": _POSITIVE, "acceleration": _POSITIVE,
-           "tcp_offset": Field(vector(6)), "base_pose": Field(vector(6)), "tolerance_m": _POSITIVE,
-           "tolerance_deg": _POSITIVE, "motion_timeout_s": _POSITIVE, "gripper": Field(any_mapping)},
-}
 
 
-def _check_kind(path: str | Path, section: str, data: dict[str, Any], kinds: dict[str, dict[str, Field]]
-                ) -> dict[str, Any]:
-    """A ``{kind: ..., options}`` section checked against the schema of its kind."""
+def _check_kind(path: str | Path, section: str, data: dict[str, Any], kinds: Registry[DeviceKind]) -> dict[str, Any]:
+    """A ``{kind: ..., options}`` section checked against the options of its kind."""
     if "kind" not in data:
         raise SchemaError(f"{path}: {section}: missing required key 'kind' (one of {list(kinds)})")
     kind = data["kind"]
     if not isinstance(kind, str) or kind not in kinds:
         raise SchemaError(f"{path}: {section}.kind: expected one of {list(kinds)}, got {kind!r}")
-    return {"kind": kind, **check_mapping(path, section, {k: v for k, v in data.items() if k != "kind"}, kinds[kind])}
+    options = {k: v for k, v in data.items() if k != "kind"}
+    return {"kind": kind, **check_mapping(path, section, options, dict(kinds[kind].options))}
 
 
 @dataclass
@@ -89,8 +73,9 @@ class RobotConfig:
 
     @classmethod
     def load(cls, path: str | Path) -> RobotConfig:
-        """Read and check a robot file against its declared schema (:data:`ROBOT_SCHEMA`, :data:`CAMERA_KINDS`,
-        :data:`ARM_KINDS`, :data:`abm.robot.limits.LIMITS_SCHEMA`) before anything is built.
+        """Read and check a robot file against its declared schema (:data:`ROBOT_SCHEMA`, the options of its
+        kinds in :data:`abm.robot.kinds.CAMERA_KINDS` and ``ARM_KINDS``, :data:`abm.robot.limits.LIMITS_SCHEMA`) before
+        anything is built.
 
         Raises:
             ValueError: (:class:`abm.schema.SchemaError`) naming the file, the key and what is expected.
@@ -108,55 +93,61 @@ class RobotConfig:
         except ValueError as err:
             raise SchemaError(f"{path}: limits: {str(err).removeprefix('motion limits: ')}") from None
 
-    def build(self, dry_run: bool = False) -> tuple[Any, Any]:
-        """``(camera, arm)``; ``dry_run`` replaces the arm by :class:`DryRunArm`."""
+    def build(self, dry_run: bool = False) -> tuple[Camera, Arm]:
+        """``(camera, arm)`` built by their kinds' builders (:mod:`abm.robot.kinds`); ``dry_run`` replaces the arm by
+        :class:`DryRunArm`. Sections of a ``simulated`` kind share one :class:`SimRobot` (the scene)."""
         sim = None
         arm_kind = "dry-run" if dry_run else self.arm.get("kind", "dry-run")
-        if arm_kind == "sim" or self.cameras.get("kind") == "sim":
-            arm_opts = self.arm if self.arm.get("kind") == "sim" else {}
+        arm_sim = ARM_KINDS[arm_kind].simulated
+        if arm_sim or CAMERA_KINDS[self.cameras["kind"]].simulated:
+            # the scene's options: the camera section's, and the arm section's when it is the scene (also in a
+            # dry run, where the scene is only the camera)
+            arm_opts = self.arm if ARM_KINDS[self.arm.get("kind", "dry-run")].simulated else {}
             opts = {k: v for k, v in {**self.cameras, **arm_opts}.items() if k != "kind"}
             if "task" not in opts:
                 raise ValueError("a simulated camera or arm needs task: give it in the cameras or arm section "
                                  "(e.g. arm: {kind: sim, task: pick_block})")
             sim = SimRobot(**opts)
         camera = self.build_camera(sim)
-        if arm_kind == "dry-run":
-            arm = DryRunArm(*self._dry_run_start(camera))
-        elif arm_kind == "sim":
+        arm: Arm
+        if arm_sim:
+            assert sim is not None
             arm = sim
-        elif arm_kind == "ur":
-            arm = URArm.from_config(self.arm, limits=self.limits)
+        elif arm_kind == "dry-run":
+            arm = DryRunArm(*self._dry_run_start(camera))
         else:
-            raise ValueError(f"unknown arm kind {arm_kind!r}; use dry-run, sim or ur")
+            arm = resolve(ARM_KINDS[arm_kind].build)(self.arm, limits=self.limits)
         return camera, arm
 
-    def build_camera(self, sim: SimRobot | None = None) -> Any:
-        """The camera source alone (``sim``: the scene a ``kind: sim`` camera shares with the arm)."""
-        kind = self.cameras.get("kind")
-        if kind == "replay":
-            return ReplayCamera(self.cameras["path"])
-        if kind == "sim":
+    def build_camera(self, sim: SimRobot | None = None) -> Camera:
+        """The camera source alone (``sim``: the scene a camera of a simulated kind shares with the arm)."""
+        kind = CAMERA_KINDS[self.cameras["kind"]]
+        if kind.simulated:
             if sim is None:
-                raise ValueError("cameras: kind sim shares the arm's scene; use it with arm kind sim or dry-run")
+                raise ValueError(f"cameras: kind {self.cameras['kind']} shares the arm's scene; use it with arm kind "
+                                 f"{' or '.join(ARM_KINDS.names(simulated=True))} or dry-run")
             return sim
-        if kind == "realsense":
-            return RealSenseCamera.from_config(self.cameras)
-        raise ValueError(f"unknown camera kind {kind!r}; use replay, sim or realsense")
+        camera: Camera = resolve(kind.build)(self.cameras)
+        return camera
 
-    def _dry_run_start(self, camera: Any) -> tuple[np.ndarray, float]:
-        """A dry-run arm's start state: the recording's, the simulator's, or the real arm's (read only)."""
+    def _dry_run_start(self, camera: Camera) -> tuple[np.ndarray, float]:
+        """A dry-run arm's start state: the recording's, the simulator's, or the real arm's (built read only)."""
         if isinstance(camera, ReplayCamera):
             return camera.recorded_gripper()
-        if hasattr(camera, "state"):
+        if isinstance(camera, Arm):  # a camera that is also the arm (the simulator)
             return camera.state()
-        if self.arm.get("kind") == "ur":
-            ur = URArm.from_config(self.arm, read_only=True)  # rtde_receive only: nothing can move
+        kind = ARM_KINDS[self.arm.get("kind", "dry-run")]
+        if kind.build:
+            real = resolve(kind.build)(self.arm, read_only=True)  # reads its state only: nothing can move
             try:
-                return ur.state()
+                pose, opening = real.state()
+                return pose, opening
             finally:
-                ur.close()
+                if hasattr(real, "close"):
+                    real.close()
+        real_arms = [name for name, entry in ARM_KINDS.items() if entry.build]
         raise ValueError(f"a dry run on camera kind {self.cameras.get('kind')!r} needs the arm's start pose: "
-                         "configure the real arm (kind ur; a dry run only reads its pose)")
+                         f"configure the real arm (kind {' or '.join(real_arms)}; a dry run only reads its pose)")
 
 
 class NoTargetError(ValueError):

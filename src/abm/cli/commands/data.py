@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import argparse
 from collections import defaultdict
+from collections.abc import Callable
+from typing import Any
 
 from abm.cli import CommandError
 from abm.data.episode_store import EpisodeFormatError, EpisodeStore, verify_episode
+from abm.data.formats import DATASET_FORMATS
 from abm.data.generate import EvaluationOnlyTaskError, expand_tasks, generate
 from abm.data.keyframes import EpisodeSource, ground_keyframes
-from abm.data.lerobot import export_lerobot, import_lerobot
 from abm.geometry import Workspace
 from abm.grounding.config import grounder_from_flags
 from abm.policy.config import PolicyConfig
 from abm.ray_pool import RayBackendError
+from abm.registry import resolve
 from abm.sim.assets import AssetNotFoundError
 from abm.sim.recorder import control_period
 from abm.sim.splits import SplitFileError
@@ -50,34 +53,45 @@ def _generate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _export(args: argparse.Namespace) -> int:
+def _format_function(name: str, which: str) -> tuple[Callable[..., Any], str]:
+    """The writer or reader (``which``: ``export`` / ``import_``) of the format ``name``, and the advice for a
+    missing dependency."""
+    fmt = DATASET_FORMATS[name]
+    advice = f"; install the {which.rstrip('_')} dependencies: pip install 'abm[{fmt.extra}]'" if fmt.extra else ""
     try:
-        report = export_lerobot(args.data, args.out, frames=args.frames, crf=args.crf,
-                                data_file_mb=args.data_file_mb, video_file_mb=args.video_file_mb)
+        return resolve(getattr(fmt, which)), advice
     except ImportError as err:
-        raise CommandError(f"{err}; install the export dependencies: pip install 'abm[lerobot]'") from None
+        raise CommandError(f"{err}{advice}") from None
+
+
+def _export(args: argparse.Namespace) -> int:
+    fmt = DATASET_FORMATS[args.format]
+    # the formats' options (abm.data.formats.DatasetFormat.export_options) given on the command line
+    options = {name: getattr(args, name) for name in args.format_options if getattr(args, name) is not None}
+    foreign = sorted(set(options) - set(fmt.export_options))
+    if foreign:
+        flags = ", ".join("--" + name.replace("_", "-") for name in foreign)
+        raise CommandError(f"{flags}: not an option of --format {args.format} (it takes "
+                           f"{', '.join('--' + n.replace('_', '-') for n in fmt.export_options) or 'none'})")
+    export, advice = _format_function(args.format, "export")
+    try:
+        report = export(args.data, args.out, **options)
+    except ImportError as err:
+        raise CommandError(f"{err}{advice}") from None
     except (EpisodeFormatError, ValueError, FileNotFoundError) as err:  # the export removed what it wrote
         raise CommandError(str(err)) from None
-    kind = f"dense frames at {report.fps:g} fps" if report.dense else "keyframes (one frame per keyframe)"
-    print(f"{report.episodes} episodes, {report.frames} {kind} -> {args.out} (LeRobot v3.0, "
-          f"{_files(report.files)}, {report.bytes / 1e6:.1f} MB)")
+    print(report.summary(args.out))
     return 0
-
-
-def _files(names: list[str]) -> str:
-    """"2 data files, 4 video files" of an export's file names."""
-    data = sum(name.startswith("data/") for name in names)
-    videos = len(names) - data
-    return f"{data} data file{'s' * (data != 1)}" + (f", {videos} video file{'s' * (videos != 1)}" if videos else "")
 
 
 def _import(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise CommandError(f"--out {args.out} is a file; give a folder")
+    read, advice = _format_function(args.format, "import_")
     try:
-        written = import_lerobot(args.dataset, args.out, overwrite=args.overwrite, task=args.task, split=args.split)
+        written = read(args.dataset, args.out, overwrite=args.overwrite, task=args.task, split=args.split)
     except ImportError as err:
-        raise CommandError(f"{err}; install the import dependencies: pip install 'abm[lerobot]'") from None
+        raise CommandError(f"{err}{advice}") from None
     except (ValueError, FileNotFoundError) as err:
         raise CommandError(str(err)) from None
     print(f"{len(written)} episodes -> {args.out}")
