@@ -12,7 +12,11 @@ text (e.g. because its language encoder gives them codes it could not separate),
 the texts share.
 
 Usage: python benchmarks/skill_text_probe.py --run models/abm_clip.pt --task place_wine --kind move
-           [--episodes 5] [--split seen] [--grounder oracle] [--skill-tasks ...] [--out probe.json]
+           [--episodes 5] [--split seen] [--resolution 128] [--grounder oracle] [--skill-tasks ...]
+           [--out probe.json]
+
+The experiment engine runs it in the diagnose stage of a spec whose ``diagnose:`` block has ``skill_text:``
+(``configs/experiments/paper_tables_v2.yaml``).
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ def main() -> None:
     p.add_argument("--kind", default="move", help="the expert keyframe kind to probe (default move)")
     p.add_argument("--split", default="seen")
     p.add_argument("--episodes", type=int, default=5)
+    p.add_argument("--resolution", type=int, default=128, help="camera pixels (as in training)")
     p.add_argument("--grounder", choices=["clip", "oracle", "tracking"], default=None,
                    help="override the checkpoint's grounder (oracle: the simulator's mask)")
     p.add_argument("--skill-tasks", nargs="+", default=list(PAPER_TASKS),
@@ -51,7 +56,8 @@ def main() -> None:
                          "skill text; the probe needs a mask variant (abm, stack, concat-*)")
     skills = task_skills(args.skill_tasks)
     start = time.perf_counter()
-    rows = skill_text_probe(policy.act, args.task, args.split, args.episodes, args.kind, list(skills))
+    rows = skill_text_probe(policy.act, args.task, args.split, args.episodes, args.kind, list(skills),
+                            args.resolution)
     for r in rows:
         r["task"] = skills[str(r["skill"])]
     print(f"machine: {describe_machine()}; {args.run}, {args.task} {args.split}, keyframe {args.kind!r}, "

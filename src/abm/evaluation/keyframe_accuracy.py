@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from abm.evaluation.results import eval_seed
-from abm.geometry import symmetric_angle_deg
+from abm.geometry import ROUND_SYMMETRY, symmetric_angle_deg
 from abm.grounding.conditioning import split_roles
 from abm.sim.env import make_env, run_expert
 from abm.types import KeyframeAction, Observation
@@ -35,6 +35,15 @@ ActFn = Callable[[Observation, str, Mapping[int, str]], KeyframeAction]
 
 GRASP_TOLERANCE_CM = 2.0
 """Position error a grasp tolerates (measured on pick_block by perturbing expert keyframes)."""
+
+
+def yaw_chance_deg(symmetry: int) -> float:
+    """Median rotation error (degrees) of a yaw drawn at random about the gripper axis, scored against a label
+    of this symmetry: uniform over [0, 180° / symmetry], so 45° for the parallel gripper's two-fold turn,
+    22.5° for a square object's four-fold one, and 0 for a round object (any yaw is right)."""
+    if symmetry == ROUND_SYMMETRY:
+        return 0.0
+    return 90.0 / max(symmetry, 1)
 
 
 @dataclass(frozen=True)
@@ -50,6 +59,7 @@ class KeyframeDeviation:
     position_cm: float
     rotation_deg: float
     gripper_agrees: bool
+    symmetry: int = 2
 
 
 def score_keyframe(pred: KeyframeAction, label: KeyframeAction) -> tuple[float, float, bool]:
@@ -81,12 +91,15 @@ def keyframe_errors(
             for index, (obs, label) in enumerate(episode.steps):
                 for name, act in policies.items():
                     pos, rot, grip = score_keyframe(act(obs, env.instruction, env.object_names), label)
-                    out.append(KeyframeDeviation(name, task, split, seed, index, label.kind, pos, rot, grip))
+                    out.append(KeyframeDeviation(name, task, split, seed, index, label.kind, pos, rot, grip,
+                                                 label.symmetry))
     return out
 
 
 def summarise(errors: Iterable[KeyframeDeviation]) -> list[dict[str, object]]:
-    """One row per (method, task, split, kind): medians, fraction within the grasp tolerance, counts."""
+    """One row per (method, task, split, kind): medians, fraction within the grasp tolerance, counts, and the
+    median over its keyframes of a random yaw's error (``yaw_chance_deg``, :func:`yaw_chance_deg` of each
+    label's symmetry), the chance line of ``rotation_deg_median``."""
     groups: dict[tuple[str, str, str, str], list[KeyframeDeviation]] = {}
     for e in errors:
         groups.setdefault((e.method, e.task, e.split, e.kind), []).append(e)
@@ -99,6 +112,7 @@ def summarise(errors: Iterable[KeyframeDeviation]) -> list[dict[str, object]]:
             "within_grasp_tolerance": sum(p <= GRASP_TOLERANCE_CM for p in pos) / len(es),
             "rotation_deg_median": statistics.median(e.rotation_deg for e in es),
             "gripper_agrees": sum(e.gripper_agrees for e in es) / len(es),
+            "yaw_chance_deg": statistics.median(yaw_chance_deg(e.symmetry) for e in es),
         })
     return rows
 

@@ -12,7 +12,7 @@ import csv
 import hashlib
 import json
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -161,8 +161,9 @@ class OutcomeLog:
 
 @dataclass
 class SuccessRate:
-    """Success of one (method, task, split): percentages per repeat and their mean and std, and the
-    successful episodes out of ``episodes``."""
+    """Success of one (method, task, split): percentages per repeat and their mean and std, the successful
+    episodes out of ``episodes``, and the failed ones by reason (``failures``: :data:`FAILURES`, ``unknown``
+    for logs written before reasons were recorded)."""
 
     method: str
     task: str
@@ -171,6 +172,7 @@ class SuccessRate:
     episodes: int
     errors: int
     successes: int = 0
+    failures: dict[str, int] = field(default_factory=dict)
 
     @property
     def mean(self) -> float:
@@ -203,6 +205,10 @@ def subgoal_rates(outcomes: Iterable[EpisodeOutcome]) -> list[tuple[str, str, st
     return rows
 
 
+def _failure_order(reason: str) -> tuple[int, str]:
+    return (FAILURES.index(reason) if reason in FAILURES else len(FAILURES), reason)
+
+
 def aggregate(outcomes: Iterable[EpisodeOutcome]) -> list[SuccessRate]:
     """Group outcomes by (method, task, split) and compute the per-repeat success percentages."""
     groups: dict[tuple[str, str, str], dict[int, list[EpisodeOutcome]]] = defaultdict(lambda: defaultdict(list))
@@ -212,8 +218,10 @@ def aggregate(outcomes: Iterable[EpisodeOutcome]) -> list[SuccessRate]:
     for (method, task, split), repeats in sorted(groups.items()):
         per_repeat = [100.0 * sum(o.success for o in eps) / len(eps) for _, eps in sorted(repeats.items())]
         all_eps = [o for eps in repeats.values() for o in eps]
+        failures = Counter(o.failure or "unknown" for o in all_eps if not o.success)
         rates.append(SuccessRate(method, task, split, per_repeat, len(all_eps), sum(bool(o.error) for o in all_eps),
-                                 sum(bool(o.success) for o in all_eps)))
+                                 sum(bool(o.success) for o in all_eps),
+                                 {k: failures[k] for k in sorted(failures, key=_failure_order)}))
     return rates
 
 
