@@ -64,3 +64,31 @@ def test_pick_needs_the_clip_of_clip_models(tmp_path: Path) -> None:
     assert pick(entries, "abm")["name"] == "abm_clip"
     assert pick(entries, "rvt")["name"] == "rvt_clip"
     assert pick(entries, "ifd") is None
+
+
+def test_pick_takes_the_newest_editions_compared_model_and_falls_back_to_the_first(tmp_path: Path) -> None:
+    entries = read_index(_zoo(tmp_path, ("abm_oracle", "abm_clip", "rvt_clip")))
+    entries.append({"name": "benchmark-clip", "file": "benchmark-clip/", "method": "clip"})
+
+    def later(name: str, method: str, number: int, compared: bool) -> dict:
+        return {"name": f"{name}_v{number}", "method": method, "grounder": "clip", "edition": number,
+                "compared": compared}
+
+    # a second edition without its compared abm model yet: the first edition's abm_clip, not the new abm_clip_hash
+    entries.append(later("abm_clip_hash", "abm", 2, False))
+    assert pick(entries, "abm")["name"] == "abm_clip"
+    entries += [later("abm_clip", "abm", 2, True), later("rvt_clip", "rvt", 2, True)]
+    assert pick(entries, "abm")["name"] == "abm_clip_v2" and pick(entries, "rvt")["name"] == "rvt_clip_v2"
+    entries.insert(0, later("abm_clip", "abm", 3, True))  # the newest edition wins wherever it stands
+    assert pick(entries, "abm")["name"] == "abm_clip_v3"
+    # without the benchmark CLIP none of the CLIP models can run: the first edition's oracle model
+    assert pick([e for e in entries if e["name"] != "benchmark-clip"], "abm")["name"] == "abm_oracle"
+
+
+def test_an_edition_that_is_not_a_whole_number_is_refused(tmp_path: Path) -> None:
+    zoo = _zoo(tmp_path)
+    entries = json.loads((zoo / "index.json").read_text())
+    entries[0]["edition"] = "2"
+    (zoo / "index.json").write_text(json.dumps(entries))
+    with pytest.raises(ZooError, match="'edition' is '2', expected a whole number"):
+        read_index(zoo)

@@ -1,6 +1,10 @@
-"""The committed model zoo (``models/``): its index (``models/index.json``, written by the report of
-``abm experiment run paper_tables``), the sha256 checks of its files and the choice of the entries
-``abm zoo eval`` compares. The ``abm zoo`` command is :mod:`abm.cli.zoo`.
+"""The committed model zoo (``models/``): its index (``models/index.json``, written by the reports of
+``abm experiment run paper_tables`` and of its later editions, ``paper_tables_v2``), the sha256 checks of its
+files and the choice of the entries ``abm zoo eval`` compares. The ``abm zoo`` command is :mod:`abm.cli.zoo`.
+
+Editions: a later edition of an experiment exports its models beside the earlier ones under other names
+(``abm_clip_v2.pt``), so every model stays loadable; its entries record their ``edition`` (none: the first) and
+mark the models ``abm zoo eval`` compares (``compared``), and :func:`pick` takes the newest edition's.
 """
 
 from __future__ import annotations
@@ -67,7 +71,7 @@ def check_entry(zoo: Path, entry: object, where: str) -> None:
         got = "has no 'sha256'" if digest is None else f"has 'sha256' {digest!r:.80}, not 64 hex digits"
         raise ZooError(f"{where} {got}; every zoo file is checked against the sha256 of its bytes: add it "
                        f"(sha256sum {zoo / file}) or rewrite the index with abm experiment run paper_tables")
-    for key in ("size_bytes", "steps"):
+    for key in ("size_bytes", "steps", "edition"):
         value = entry.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
             raise ZooError(f"{where}: {key!r} is {value!r:.80}, expected a whole number >= 0: fix the entry, or "
@@ -102,12 +106,25 @@ def needs_clip(entry: dict[str, Any]) -> bool:
     return entry.get("grounder") == "clip" or entry.get("language") == "clip"
 
 
+def edition(entry: dict[str, Any]) -> int:
+    """The edition of an entry's model (1: the first edition's entries, which record none)."""
+    value = entry.get("edition", 1)
+    return value if isinstance(value, int) and not isinstance(value, bool) else 1
+
+
 def pick(entries: list[dict[str, Any]], method: str) -> dict[str, Any] | None:
-    """The model of ``method`` that ``abm zoo eval`` runs: a CLIP-grounded one when the benchmark CLIP is in the
-    zoo too, else one that needs no CLIP; the first such in the index (the experiment report's order).
-    ``None`` when the zoo has no runnable model of that method."""
+    """The model of ``method`` that ``abm zoo eval`` runs, among those it can run (a CLIP-grounded or CLIP-worded
+    one needs the benchmark CLIP in the zoo too): the newest edition's model marked ``compared`` when one is
+    in the zoo (an experiment's ``evaluation.zoo_eval`` runs); else, from the first edition's models (all
+    models when it has none), a CLIP-grounded one, else one that needs no CLIP, the first such in the index
+    (the experiment report's order). ``None`` when the zoo has no runnable model of that method."""
     has_clip = any(e.get("name") == "benchmark-clip" for e in entries)
     mine = [e for e in entries if e.get("method") == method]
     runnable = [e for e in mine if has_clip or not needs_clip(e)]
-    grounded = [e for e in runnable if e.get("grounder") == "clip"]
-    return (grounded or runnable or [None])[0]
+    compared = [e for e in runnable if e.get("compared") is True]
+    if compared:
+        newest = max(edition(e) for e in compared)
+        return next(e for e in compared if edition(e) == newest)
+    first = [e for e in runnable if edition(e) == 1] or runnable
+    grounded = [e for e in first if e.get("grounder") == "clip"]
+    return (grounded or first or [None])[0]

@@ -11,6 +11,8 @@ the committed ones count) and writes
   task, split) cell with ``successes`` and ``episodes`` (plus mean, std and per-repeat rates);
 * the zoo's index and README (``ZOO/index.json``, ``ZOO/README.md``) when the spec exports into a zoo:
   every exported model (method, grounding, recipe, data, steps, minutes, size, sha256) and the benchmark CLIP;
+  the entries other specs exported into the same zoo (an earlier or later edition's) are kept as they are, and
+  the zoo's README is written by the newest edition's spec;
 * the run summaries (``KEPT/runs.json``) and compact loss curves (``KEPT/training_RUN.csv``) of an
   experiment without a zoo, and its figures (``report.figures``), drawn from the kept files only.
 
@@ -27,7 +29,7 @@ import json
 import os
 import re
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +38,7 @@ import numpy as np
 from abm.experiments.spec import SPECS, ExperimentSpec, GrounderVariant, Section
 from abm.experiments.state import Layout, machines, stage_minutes
 from abm.files import sha256_file
+from abm.zoo import edition
 
 Rate = Mapping[str, Any]  #: one evaluation cell (a record of ``abm eval``'s results.json)
 Cells = dict[tuple[str, str, str], dict[str, Any]]  #: (run, task, split) -> its rate
@@ -56,6 +59,7 @@ class Outcomes:
         stages: minutes per stage, every session added up.
         machines: every machine that ran a stage.
         zoo_eval: the timed ``abm zoo eval``: its table and seconds, or ``None`` before it ran.
+        probes: the skill-text probes (``benchmarks/skill_text_probe.py``'s JSON) by (run, task).
     """
 
     cells: Cells
@@ -64,6 +68,7 @@ class Outcomes:
     stages: dict[str, float] = field(default_factory=dict)
     machines: list[str] = field(default_factory=list)
     zoo_eval: tuple[str, int] | None = None
+    probes: dict[tuple[str, str], dict[str, Any]] = field(default_factory=dict)
 
 
 # -------------------------------------------------------------------------------------------------- reading
@@ -86,6 +91,16 @@ def keyframe_summaries(spec: ExperimentSpec, layout: Layout) -> dict[str, list[d
         path = layout.diagnosis(name)
         if path.is_file():
             found[name] = json.loads(path.read_text())["summary"]
+    return found
+
+
+def skill_text_probes(spec: ExperimentSpec, layout: Layout) -> dict[tuple[str, str], dict[str, Any]]:
+    """``(run, task) -> the probe's JSON`` of every skill-text probe of the diagnosis that ran."""
+    found = {}
+    for run, task in spec.probes():
+        path = layout.skill_text(run, task)
+        if path.is_file():
+            found[(run, task)] = json.loads(path.read_text())
     return found
 
 
@@ -138,24 +153,43 @@ def describe_run(run_dir: Path) -> dict[str, Any]:
 
 
 def zoo_index(spec: ExperimentSpec, layout: Layout) -> list[dict[str, Any]]:
-    """Every exported model of the spec (and the benchmark CLIP) as the zoo index describes it.
+    """Every exported model of the spec (and the benchmark CLIP) as the zoo index describes it, with the
+    entries other specs exported into the same zoo (another edition's: other names) kept as they are.
 
     A model's entry keeps what the index knew (on a fresh clone the run folder is gone) and is refreshed from
-    its run folder when that is here; the file's size and sha256 are read anew."""
+    its run folder when that is here; the file's size and sha256 are read anew. A later edition's entries
+    also record their ``edition``, ``experiment``, ``run`` and whether ``abm zoo eval`` compares them
+    (``compared``: the spec's ``evaluation.zoo_eval``; :func:`abm.zoo.pick`). Order: the index's, with the
+    spec's models together in the spec's order where its first one stood (at the end when new), the
+    benchmark CLIP last."""
     assert layout.zoo is not None
     index_path = layout.zoo / "index.json"
-    known = {e["name"]: e for e in json.loads(index_path.read_text())} if index_path.is_file() else {}
+    listed = json.loads(index_path.read_text()) if index_path.is_file() else []
+    known = {e["name"]: e for e in listed}
+    mine = {spec.zoo_name(name) for name in spec.runs}
     entries = []
     for name, run in spec.runs.items():
         file = layout.zoo_file(name)
         if not file.is_file():
             continue
-        entry = dict(known.get(name, {}))
-        entry.update({"name": name, "file": file.name, "label": run.label, "method": run.method,
+        entry = dict(known.get(spec.zoo_name(name), {}))
+        entry.update({"name": spec.zoo_name(name), "file": file.name, "label": run.label, "method": run.method,
                       "grounder": run.grounding, "tables": spec.tables_of(name), "size_bytes": file.stat().st_size,
                       "sha256": sha256_file(file)})
+        if spec.edition > 1 or spec.zoo_suffix:
+            entry.update({"edition": spec.edition, "experiment": spec.name, "run": name,
+                          "compared": name in spec.evaluation.zoo_eval})
         entry.update(describe_run(layout.run_dir(name)))
         entries.append(entry)
+    ordered: list[dict[str, Any]] = []
+    placed = False
+    for other in listed:
+        if other.get("name") in mine:
+            ordered += [] if placed else entries
+            placed = True
+        elif other.get("name") != "benchmark-clip" and (layout.zoo / str(other.get("file", other["name"]))).is_file():
+            ordered.append(other)  # another spec's model (another edition): kept as it is
+    entries = ordered if placed else ordered + entries
     clip = layout.clip
     if clip is not None and (clip / "model.safetensors").is_file():
         meta = json.loads((clip / "abm_clip.json").read_text()) if (clip / "abm_clip.json").is_file() else {}
@@ -201,7 +235,8 @@ def collect(spec: ExperimentSpec, layout: Layout) -> Outcomes:
         zoo_eval = ((folder / "results.md").read_text().strip(), int((folder / "seconds").read_text()))
     entries = zoo_index(spec, layout) if layout.zoo is not None else kept_run_summaries(spec, layout)
     return Outcomes(cells=collect_cells(spec, layout), summaries=keyframe_summaries(spec, layout), entries=entries,
-                    stages=stage_minutes(layout.times), machines=machines(layout.machines), zoo_eval=zoo_eval)
+                    stages=stage_minutes(layout.times), machines=machines(layout.machines), zoo_eval=zoo_eval,
+                    probes=skill_text_probes(spec, layout))
 
 
 # ---------------------------------------------------------------------------------------------- numbers
@@ -224,6 +259,28 @@ def average(cells: Cells, run: str, split: str, tasks: Sequence[str]) -> float |
     if not rates or any(r is None for r in rates):
         return None
     return sum(float(r["mean"]) for r in rates if r is not None) / len(rates)
+
+
+def standard_error(cells: Cells, run: str, split: str, tasks: Sequence[str]) -> float | None:
+    """The standard error of :func:`average` over the repeats: the sample standard deviation (n − 1) of the
+    repeat-wise average over ``tasks`` (repeat r: the mean over the tasks of each task's success in repeat r),
+    divided by √repeats. ``None`` until every task has the same two or more repeats."""
+    rates = [cells.get((run, t, split)) for t in tasks]
+    if not rates or any(r is None for r in rates):
+        return None
+    per_task = [list(r["per_repeat"]) for r in rates if r is not None]
+    repeats = len(per_task[0])
+    if repeats < 2 or any(len(p) != repeats for p in per_task):
+        return None
+    by_repeat = np.mean(np.array(per_task, dtype=np.float64), axis=0)
+    return float(np.std(by_repeat, ddof=1) / np.sqrt(repeats))
+
+
+def spread_note(repeats: int) -> str:
+    """The sentence under a table whose averages show their standard error."""
+    return (f"± in a cell: the standard deviation of the task's success over the {_number(repeats)} repeats; ± "
+            f"after an average: its standard error, the sample standard deviation over the repeats of the "
+            f"repeat-wise average over the tasks, divided by √{repeats}.")
 
 
 def pct(v: float | None, digits: int = 1) -> str:
@@ -264,6 +321,25 @@ class Context:
 
     def average(self, run: str, split: str) -> float | None:
         return average(self.cells, run, split, self.tasks(split))
+
+    def error_shown(self, run: str, split: str, spread: bool, digits: int = 1) -> str:
+        """`` ± standard error`` of an average (:func:`standard_error`) when ``spread`` and it is known, else ""."""
+        se = standard_error(self.cells, run, split, self.tasks(split)) if spread else None
+        return f" ± {se:.{digits}f}" if se is not None else ""
+
+    def average_shown(self, run: str, split: str, spread: bool, digits: int = 1) -> str:
+        """The average as a table shows it: with its standard error when ``spread`` (:meth:`error_shown`)."""
+        return pct(self.average(run, split), digits) + self.error_shown(run, split, spread, digits)
+
+    def repeats(self, runs: Sequence[str], splits: Sequence[str]) -> int:
+        """The most repeats of any evaluated cell of these runs and splits (0: none evaluated)."""
+        return max((len(r["per_repeat"]) for (run, _, split), r in self.cells.items()
+                    if run in runs and split in splits), default=0)
+
+    def spread_note(self, section: Section) -> list[str]:
+        """:func:`spread_note` under a ``spread`` table once its cells have two or more repeats."""
+        repeats = self.repeats(section.runs, section.splits)
+        return [spread_note(repeats)] if section.spread and repeats > 1 else []
 
     def label(self, run: str) -> str:
         if run in self.spec.runs:
@@ -360,13 +436,15 @@ def _per_task(ctx: Context, section: Section) -> list[str]:
     for t in ctx.tasks(splits[0]):
         lines.append(_row([t] + [cell(ctx.cells.get((r, t, s))) for r in runs for s in splits]))
     avg = [[ctx.average(r, s) for s in splits] for r in runs]
-    lines.append("| **average** | " + " | ".join(f"**{pct(v)}**" for pair in avg for v in pair) + " |")
+    lines.append("| **average** | " + " | ".join(f"**{pct(avg[i][j])}**" + ctx.error_shown(r, s, section.spread)
+                                                  for i, r in enumerate(runs) for j, s in enumerate(splits)) + " |")
     if tuple(splits) == ("seen", "unseen"):
         lines.append("| unseen / seen | " + " | ".join(x for pair in avg for x in ("", ratio(*pair))) + " |")
     if section.paper:
         lines.append("| paper average | " + " | ".join(x for r in runs for x in _paper(section, r, len(splits)))
                      + " |")
-    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+    table = [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+    return table + ctx.spread_note(section)
 
 
 def _per_run(ctx: Context, section: Section) -> list[str]:
@@ -377,11 +455,12 @@ def _per_run(ctx: Context, section: Section) -> list[str]:
     lines = _head(head)
     for r in section.runs:
         row = [ctx.label(r)] + [cell(ctx.cells.get((r, t, split))) for t in tasks]
-        row.append(pct(ctx.average(r, split), section.digits))
+        row.append(ctx.average_shown(r, split, section.spread, section.digits))
         if section.paper:
             row += _paper(section, r, 1)
         lines.append(_row(row))
-    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+    table = [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+    return table + ctx.spread_note(section)
 
 
 def _averages(ctx: Context, section: Section) -> list[str]:
@@ -391,11 +470,13 @@ def _averages(ctx: Context, section: Section) -> list[str]:
     lines = _head(head)
     for r in section.runs:
         seen, unseen = ctx.average(r, "seen"), ctx.average(r, "unseen")
-        row = [section.names.get(r, r), pct(seen), pct(unseen), ratio(seen, unseen)]
+        row = [section.names.get(r, r), ctx.average_shown(r, "seen", section.spread),
+               ctx.average_shown(r, "unseen", section.spread), ratio(seen, unseen)]
         if section.paper:
             row += _paper(section, r, 2)
         lines.append(_row(row))
-    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+    table = [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
+    return table + ctx.spread_note(replace(section, splits=section.splits or ("seen", "unseen")))
 
 
 def _table(ctx: Context, number: int | None) -> Section:
@@ -422,32 +503,42 @@ def _verdict(text: str, ok: bool | None, value: str) -> str:
 
 
 def _targets(ctx: Context, section: Section) -> list[str]:
-    """Each target checked against the averages of each row run (measured, not asserted)."""
+    """Each target checked against the averages of each row run (measured, not asserted); with ``explain``, a
+    paragraph on what the diagnosis shows of each run that misses one."""
     parts = []
     digits = section.digits
+    missed: dict[str, list[str]] = {}
     for run in section.runs:
         checks = []
         for check in section.checks:
             if check.run and check.run != run:
                 continue
             value = ctx.average(run, check.split)
+            ok: bool | None
             if check.kind == "at_least":
-                checks.append(_verdict(check.text, None if value is None else value >= check.value,
-                                       pct(value, digits)))
+                ok = None if value is None else value >= check.value
+                shown = pct(value, digits)
             elif check.kind == "ratio":
                 seen = ctx.average(run, "seen")
                 ok = None if seen is None or value is None or not seen else value / seen >= check.value
-                checks.append(_verdict(check.text, ok, ratio(seen, value)))
+                shown = ratio(seen, value)
             else:
                 base = ctx.average(check.base, check.split)
                 if check.kind == "beats":
                     ok = None if value is None or base is None else value >= base + check.value
                 else:
                     ok = None if value is None or base is None else value < check.value * base
-                checks.append(_verdict(check.text, ok, f"{pct(value, digits)} vs {pct(base, digits)}"))
+                shown = f"{pct(value, digits)} vs {pct(base, digits)}"
+            checks.append(_verdict(check.text, ok, shown))
+            if ok is False:
+                missed.setdefault(run, []).append(check.text)
         if checks:
             parts.append(f"{run}: " + "; ".join(checks))
-    return [f"{section.text}: " + ". ".join(parts) + "."]
+    out = [f"{section.text}: " + ". ".join(parts) + "."]
+    if section.explain and missed:
+        out.append("Where a target is missed, the diagnosis shows: " + " ".join(
+            f"{run} (misses {', '.join(texts)}): {diagnosis_summary(ctx, run)}." for run, texts in missed.items()))
+    return out
 
 
 def _caveats(ctx: Context, section: Section) -> list[str]:
@@ -730,6 +821,168 @@ def _outcome_tables(ctx: Context, section: Section) -> list[str]:
     return out
 
 
+# ------------------------------------------------------------------------------------ seeds and diagnosis
+def _seeds(ctx: Context, section: Section) -> list[str]:
+    """The seed spread of a table: each run beside the same run with another seed (``seeds``), the largest such
+    difference per split as the spread, and the differences between the table's rows that exceed it."""
+    table = _table(ctx, section.of_table)
+    splits = section.splits or table.splits or ("seen", "unseen")
+    digits = section.digits
+    names = {**table.names, **section.names}
+    lines = _head(["run", "other seed", *(f"{s} {x}" for s in splits for x in ("avg", "other seed", "difference"))])
+    spread: dict[str, float] = {}
+    for run, other in section.seeds.items():
+        row = [names.get(run, run), other]
+        for split in splits:
+            a, b = ctx.average(run, split), ctx.average(other, split)
+            difference = None if a is None or b is None else abs(a - b)
+            if difference is not None:
+                spread[split] = max(spread.get(split, 0.0), difference)
+            row += [ctx.average_shown(run, split, True, digits), ctx.average_shown(other, split, True, digits),
+                    pct(difference, digits)]
+        lines.append(_row(row))
+    sentences = []
+    for split in splits:
+        if split not in spread:
+            sentences.append(f"{split}: the seed spread is not measured yet (each seed pair needs every task "
+                             "evaluated)")
+            continue
+        averages = {r: v for r in table.runs if (v := ctx.average(r, split)) is not None}
+        exceeding = [f"{names.get(a, a)} vs {names.get(b, b)} {abs(averages[a] - averages[b]):.{digits}f}"
+                     for i, a in enumerate(averages) for b in list(averages)[i + 1:]
+                     if abs(averages[a] - averages[b]) > spread[split]]
+        sentences.append(f"{split}: seed spread {spread[split]:.{digits}f} points; differences between the table's "
+                         f"rows larger than it: {', '.join(exceeding) if exceeding else 'none'}")
+    text = (f"Seed spread of Table {table.table}: the largest difference between the averages of two seeds of one "
+            "run (same data, recipe and evaluation scenes; ± the standard error over the repeats). " +
+            "; ".join(sentences) + ".")
+    return [section.title, "\n".join(lines), text] if section.title else ["\n".join(lines), text]
+
+
+def kind_medians(rows: Sequence[Mapping[str, Any]], split: str) -> dict[str, tuple[float, float, float | None]]:
+    """Keyframe kind -> (position error cm, rotation error °, a random yaw's error ° or ``None`` when the
+    diagnosis predates it), each the median over the tasks of the per-task medians of ``split``."""
+    by_kind: dict[str, list[Mapping[str, Any]]] = {}
+    for row in rows:
+        if row["split"] == split:
+            by_kind.setdefault(row["kind"], []).append(row)
+    out = {}
+    for kind in sorted(by_kind, key=lambda k: (KIND_ORDER.get(k, 9), k)):
+        found = by_kind[kind]
+        chance = [float(r["yaw_chance_deg"]) for r in found if "yaw_chance_deg" in r]
+        out[kind] = (float(np.median([r["position_cm_median"] for r in found])),
+                     float(np.median([r["rotation_deg_median"] for r in found])),
+                     float(np.median(chance)) if chance else None)
+    return out
+
+
+def probe_result(ctx: Context, run: str, task: str) -> tuple[float, bool, list[str]] | None:
+    """A skill-text probe of ``run`` on ``task``: (the own skill text's distance cm from the expert's keyframe,
+    whether it is within the target, the other skill texts whose prediction stays within the target of the
+    own text's: the ones the policy does not tell apart), or ``None`` before it ran."""
+    probe = ctx.spec.diagnose.skill_text if ctx.spec.diagnose is not None else None
+    found = ctx.outcomes.probes.get((run, task))
+    if probe is None or found is None:
+        return None
+    own = next(r for r in found["rows"] if r["own"])
+    same = [str(r["skill"]) for r in found["rows"] if not r["own"] and r["moved_cm_median"] < probe.within_cm]
+    return float(own["position_cm_median"]), own["position_cm_median"] <= probe.within_cm, same
+
+
+def failure_counts(ctx: Context, run: str, splits: Sequence[str] | None = None) -> dict[str, int]:
+    """Failed rollouts of ``run`` by reason, summed over the tasks (and ``splits``; default all), most first."""
+    total: dict[str, int] = {}
+    for (name, _, split), rate in ctx.cells.items():
+        if name == run and (splits is None or split in splits):
+            for reason, n in (rate.get("failures") or {}).items():
+                total[reason] = total.get(reason, 0) + int(n)
+    return dict(sorted(total.items(), key=lambda kv: -kv[1]))
+
+
+def diagnosis_summary(ctx: Context, run: str) -> str:
+    """What the diagnosis shows of ``run``, in a sentence: the keyframe kinds with the largest position errors and
+    those whose rotation is no better than a random yaw (seen objects), the skill-text probe, and why its
+    rollouts failed."""
+    parts = []
+    kinds = kind_medians(ctx.outcomes.summaries.get(run, []), "seen")
+    if kinds:
+        worst = sorted(kinds.items(), key=lambda kv: -kv[1][0])[:2]
+        parts.append("the largest keyframe errors (seen objects) at " + " and ".join(
+            f"{kind} ({cm:.1f} cm, {deg:.0f}°)" for kind, (cm, deg, _) in worst))
+        at_chance = [f"{kind} ({deg:.0f}° against {chance:g}°)" for kind, (_, deg, chance) in kinds.items()
+                     if chance and deg >= 0.8 * chance]
+        if at_chance:
+            parts.append("a rotation no better than a random yaw's at " + ", ".join(at_chance))
+    probe = ctx.spec.diagnose.skill_text if ctx.spec.diagnose is not None else None
+    if probe is not None:
+        results = [(task, r) for task in probe.tasks if (r := probe_result(ctx, run, task)) is not None]
+        if results:
+            parts.append(f"the skill-text probe at the {probe.kind} keyframe: " + ", ".join(
+                f"{task}'s own text {cm:.1f} cm from the expert's ({'within' if ok else 'not within'} "
+                f"{probe.within_cm:g} cm)" for task, (cm, ok, _) in results))
+    failures = failure_counts(ctx, run)
+    if failures:
+        parts.append("its failed rollouts: " + ", ".join(f"{reason} {n}" for reason, n in failures.items()))
+    return "; ".join(parts) if parts else "no diagnosis of it yet"
+
+
+def _diagnosis(ctx: Context, section: Section) -> list[str]:
+    """Per model: keyframe accuracy per kind beside a random yaw's error, the skill-text probe, and the failure
+    reasons of its rollouts."""
+    runs = section.runs or tuple(ctx.spec.runs)
+    out = [section.title] if section.title else []
+    for split in section.splits or ("seen",):
+        rows = {name: kind_medians(found, split) for name, found in ctx.outcomes.summaries.items()
+                if name.split("@")[0] in runs}
+        rows = {name: kinds for name, kinds in rows.items() if kinds}
+        kinds = [k for k in dict.fromkeys(k for found in rows.values() for k in found)
+                 if not section.kinds or k in section.kinds]
+        if not rows or not kinds:
+            continue
+        lines = _head(["model", *kinds])
+        for name, found in rows.items():
+            lines.append(_row([name, *(f"{found[k][0]:.1f} / {found[k][1]:.0f}"
+                                       + (f" ({found[k][2]:g})" if found[k][2] is not None else "")
+                                       if k in found else "–" for k in kinds)]))
+        out += [f"Keyframe accuracy per kind, {split} objects (the expert's rollouts, teacher-forced): the median "
+                "over the tasks of the median position error (cm) / rotation error (°, symmetry-aware), in brackets "
+                "a random yaw's error for the keyframe's symmetry (45° two-fold, 22.5° four-fold, 0 round): a "
+                "rotation error near it is chance. RUN@oracle: fed the simulator's mask.", "\n".join(lines)]
+    probe = ctx.spec.diagnose.skill_text if ctx.spec.diagnose is not None else None
+    probed = [r for r in runs if probe is not None and r in probe.runs
+              and any(probe_result(ctx, r, t) for t in probe.tasks)]
+    if probe is not None and probed:
+        lines = _head(["model", *probe.tasks])
+        for run in probed:
+            cells = []
+            for task in probe.tasks:
+                result = probe_result(ctx, run, task)
+                cells.append("–" if result is None else f"{result[0]:.1f} cm, {'met' if result[1] else 'not met'}"
+                             f" ({len(result[2])} other texts within {probe.within_cm:g} cm of it)")
+            lines.append(_row([run, *cells]))
+        out += [f"Skill-text probe at the {probe.kind} keyframe ({probe.episodes} {probe.split} scenes per task, "
+                "teacher-forced; `benchmarks/skill_text_probe.py`): how far (median, cm) the prediction with the "
+                "scene's own skill text lands from the expert's destination, against the target of "
+                f"{probe.within_cm:g} cm, and how many of the other tasks' skill texts, worded about the same "
+                f"object, move it less than {probe.within_cm:g} cm (texts the policy does not tell apart):",
+                "\n".join(lines)]
+    splits = [s.split for s in ctx.spec.evaluation.splits]
+    failed = [(run, split, counts) for run in runs for split in splits
+              if (counts := failure_counts(ctx, run, [split]))]
+    if failed:
+        reasons = list(dict.fromkeys(reason for _, _, counts in failed for reason in counts))
+        lines = _head(["model", "split", "failed / episodes", *reasons])
+        for run, split, counts in failed:
+            episodes = sum(int(r["episodes"]) for (n, _, s), r in ctx.cells.items() if n == run and s == split)
+            lines.append(_row([run, split, f"{sum(counts.values())} / {episodes}",
+                               *(str(counts.get(reason, 0)) for reason in reasons)]))
+        out += ["Why the rollouts failed (episodes per reason, summed over the tasks; per task in the records JSON): "
+                "grasp missed: the gripper never held the target; timeout: it held it but the task was not done "
+                "within the step limit; IK unreachable, motion blocked, collision: the arm could not follow a "
+                "keyframe; crashed: the rollout raised.", "\n".join(lines)]
+    return out
+
+
 WRITERS: dict[str, Callable[[Context, Section], list[str]]] = {
     "setup": _setup, "per_task": _per_task, "per_run": _per_run, "averages": _averages, "spread": _spread,
     "targets": _targets, "caveats": _caveats, "weakest_keyframes": _weakest, "approach_yaw": _approach_yaw,
@@ -737,6 +990,7 @@ WRITERS: dict[str, Callable[[Context, Section], list[str]]] = {
     "figures": _figures, "heading": _heading, "success_rows": _success_rows, "sentences": _sentences,
     "missing": _missing, "keyframe_rows": _keyframe_rows, "keyframe_curve": _keyframe_curve,
     "keyframe_compare": _keyframe_compare, "grounding_quality": _grounding_quality, "outcome_tables": _outcome_tables,
+    "seeds": _seeds, "diagnosis": _diagnosis,
 }
 
 
@@ -806,10 +1060,13 @@ def records(spec: ExperimentSpec, cells: Cells) -> list[dict[str, Any]]:
         for table in sorted(tables, key=lambda s: s.table or 0):
             if run not in table.runs or split not in table.splits or spec_run is None:
                 continue
-            out.append({"table": table.table, "run": run, "label": spec_run.label, "method": spec_run.method,
-                        "grounder": spec_run.grounding, "task": task, "split": split, "successes": successes(rate),
-                        "episodes": rate["episodes"], "mean": rate["mean"], "std": rate["std"],
-                        "per_repeat": rate["per_repeat"]})
+            record = {"table": table.table, "run": run, "label": spec_run.label, "method": spec_run.method,
+                      "grounder": spec_run.grounding, "task": task, "split": split, "successes": successes(rate),
+                      "episodes": rate["episodes"], "mean": rate["mean"], "std": rate["std"],
+                      "per_repeat": rate["per_repeat"]}
+            if "failures" in rate:  # evaluations since failure reasons are counted (abm.evaluation.results)
+                record["failures"] = rate["failures"]
+            out.append(record)
     return out
 
 
@@ -822,17 +1079,27 @@ def spec_name(spec: ExperimentSpec, layout: Layout) -> str:
 
 
 def zoo_readme(spec: ExperimentSpec, layout: Layout, entries: Sequence[Mapping[str, Any]]) -> str:
-    """The zoo's README: what wrote it, then one row per model."""
+    """The zoo's README: what wrote it, then one row per model (with its edition when the zoo holds a later
+    edition's models)."""
     source = spec_name(spec, layout)
     link = relink(f"]({source})", layout.show(layout.zoo or layout.root))[2:-1]
+    editions = any("edition" in e for e in entries)
     lines = ["# Model zoo", "", f"Written by `abm experiment run {spec.name}` ([{source}]({link}))."
              + (f" {spec.report.zoo_note}" if spec.report.zoo_note else ""), "",
-             *_head(["name", "what", "method", "grounder", "steps", "train min", "MB", "sha256"])]
+             *_head(["name", *(["edition"] if editions else []), "what", "method", "grounder", "steps", "train min",
+                     "MB", "sha256"])]
     for e in entries:
-        lines.append(f"| {e['name']} | {e.get('label') or '–'} | {e['method']} | {e.get('grounder', '–')} | "
-                     f"{e.get('steps', '–')} | {e.get('train_minutes', '–')} | {e['size_bytes'] / 1e6:.1f} | "
-                     f"`{e['sha256'][:16]}…` |")
+        shown = [str(edition(dict(e)))] if editions and e.get("method") != "clip" else ["–"] if editions else []
+        lines.append(_row([e["name"], *shown, e.get("label") or "–", e["method"], str(e.get("grounder", "–")),
+                           str(e.get("steps", "–")), str(e.get("train_minutes", "–")), f"{e['size_bytes'] / 1e6:.1f}",
+                           f"`{e['sha256'][:16]}…`"]))
     return "\n".join(lines) + "\n"
+
+
+def newest_edition(spec: ExperimentSpec, entries: Sequence[Mapping[str, Any]]) -> bool:
+    """Whether no model in the zoo comes from a later edition than the spec's (then the spec writes the zoo's
+    README; an earlier edition's report leaves it to the newest one)."""
+    return all(edition(dict(e)) <= spec.edition for e in entries)
 
 
 def compose(spec: ExperimentSpec, layout: Layout, outcomes: Outcomes) -> Written:
@@ -937,7 +1204,7 @@ def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> 
     written = compose(spec, layout, outcomes)
     if written.zoo is not None and layout.zoo is not None:
         _write(layout.zoo / "index.json", json.dumps(written.zoo, indent=2) + "\n")
-        if spec.report.zoo_readme:
+        if spec.report.zoo_readme and newest_edition(spec, written.zoo):
             _write(layout.zoo / "README.md", written.zoo_readme)
     if spec.report.records:
         _write(layout.root / spec.report.records, json.dumps(written.records, indent=1) + "\n")

@@ -23,6 +23,7 @@ from abm.files import load_yaml
 from abm.grounding.config import GROUNDERS, grounder_config_from_dict
 from abm.policy.config import PolicyConfig
 from abm.policy.language_config import LANGUAGES, default_language
+from abm.policy.variants import VARIANTS
 from abm.train.config import TrainConfig
 
 #: the built-in specs (``abm experiment run paper_tables``; the repository's configs/experiments/ links here)
@@ -216,6 +217,8 @@ class DiagnoseSpec:
         oracle_mask: also score every CLIP-grounded mask run with the simulator's mask (``RUN@oracle``).
         steps: also score these checkpoint steps of each run (keyframe error against training time).
         kinds: keyframe kinds to print (all are stored).
+        skill_text: also run the skill-text probe (``benchmarks/skill_text_probe.py``) on the runs that read a
+            skill text (``None``: not part of the diagnosis).
     """
 
     episodes: int = 5
@@ -224,6 +227,29 @@ class DiagnoseSpec:
     oracle_mask: bool = False
     steps: tuple[int, ...] = ()
     kinds: tuple[str, ...] = ()
+    skill_text: SkillTextSpec | None = None
+
+
+@dataclass(frozen=True)
+class SkillTextSpec:
+    """The skill-text probe of the diagnosis: does a mask policy carry to the destination its skill text names?
+
+    Attributes:
+        tasks: the tasks probed, one job per run and task (``place_wine``, ``pick_block``).
+        kind: the keyframe kind probed (``move``: the carry to the destination only the skill text names).
+        episodes: evaluation scenes per task (teacher-forced on the expert's rollout).
+        split: their object split.
+        runs: the runs probed (default: every run whose variant reads a skill text: abm and the ablations).
+        within_cm: the target: the prediction with the scene's own skill text within this distance (cm) of the
+            expert's keyframe (the report checks it).
+    """
+
+    tasks: tuple[str, ...]
+    kind: str = "move"
+    episodes: int = 5
+    split: str = "seen"
+    runs: tuple[str, ...] = ()
+    within_cm: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -248,7 +274,8 @@ class Section:
     Attributes:
         kind: what it writes (``setup``, ``per_task``, ``per_run``, ``averages``, ``spread``, ``targets``,
             ``caveats``, ``weakest_keyframes``, ``approach_yaw``, ``zoo_eval``, ``text``, ``detail``,
-            ``keyframe_accuracy``, ``keyframe_table``, ``figures``, ``heading``, ``outcome_tables``).
+            ``keyframe_accuracy``, ``keyframe_table``, ``figures``, ``heading``, ``outcome_tables``, ``seeds``,
+            ``diagnosis``).
         title: a paragraph before a table.
         text: the paragraph of ``text`` / ``heading`` or the template of ``spread`` / ``targets``.
         runs: rows (or columns) of a table, in order.
@@ -268,6 +295,9 @@ class Section:
         sentences: the ``sentences`` of a comparison.
         source: the JSON a ``grounding_quality`` table reads (relative to the root).
         config: the grounding configuration it shows.
+        spread: a table's averages also show their standard error over the repeats (cells show mean ± std).
+        seeds: run -> the same run with another seed (a ``seeds`` section: their difference is the seed spread).
+        explain: a ``targets`` section also says, for each missed target, what the run's diagnosis shows.
     """
 
     kind: str
@@ -290,6 +320,9 @@ class Section:
     sentences: tuple[Sentence, ...] = ()
     source: str = ""
     config: str = ""
+    spread: bool = False
+    seeds: Mapping[str, str] = field(default_factory=dict)
+    explain: bool = False
 
 
 @dataclass(frozen=True)
@@ -386,7 +419,11 @@ class ExperimentSpec:
         out: the working folder (relative to the root; not committed).
         kept: the committed outcomes (evaluations, diagnoses, stage times, machines, run summaries): a fresh
             clone restores them into OUT, so nothing finished runs twice and the report has every row.
-        zoo: export every finished run here (``ZOO/RUN.pt``), or "" for no export.
+        zoo: export every finished run here (``ZOO/RUN.pt``, ``ZOO/RUN{zoo_suffix}.pt``), or "" for no export.
+        zoo_suffix: appended to every run's name in the zoo (file and index entry), so a later edition of an
+            experiment exports beside the earlier one's models instead of replacing them (``_v2``).
+        edition: the edition of the experiment's models in the zoo (1: the first; a later edition's entries
+            record it, and ``abm zoo eval`` prefers the newest edition's compared models: :func:`abm.zoo.pick`).
         carry: the committed state of unfinished trainings and evaluations (for a continuation elsewhere),
             or "" for none.
         clip: the benchmark CLIP folder (for runs that need it).
@@ -416,6 +453,8 @@ class ExperimentSpec:
     clip_command: str = ""
     diagnose: DiagnoseSpec | None = None
     resources: Resources = field(default_factory=Resources)
+    zoo_suffix: str = ""
+    edition: int = 1
 
     def run_names(self) -> list[str]:
         """Every run, in report order."""
@@ -442,6 +481,17 @@ class ExperimentSpec:
             if self.diagnose.oracle_mask and run.cache == "masks":
                 names.append(name + ORACLE_MASK)
         return names
+
+    def zoo_name(self, run: str) -> str:
+        """The run's name in the zoo (``RUN`` + :attr:`zoo_suffix`)."""
+        return run + self.zoo_suffix
+
+    def probes(self) -> list[tuple[str, str]]:
+        """``(run, task)`` of every skill-text probe of the diagnosis, in spec order."""
+        probe = self.diagnose.skill_text if self.diagnose is not None else None
+        if probe is None:
+            return []
+        return [(run, task) for run in self.runs if run in probe.runs for task in probe.tasks]
 
     def split_tasks(self) -> dict[str, tuple[str, ...]]:
         """The evaluation's tasks per split."""
@@ -562,11 +612,11 @@ def _checked(reader: _Reader, key: str, cls: type, forbidden: Sequence[str] = ()
 #: the keys each report section kind takes (besides ``kind``)
 SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "setup": ("show",),
-    "per_task": ("title", "runs", "splits", "table", "paper", "column"),
-    "per_run": ("title", "runs", "splits", "table", "paper", "digits", "column"),
-    "averages": ("title", "runs", "splits", "table", "paper", "names", "column"),
+    "per_task": ("title", "runs", "splits", "table", "paper", "column", "spread"),
+    "per_run": ("title", "runs", "splits", "table", "paper", "digits", "column", "spread"),
+    "averages": ("title", "runs", "splits", "table", "paper", "names", "column", "spread"),
     "spread": ("of_table", "text"),
-    "targets": ("text", "runs", "checks", "digits"),
+    "targets": ("text", "runs", "checks", "digits", "explain"),
     "caveats": (),
     "weakest_keyframes": ("splits",),
     "approach_yaw": ("splits", "task", "note"),
@@ -584,6 +634,8 @@ SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "keyframe_curve": ("title", "kinds"),
     "keyframe_compare": ("title", "runs", "names", "kinds"),
     "grounding_quality": ("title", "source", "config"),
+    "seeds": ("title", "of_table", "seeds", "splits", "digits"),
+    "diagnosis": ("title", "runs", "splits", "kinds"),
 }
 #: what a ``setup`` paragraph can state (default: machines, recipe, minutes, stages, evaluation)
 SETUP_ITEMS = ("machines", "data", "clip", "recipe", "minutes", "speed", "stages", "evaluation", "keyframes")
@@ -621,6 +673,14 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
     if reader.has("names"):
         sub = reader.sub("names")
         names = {k: sub.text(k) for k in list(sub.data)}
+    seeds: dict[str, str] = {}
+    if reader.has("seeds"):
+        sub = reader.sub("seeds")
+        for run in list(sub.data):
+            other = sub.text(run)
+            if run not in known or other not in known or run == other:
+                raise sub.error(f"expected two different runs of this spec, got {run!r}: {other!r}", run)
+            seeds[run] = other
     checks: tuple[TargetCheck, ...] = ()
     if reader.has("checks"):
         raw = reader.raw("checks")
@@ -660,7 +720,11 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
                       note=reader.text("note", ""), digits=reader.integer("digits", 1, low=0),
                       column=reader.text("column", ""), show=show, describe=reader.flag("describe"),
                       kinds=reader.names("kinds", ()), sentences=tuple(sentences), source=reader.text("source", ""),
-                      config=reader.text("config", ""))
+                      config=reader.text("config", ""), spread=reader.flag("spread"), seeds=seeds,
+                      explain=reader.flag("explain"))
+    if kind == "seeds" and (not seeds or section.of_table is None):
+        raise reader.error("a 'seeds' section needs seeds (RUN: RUN_OTHER_SEED) and the table it measures (of_table)",
+                           "seeds")
     reader.done()
     return section
 
@@ -791,7 +855,8 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         diagnose = DiagnoseSpec(episodes=g.integer("episodes", 5), splits=g.names("splits", ("seen", "unseen")),
                                 tasks=g.names("tasks", lists=lists) if g.has("tasks") else None,
                                 oracle_mask=g.flag("oracle_mask"),
-                                steps=tuple(_steps(g)), kinds=g.names("kinds", ()))
+                                steps=tuple(_steps(g)), kinds=g.names("kinds", ()),
+                                skill_text=_skill_text(g, runs))
         g.done()
 
     res = top.sub("resources")
@@ -830,8 +895,15 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         kept=top.text("kept", f"docs/results/{name}"), data=data_spec, training=training, runs=runs,
         evaluation=evaluation, report=report, zoo=top.text("zoo", ""), carry=top.text("carry", ""),
         clip=top.text("clip", ""), clip_command=top.text("clip_command", ""), diagnose=diagnose,
-        resources=resources)
+        resources=resources, zoo_suffix=top.text("zoo_suffix", ""), edition=top.integer("edition", 1))
     top.done()
+    if spec.zoo_suffix and not _NAME.match("x" + spec.zoo_suffix):
+        raise top.error(f"expected letters, digits, _ . - (e.g. _v2), got {spec.zoo_suffix!r}", "zoo_suffix")
+    if spec.edition > 1 and not spec.zoo_suffix:
+        raise top.error("a later edition needs a zoo_suffix, so its models do not replace the first edition's",
+                        "zoo_suffix")
+    if spec.zoo_suffix and not spec.zoo:
+        raise top.error("a zoo_suffix needs a zoo folder to export into", "zoo")
     if any(run.needs_clip for run in runs.values()) and not spec.clip:
         raise top.error("runs need the benchmark CLIP (grounder or language clip): give its folder", "clip")
     if evaluation.from_zoo and not spec.zoo:
@@ -839,6 +911,26 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
     if report.zoo_readme and not spec.zoo:
         raise top.error("report.zoo_readme needs a zoo folder", "zoo")
     return spec
+
+
+def _skill_text(reader: _Reader, runs: Mapping[str, RunSpec]) -> SkillTextSpec | None:
+    """The diagnosis' ``skill_text`` block (``None`` when absent)."""
+    if not reader.has("skill_text"):
+        return None
+    s = reader.sub("skill_text")
+    readers = [n for n, r in runs.items() if VARIANTS[r.method].language == "skill"]
+    named = s.names("runs", readers)
+    for run in named:
+        if run not in readers:
+            raise s.error(f"{run!r} is no run of this spec that reads a skill text (those: {', '.join(readers)})",
+                          "runs")
+    within = s.number("within_cm", 5.0)
+    if within <= 0:
+        raise s.error(f"expected a distance > 0 cm, got {within:g}", "within_cm")
+    probe = SkillTextSpec(tasks=s.names("tasks"), kind=s.text("kind", "move"), episodes=s.integer("episodes", 5),
+                          split=s.choice("split", SPLITS, "seen"), runs=named, within_cm=within)
+    s.done()
+    return probe
 
 
 def _steps(reader: _Reader) -> list[int]:

@@ -403,32 +403,50 @@ class Engine:
             base = name.removesuffix(ORACLE_MASK)
             if base not in self.selected:
                 continue
-            out = self.layout.diagnosis(name)
             model = self.layout.run_dir(base) if d.steps and self.trained(base) else self.model(base)
-            try:
-                argv = self.source.script(
-                    "keyframe_accuracy.py", "--run", self.rel(model) if model else "?", "--tasks", *tasks, "--splits",
-                    *d.splits, "--episodes", str(d.episodes), "--resolution", str(self.spec.data.resolution),
-                    *(["--steps", *map(str, d.steps)] if d.steps else []),
-                    *(["--kinds", *d.kinds] if d.kinds else []),
-                    *(["--grounder", "oracle"] if name.endswith(ORACLE_MASK) else []), "--out", self.rel(out))
-                blocked = ""
-            except ValueError as err:
-                argv, blocked = None, str(err)
-            job = Job(f"diagnose/{name}", "diagnose", argv)
-            if self.have(out):
-                job.state = DONE
-            elif model is None:
-                job.state = BLOCKED
-                job.note = "not exported yet" if self.spec.evaluation.from_zoo else "not trained yet"
-            elif self.needs_clip(base) and not name.endswith(ORACLE_MASK) and not self.has_clip():
-                job.state, job.note = BLOCKED, "no benchmark CLIP"
-            elif blocked:
-                job.state, job.note = BLOCKED, blocked
-            else:
-                job.before = lambda out=out: out.parent.mkdir(parents=True, exist_ok=True)
-            jobs.append(job)
+            oracle = name.endswith(ORACLE_MASK)
+            jobs.append(self._script_job(
+                f"diagnose/{name}", "keyframe_accuracy.py", model, self.layout.diagnosis(name),
+                ["--tasks", *tasks, "--splits", *d.splits, "--episodes", str(d.episodes), "--resolution",
+                 str(self.spec.data.resolution), *(["--steps", *map(str, d.steps)] if d.steps else []),
+                 *(["--kinds", *d.kinds] if d.kinds else []), *(["--grounder", "oracle"] if oracle else [])],
+                clip=self.needs_clip(base) and not oracle))
+        probe, skill_tasks = d.skill_text, self.spec.training.tasks or self.spec.data.tasks
+        for run, task in self.spec.probes():  # the skill-text probe: each probed run on each task
+            if probe is None or run not in self.selected:
+                continue
+            jobs.append(self._script_job(
+                f"diagnose/skill_text/{run}/{task}", "skill_text_probe.py", self.model(run),
+                self.layout.skill_text(run, task),
+                ["--task", task, "--kind", probe.kind, "--split", probe.split, "--episodes", str(probe.episodes),
+                 "--resolution", str(self.spec.data.resolution), "--skill-tasks", *skill_tasks],
+                clip=self.needs_clip(run)))
         return jobs
+
+    def _script_job(self, job_id: str, script: str, model: Path | None, out: Path, args: list[str],
+                    clip: bool) -> Job:
+        """A diagnosis job: ``benchmarks/SCRIPT --run MODEL ARGS --out OUT``; done once OUT is there (or kept),
+        blocked until its model is trained or exported, without the benchmark CLIP it needs (``clip``), or
+        without the checkout's scripts."""
+        try:
+            argv: list[str] | None = self.source.script(script, "--run", self.rel(model) if model else "?", *args,
+                                                        "--out", self.rel(out))
+            blocked = ""
+        except ValueError as err:
+            argv, blocked = None, str(err)
+        job = Job(job_id, "diagnose", argv)
+        if self.have(out):
+            job.state = DONE
+        elif model is None:
+            job.state = BLOCKED
+            job.note = "not exported yet" if self.spec.evaluation.from_zoo else "not trained yet"
+        elif clip and not self.has_clip():
+            job.state, job.note = BLOCKED, "no benchmark CLIP"
+        elif blocked:
+            job.state, job.note = BLOCKED, blocked
+        else:
+            job.before = lambda: out.parent.mkdir(parents=True, exist_ok=True)
+        return job
 
     def _report(self) -> list[Job]:
         return [Job("report", "report", note=f"writes {self.spec.report.document}")]

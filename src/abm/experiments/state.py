@@ -43,6 +43,7 @@ class Layout:
         carry: the committed state of unfinished work (``None``: none kept).
         clip: the benchmark CLIP folder (``None``: no run needs it).
         data: the episode store.
+        zoo_suffix: appended to a run's name in the zoo (``ZOO/RUN{zoo_suffix}.pt``).
     """
 
     root: Path
@@ -52,6 +53,7 @@ class Layout:
     carry: Path | None
     clip: Path | None
     data: Path
+    zoo_suffix: str = ""
 
     @classmethod
     def of(cls, spec: ExperimentSpec, root: Path, out: Path | None = None) -> Layout:
@@ -59,7 +61,7 @@ class Layout:
         work = out if out is not None else root / spec.out
         return cls(root=root, out=work, kept=root / spec.kept, zoo=root / spec.zoo if spec.zoo else None,
                    carry=root / spec.carry if spec.carry else None, clip=root / spec.clip if spec.clip else None,
-                   data=root / spec.data.folder if spec.data.folder else work / "data")
+                   data=root / spec.data.folder if spec.data.folder else work / "data", zoo_suffix=spec.zoo_suffix)
 
     def run_dir(self, run: str) -> Path:
         return self.out / run
@@ -67,13 +69,17 @@ class Layout:
     def zoo_file(self, run: str) -> Path:
         if self.zoo is None:
             raise ValueError("this experiment exports no model (no zoo in its spec)")
-        return self.zoo / f"{run}.pt"
+        return self.zoo / f"{run}{self.zoo_suffix}.pt"
 
     def eval_dir(self, name: str, split: str) -> Path:
         return self.out / "eval" / name / split
 
     def diagnosis(self, name: str) -> Path:
         return self.out / "keyframe_accuracy" / f"{name}.json"
+
+    def skill_text(self, run: str, task: str) -> Path:
+        """The skill-text probe of ``run`` on ``task`` (``benchmarks/skill_text_probe.py --out``)."""
+        return self.out / "skill_text" / f"{run}_{task}.json"
 
     def cache(self, kind: str) -> Path:
         return self.out / f"cache_{kind}"
@@ -124,6 +130,8 @@ def kept_pairs(spec: ExperimentSpec, layout: Layout) -> list[tuple[Path, Path]]:
                                   kept / f"{name}_{split.split}.md"))
     for name in spec.diagnoses():
         pairs.append((layout.diagnosis(name), kept / f"keyframe_accuracy_{name}.json"))
+    for run, task in spec.probes():
+        pairs.append((layout.skill_text(run, task), kept / f"skill_text_{run}_{task}.json"))
     if spec.evaluation.zoo_eval:
         pairs += [(layout.zoo_eval / "results.md", kept / "zoo_eval.md"),
                   (layout.zoo_eval / "seconds", kept / "zoo_eval_seconds.txt")]
