@@ -155,7 +155,7 @@ def test_the_diagnosis_shows_keyframes_beside_chance_the_probe_and_failure_reaso
     assert "unseen objects" in blocks[3] and "| abm_clip | 30.0 / 80 (45) |" in blocks[4]
     probe = blocks[6].splitlines()
     assert probe[0] == "| model | place_wine | pick_block |"
-    assert probe[2] == ("| abm_clip | 26.3 cm, not met (1 other texts within 5 cm of it) | 1.5 cm, met (0 other "
+    assert probe[2] == ("| abm_clip | 26.3 cm, not met (1 other text within 5 cm of it) | 1.5 cm, met (0 other "
                         "texts within 5 cm of it) |")
     failures = blocks[8].splitlines()
     assert failures[0] == "| model | split | failed / episodes | grasp missed | timeout | IK unreachable |"
@@ -240,10 +240,22 @@ def test_both_editions_share_the_zoo_and_abm_zoo_eval_takes_the_newest(tmp_path:
                                                            "method": "clip", "sha256": "0" * 64}]))
     assert pick(read_index(zoo), "abm")["name"] == "abm_clip_v2"
     assert pick(read_index(zoo), "rvt")["name"] == "rvt_clip_v2"
+    # each report describes its own models (the setup's recipe and minutes) and writes the whole index
+    outcomes = rep.collect(V2, v2)
+    assert [e["name"] for e in outcomes.entries] == ["rvt_clip_v2", "abm_clip_v2", "abm_clip_hash_v2"]
+    assert outcomes.index is not None and len(outcomes.index) == 6
+    for e in outcomes.entries:
+        e.update(train_minutes=60.0, steps=6000, recipe={"preset": "small+custom", "resolution": 64, "patch_size": 8,
+                                                         "rotation_crop": 16, "batch": 8, "optimizer": "adamw",
+                                                         "lr": 0.001})
+    (setup,) = rep._setup(rep.Context(V2, outcomes, v2), _section(V2, "setup"))
+    assert "at 64² views, patch 8, a 16-pixel rotation crop, 6000 steps of batch 8" in setup
+    assert "Training minutes: rvt_clip 60.0, abm_clip 60.0, abm_clip_hash 60.0." in setup  # run names, this edition
     # the first edition's report keeps the second edition's entries (and the order), and leaves the zoo's README
     # to the newest edition
     again = rep.zoo_index(V1, v1)
     assert [e["name"] for e in again] == [e["name"] for e in entries]
+    assert [e["name"] for e in rep.collect(V1, v1).entries] == ["rvt_clip", "abm_clip", "abm_clip_hash"]
     assert not rep.newest_edition(V1, again) and rep.newest_edition(V2, again)
     readme = rep.zoo_readme(V2, v2, again)
     assert "| name | edition | what | method |" in readme

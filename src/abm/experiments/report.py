@@ -55,11 +55,13 @@ class Outcomes:
     Attributes:
         cells: every evaluated cell, keyed by (run or variant, task, split).
         summaries: keyframe-accuracy summary rows per diagnosis name (``RUN``, ``RUN@oracle``), in spec order.
-        entries: the trained runs' summaries (the zoo index's entries, or ``KEPT/runs.json``), in spec order.
+        entries: the trained runs' summaries (the spec's entries of the zoo index and the benchmark CLIP's, or
+            ``KEPT/runs.json``), in spec order.
         stages: minutes per stage, every session added up.
         machines: every machine that ran a stage.
         zoo_eval: the timed ``abm zoo eval``: its table and seconds, or ``None`` before it ran.
         probes: the skill-text probes (``benchmarks/skill_text_probe.py``'s JSON) by (run, task).
+        index: the whole zoo index the report writes (with other specs' entries), or ``None`` without a zoo.
     """
 
     cells: Cells
@@ -69,6 +71,7 @@ class Outcomes:
     machines: list[str] = field(default_factory=list)
     zoo_eval: tuple[str, int] | None = None
     probes: dict[tuple[str, str], dict[str, Any]] = field(default_factory=dict)
+    index: list[dict[str, Any]] | None = None
 
 
 # -------------------------------------------------------------------------------------------------- reading
@@ -146,6 +149,8 @@ def describe_run(run_dir: Path) -> dict[str, Any]:
     }
     if cfg["policy"].get("workspace_size", 1.0) != 1.0:  # not the default 1 m cube: say so
         entry["recipe"]["workspace_size"] = cfg["policy"]["workspace_size"]
+    if cfg["policy"].get("rotation_crop"):  # the rotation head also reads a crop (PolicyConfig.rotation_crop)
+        entry["recipe"]["rotation_crop"] = cfg["policy"]["rotation_crop"]
     trained = training_summary(run_dir)
     if trained is not None:
         entry["train_minutes"] = round(trained["elapsed_min"], 1)
@@ -233,10 +238,12 @@ def collect(spec: ExperimentSpec, layout: Layout) -> Outcomes:
     folder = layout.zoo_eval
     if (folder / "results.md").is_file() and (folder / "seconds").is_file():
         zoo_eval = ((folder / "results.md").read_text().strip(), int((folder / "seconds").read_text()))
-    entries = zoo_index(spec, layout) if layout.zoo is not None else kept_run_summaries(spec, layout)
+    index = zoo_index(spec, layout) if layout.zoo is not None else None
+    mine = {spec.zoo_name(name) for name in spec.runs} | {"benchmark-clip"}
+    entries = [e for e in index if e["name"] in mine] if index is not None else kept_run_summaries(spec, layout)
     return Outcomes(cells=collect_cells(spec, layout), summaries=keyframe_summaries(spec, layout), entries=entries,
                     stages=stage_minutes(layout.times), machines=machines(layout.machines), zoo_eval=zoo_eval,
-                    probes=skill_text_probes(spec, layout))
+                    probes=skill_text_probes(spec, layout), index=index)
 
 
 # ---------------------------------------------------------------------------------------------- numbers
@@ -396,13 +403,15 @@ def _setup(ctx: Context, section: Section) -> list[str]:
         side = (f"{_number(n)} trainings at a time with {_number(t)} thread{'s' if t != 1 else ''} each" if n > 1
                 else f"one training at a time with {_number(t)} thread{'s' if t != 1 else ''}")
         cube = f" over a {recipe['workspace_size']:g} m cube" if "workspace_size" in recipe else ""
+        crop = f", a {recipe['rotation_crop']}-pixel rotation crop" if recipe.get("rotation_crop") else ""
         parts["recipe"] = (f"Recipe (every model): `{recipe['preset']}` preset at {recipe['resolution']}² views{cube}, "
-                           f"patch {recipe['patch_size']}, {trained[0].get('steps')} steps of batch {recipe['batch']}, "
+                           f"patch {recipe['patch_size']}{crop}, {trained[0].get('steps')} steps of batch "
+                           f"{recipe['batch']}, "
                            f"{recipe['optimizer']} lr {recipe['lr']:g}, {side}.")
     if trained:
         parts["minutes"] = "Training minutes: " + ", ".join(
-            f"{e['name']} {e.get('train_minutes', '?')}" for e in trained) + "."
-        speeds = [f"{e['name']} {e['samples_per_s']:.1f}" for e in trained if e.get("samples_per_s")]
+            f"{e.get('run', e['name'])} {e.get('train_minutes', '?')}" for e in trained) + "."
+        speeds = [f"{e.get('run', e['name'])} {e['samples_per_s']:.1f}" for e in trained if e.get("samples_per_s")]
         if speeds:
             parts["speed"] = "Training samples/s: " + ", ".join(speeds) + "."
     if out.stages:
@@ -958,7 +967,8 @@ def _diagnosis(ctx: Context, section: Section) -> list[str]:
             for task in probe.tasks:
                 result = probe_result(ctx, run, task)
                 cells.append("–" if result is None else f"{result[0]:.1f} cm, {'met' if result[1] else 'not met'}"
-                             f" ({len(result[2])} other texts within {probe.within_cm:g} cm of it)")
+                             f" ({len(result[2])} other text{'' if len(result[2]) == 1 else 's'} within "
+                             f"{probe.within_cm:g} cm of it)")
             lines.append(_row([run, *cells]))
         out += [f"Skill-text probe at the {probe.kind} keyframe ({probe.episodes} {probe.split} scenes per task, "
                 "teacher-forced; `benchmarks/skill_text_probe.py`): how far (median, cm) the prediction with the "
@@ -1114,7 +1124,7 @@ def compose(spec: ExperimentSpec, layout: Layout, outcomes: Outcomes) -> Written
                        if spec.report.document else "")
     if spec.report.readme:
         block = relink(block, Path(spec.report.readme).parent.as_posix())
-    zoo = outcomes.entries if layout.zoo is not None else None
+    zoo = (outcomes.index if outcomes.index is not None else outcomes.entries) if layout.zoo is not None else None
     return Written(summary=summary, document=document, block=block, records=records(spec, outcomes.cells),
                    zoo=zoo, zoo_readme=zoo_readme(spec, layout, zoo) if zoo is not None else "")
 
