@@ -140,15 +140,15 @@ def test_no_two_builtin_specs_share_a_zoo_file_or_a_carried_run() -> None:
     files: dict[Path, str] = {}
     carried: dict[Path, str] = {}
     for spec in specs:
-        layout = Layout.of(spec, Path("/root"))
+        layout = Layout.of(spec, Path("checkout"))
         for run in spec.runs:
             if layout.zoo is not None:
                 assert files.setdefault(layout.zoo_file(run), spec.name) == spec.name, layout.zoo_file(run)
             if layout.carry is not None:
                 for folder in (layout.carry / run, layout.carry / "eval" / run):
                     assert carried.setdefault(folder, spec.name) == spec.name, folder
-    assert files[Path("/root/models/abm_clip_v2.pt")] == "paper_tables_v2"
-    assert files[Path("/root/models/abm_clip.pt")] == "paper_tables"
+    assert files[Path("checkout", "models", "abm_clip_v2.pt")] == "paper_tables_v2"
+    assert files[Path("checkout", "models", "abm_clip.pt")] == "paper_tables"
 
 
 @pytest.mark.parametrize("changes, message", [
