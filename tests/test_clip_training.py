@@ -36,6 +36,7 @@ from abm.clip_training.train import (  # noqa: E402
     train,
     zero_shot_accuracy,
 )
+from abm.errors import OutputError  # noqa: E402
 
 TINY_ARCH = dict(
     projection_dim=32,
@@ -232,7 +233,7 @@ def test_trained_model_classifies_and_localises_the_toy_objects(trained):
 
 def test_resume_continues_and_a_new_run_refuses_to_overwrite(trained, tmp_path):
     out, data, config, _ = trained
-    with pytest.raises(FileExistsError):
+    with pytest.raises(OutputError, match="pass --resume"):
         train(data, out, config, progress=False)
     copy = tmp_path / "copy"
     copy.mkdir()

@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from abm.cli import main
+from abm.errors import ConfigError
 from abm.experiments import scheduler
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Source
 from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
@@ -108,7 +109,7 @@ def test_a_duplicate_key_or_a_missing_spec_is_a_clear_error(tmp_path: Path) -> N
     path.write_text("name: a\nname: b\n")
     with pytest.raises(SpecError, match="dup.yaml: the key 'name' appears twice"):
         load_spec(path)
-    with pytest.raises(FileNotFoundError, match="built-in experiment spec: .*paper_tables"):
+    with pytest.raises(ConfigError, match="built-in experiment spec: .*paper_tables"):
         load_spec("no_such_spec")
     with pytest.raises(SpecError, match="x.yaml: \\(top level\\): expected a mapping"):
         parse_spec([1, 2], Path("x.yaml"))

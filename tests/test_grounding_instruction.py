@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from abm.errors import ConfigError
 from abm.grounding.instruction import (
     InstructionError,
     InstructionParser,
@@ -147,7 +148,7 @@ def test_user_templates_extend_the_parser(tmp_path):
 
 
 def test_bad_template_files(tmp_path):
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(ConfigError, match="template file not found"):
         load_templates(tmp_path / "missing.yaml")
     bad = tmp_path / "bad.yaml"
     bad.write_text("skills:\n  - skill: open drawer\n    patterns: [open drawer]\n")

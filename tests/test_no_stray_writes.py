@@ -34,6 +34,7 @@ from abm.data.episode_store import (  # noqa: E402
     held_out_overlap,
     save_episode,
 )
+from abm.errors import OutputError  # noqa: E402
 from abm.files import FolderLock, LinkError, sha256_file  # noqa: E402
 from abm.policy.checkpoint import list_checkpoints  # noqa: E402
 from abm.train.config import TrainConfig  # noqa: E402
@@ -115,15 +116,17 @@ def test_export_onto_a_folder_with_an_old_marker_deletes_nothing(tmp_path, victi
     assert untouched(mine) and (out / lerobot.EXPORT_MARKER).is_file()
 
 
-def test_a_failed_export_removes_only_what_it_created(tmp_path, victim, monkeypatch, cli_errors) -> None:
+def test_a_failed_export_removes_only_what_it_created(tmp_path, victim, monkeypatch, capsys, cli_errors) -> None:
     data = _store(tmp_path / "data")
     empty = tmp_path / "empty"
     empty.mkdir()
     neighbour = victim(tmp_path / "neighbour.txt")
 
+    raised: list[Exception] = [OutputError("the disk went away")]
+
     def fail(path: Path, tasks: dict) -> None:  # late in the export, once a user's file appeared in the folder
         victim(path.parents[1] / "arrived_meanwhile.txt")
-        raise ValueError("the disk went away")
+        raise raised[0]
 
     monkeypatch.setattr(lerobot, "_write_tasks", fail)
     assert cli_main(["data", "export", "--format", "lerobot", "--data", str(data), "--out", str(empty)]) == 2
@@ -134,6 +137,11 @@ def test_a_failed_export_removes_only_what_it_created(tmp_path, victim, monkeypa
     assert cli_main(["data", "export", "--format", "lerobot", "--data", str(data), "--out", str(nested)]) == 2
     cli_errors()
     assert not (tmp_path / "new").exists()  # the folders it created went too
+    raised[0] = RuntimeError("a bug late in the export")  # a traceback (exit code 1), and the same clean-up
+    (empty / "arrived_meanwhile.txt").unlink()
+    assert cli_main(["data", "export", "--format", "lerobot", "--data", str(data), "--out", str(empty)]) == 1
+    assert "RuntimeError: a bug late in the export" in capsys.readouterr().err
+    assert sorted(p.name for p in empty.iterdir()) == ["arrived_meanwhile.txt"]
 
 
 def test_export_checks_the_episode_checksums_before_writing(tmp_path, cli_errors) -> None:

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from abm.evaluation.plots import keyframe_error_curve, loss_curves, success_chart
+from abm.evaluation.plots import keyframe_error_curve, loss_curves, run_loss_curves, success_chart
 from abm.evaluation.results import EpisodeOutcome, aggregate, eval_seed
-from abm.evaluation.runner import write_reports, write_training_figure
+from abm.evaluation.runner import write_reports
 from abm.experiments.report import collect_cells, draw_figures, keep_training_log
 from abm.experiments.spec import load_spec
 from abm.experiments.state import Layout, restore
@@ -57,8 +57,8 @@ def test_eval_report_links_the_chart_and_the_training_curves(tmp_path):
     (run / "log.csv").write_text("step,total,translation,rotation,gripper\n" +
                                  "".join(f"{s},{2 / s},{1 / s},{0.5 / s},{0.1 / s}\n" for s in range(1, 30)))
     out = tmp_path / "eval"
-    assert write_training_figure({"abm": str(run), "rvt": str(tmp_path / "no_log")}, out / "training.png")
-    assert write_training_figure({"rvt": str(tmp_path / "no_log")}, tmp_path / "x.png") is None
+    assert run_loss_curves({"abm": run, "rvt": tmp_path / "no_log"}, out / "training.png")
+    assert run_loss_curves({"rvt": str(tmp_path / "no_log")}, tmp_path / "x.png") is None
     write_reports(_outcomes(), out)
     assert _has_colour(out / "success.png", TAB_BLUE) and _has_colour(out / "training.png", TAB_BLUE)
     md = (out / "results.md").read_text()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from abm.cli import main as cli_main
+from abm.errors import ConfigError
 from abm.robot import DryRunArm, LimitError, MotionLimits, NoTargetError, ReplayCamera, record_observations, run_robot
 from abm.types import KeyframeAction
 
@@ -48,7 +49,7 @@ def test_replay_camera_gives_back_the_recorded_frames(recording) -> None:
     camera.read()  # past the end: the last frame again
     pose, opening = camera.recorded_gripper()
     np.testing.assert_allclose(pose, episode.steps[0][0].gripper_pose)
-    with pytest.raises(FileNotFoundError, match="meta.json"):
+    with pytest.raises(ConfigError, match="meta.json"):
         ReplayCamera(folder / "nothing")
 
 

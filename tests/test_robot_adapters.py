@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from abm.errors import ExternalError
 from abm.robot import DryRunArm, LimitError, MotionLimits, RobotConfig, record_observations, run_robot
 from abm.robot.calibration import save_calibration
 from abm.robot.realsense import RealSenseCamera
@@ -136,9 +137,9 @@ def test_realsense_camera_gives_metric_aligned_calibrated_frames(tmp_path) -> No
 def test_missing_sdks_say_what_to_install(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "pyrealsense2", None)
     monkeypatch.setitem(sys.modules, "rtde_receive", None)
-    with pytest.raises(ImportError, match="pip install pyrealsense2"):
+    with pytest.raises(ExternalError, match="pip install pyrealsense2"):
         RealSenseCamera(["1"])
-    with pytest.raises(ImportError, match="pip install ur_rtde"):
+    with pytest.raises(ExternalError, match="pip install ur_rtde"):
         URArm("10.0.0.2")
 
 

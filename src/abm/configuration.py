@@ -39,6 +39,7 @@ import typing
 from pathlib import Path
 from typing import Any
 
+from abm.errors import ConfigError
 from abm.files import load_yaml
 
 # Defaults shared by several commands, defined once here (this module is imported by every command).
@@ -130,16 +131,16 @@ def check_overrides(cls: type, overrides: dict[str, Any], option: str = "--set")
     """``KEY=VALUE`` overrides of the config dataclass ``cls``, checked like its flags (type, range, choices).
 
     Raises:
-        ValueError: an unknown key (the message lists the known ones) or a value of the wrong type or range, or
+        ConfigError: an unknown key (the message lists the known ones) or a value of the wrong type or range, or
             not among the field's choices.
     """
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.metadata.get("cli", True)}
-    out = {}
+    out: dict[str, Any] = {}
     for key, value in overrides.items():
         if key not in fields:
-            raise ValueError(f"{option} {key}=...: {cls.__name__} has no settable field {key!r}; known: "
-                             f"{', '.join(sorted(fields))}")
+            raise ConfigError(f"{option} {key}=...: {cls.__name__} has no settable field {key!r}; known: "
+                              f"{', '.join(sorted(fields))}")
         kind, nargs, optional = _base_type(hints[key])
         if value is None and optional:
             out[key] = value
@@ -163,7 +164,7 @@ def check_overrides(cls: type, overrides: dict[str, Any], option: str = "--set")
                                                      f"{wrong[0]!r}")
                 out[key] = value
         except argparse.ArgumentTypeError as err:
-            raise ValueError(f"{option} {key}={value!r}: {err}") from None
+            raise ConfigError(f"{option} {key}={value!r}: {err}") from None
     return out
 
 
@@ -319,7 +320,7 @@ def builtin_or_file(name: str | Path, folder: Path, kind: str) -> Path:
     if path.parent == Path(".") and builtin.is_file():
         return builtin
     known = ", ".join(sorted(p.stem for p in folder.glob("*.yaml")))
-    raise FileNotFoundError(f"{kind} {name} not found (give a YAML file, or a built-in {kind}: {known})")
+    raise ConfigError(f"{kind} {name} not found (give a YAML file, or a built-in {kind}: {known})")
 
 
 def recipe_path(name: str | Path) -> Path:
@@ -329,11 +330,12 @@ def recipe_path(name: str | Path) -> Path:
 
 
 def load_recipe(name: str | Path) -> dict[str, Any]:
-    """The mapping of a recipe file (see :func:`recipe_path`); ``ValueError`` when it is not a mapping."""
+    """The mapping of a recipe file (see :func:`recipe_path`); :class:`~abm.errors.ConfigError` when it is missing,
+    not YAML or not a mapping."""
     path = recipe_path(name)
     data = load_yaml(path, "recipe") or {}
     if not isinstance(data, dict):
-        raise ValueError(f"recipe {path} must be a mapping of option names to values")
+        raise ConfigError(f"recipe {path} must be a mapping of option names to values")
     return data
 
 
@@ -429,7 +431,7 @@ def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
         return
     try:
         values = load_recipe(given[-1])
-    except (OSError, ValueError) as err:
+    except ConfigError as err:  # not found, not YAML, not a mapping: the message names the file
         sub.error(str(err))
     sections = sub.get_default("config_sections") or {}
     actions = {a.dest: a for a in sub._actions if a.dest not in ("help", "config")}

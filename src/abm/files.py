@@ -22,6 +22,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from abm.errors import ConfigError, DataError, OutputError
+
 
 def load_torch_data(path: str | Path, what: str, allowed_globals: Sequence[Any] = (),
                     map_location: Any = "cpu") -> Any:
@@ -47,17 +49,17 @@ def load_torch_data(path: str | Path, what: str, allowed_globals: Sequence[Any] 
     except pickle.UnpicklingError as err:
         found = re.search(r"GLOBAL ([\w.]+)", str(err))
         if found:
-            raise ValueError(
+            raise DataError(
                 f"refusing to load {path}: it holds Python objects other than tensors and plain data (it names the "
                 f"Python object {found.group(1)}), which an {what} never does (it may be crafted to run code); abm "
                 "never loads such a file: use one written by abm (abm train, abm export, abm clip train)") from None
-        raise ValueError(
+        raise DataError(
             f"refusing to load {path}: it is not the plain data torch.save writes ({_refused_object(err)}); the file "
             f"is damaged, not an {what}, or crafted to run code: use one written by abm (abm train, abm export, abm "
             "clip train)") from None
     except Exception as err:  # noqa: BLE001 - any other reading failure means a corrupt file
-        raise ValueError(f"cannot read {what} {path}: {_without_torch_hints(str(err))}; the file is damaged or not "
-                         f"an {what}") from None
+        raise DataError(f"cannot read {what} {path}: {_without_torch_hints(str(err))}; the file is damaged or not "
+                        f"an {what}") from None
 
 
 _TORCH_HINT = re.compile(r"weights_only|safe_globals|add_safe_globals|trusted source|torch\.load|documentation|"
@@ -132,16 +134,16 @@ def check_torch_archive(path: str | Path, what: str = "file") -> bool:
             f.seek(max(0, size - (22 + 65535)))
             tail = f.read()
     except OSError as err:
-        raise ValueError(f"cannot read {what} {path}: {err.strerror or err}") from None
+        raise DataError(f"cannot read {what} {path}: {err.strerror or err}") from None
     if not head.startswith(b"PK") and not zipfile.is_zipfile(path):
         return False  # torch's legacy (pickle) format: no checksums; torch.load checks what it can
     end = tail.rfind(_EOCD)
     comment = tail[end + 22:] if end >= 0 else b""
     if end < 0 or int.from_bytes(tail[end + 20:end + 22], "little") != len(comment):
-        raise ValueError(f"{path}: the end of its zip archive is damaged; {damaged}")
+        raise DataError(f"{path}: the end of its zip archive is damaged; {damaged}")
     if comment:
         if not _SEAL.fullmatch(comment):
-            raise ValueError(f"{path}: its zip archive comment is not abm's sha256 record; {damaged}")
+            raise DataError(f"{path}: its zip archive comment is not abm's sha256 record; {damaged}")
         body = size - len(tail) + end + 20  # every byte before the comment's length, which was 0 when sealed
         digest = hashlib.sha256()
         with path.open("rb") as f:
@@ -151,19 +153,19 @@ def check_torch_archive(path: str | Path, what: str = "file") -> bool:
                 remaining -= len(block)
         digest.update(b"\0\0")
         if digest.hexdigest().encode() != comment[len(SEAL_PREFIX):]:
-            raise ValueError(f"{path} does not match the sha256 recorded in it when it was written; {damaged}")
+            raise DataError(f"{path} does not match the sha256 recorded in it when it was written; {damaged}")
         return True
     try:
         with zipfile.ZipFile(path) as archive:
             bad = archive.testzip()
     except (zipfile.BadZipFile, OSError, EOFError, ValueError, NotImplementedError) as err:
-        raise ValueError(f"{path}: its zip archive cannot be read ({err}); {damaged}") from None
+        raise DataError(f"{path}: its zip archive cannot be read ({err}); {damaged}") from None
     if bad is not None:
-        raise ValueError(f"{path}: {bad} inside it does not match its CRC-32; {damaged}")
+        raise DataError(f"{path}: {bad} inside it does not match its CRC-32; {damaged}")
     return False
 
 
-class DuplicateKeyError(ValueError):
+class DuplicateKeyError(ConfigError):
     """A YAML mapping names one key twice (YAML itself would keep the last value without a word)."""
 
 
@@ -216,7 +218,7 @@ def parse_yaml(text: str, source: str | Path, what: str) -> Any:
             "YAML would silently keep only the last one: remove or merge one of them") from None
     except yaml.YAMLError as err:
         problem, fix = _yaml_problem(err)
-        raise ValueError(f"{source}: not a valid {what} (YAML error{problem}); {fix}") from None
+        raise ConfigError(f"{source}: not a valid {what} (YAML error{problem}); {fix}") from None
     finally:
         if loader is not None:
             loader.dispose()
@@ -255,13 +257,13 @@ def load_yaml(path: str | Path, what: str) -> Any:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ValueError(f"{path}: {what} not found") from None
+        raise ConfigError(f"{path}: {what} not found") from None
     except (OSError, UnicodeDecodeError) as err:
-        raise ValueError(f"{path}: cannot read the {what} ({err})") from None
+        raise ConfigError(f"{path}: cannot read the {what} ({err})") from None
     return parse_yaml(text, path, what)
 
 
-class WriteError(ValueError):
+class WriteError(OutputError):
     """A file could not be written (full disk, a parent that is a file, no permission); nothing was left."""
 
 
@@ -339,7 +341,7 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
 LOCK_NAME = ".abm.lock"
 
 
-class FolderBusyError(ValueError):
+class FolderBusyError(OutputError):
     """Another live process writes into the folder."""
 
 

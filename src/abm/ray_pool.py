@@ -24,6 +24,8 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
 
+from abm.errors import ExternalError
+
 CONNECT_TIMEOUT_S = 5.0
 #: how long the Ray head may take to answer the start of the gRPC (HTTP/2) handshake that every Ray connection
 #: begins with; a gRPC server answers at once, before any request
@@ -60,7 +62,7 @@ def backend_arguments_problem(args: argparse.Namespace) -> str | None:
     return None
 
 
-class RayBackendError(RuntimeError):
+class RayBackendError(ExternalError):
     """Ray is not installed, or the cluster address does not answer."""
 
 

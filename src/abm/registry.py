@@ -24,14 +24,16 @@ import importlib
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any, Generic, TypeVar
 
+from abm.errors import ConfigError
+
 T = TypeVar("T")
 
 
-class UnknownNameError(KeyError, ValueError):
+class UnknownNameError(ConfigError, KeyError):
     """A name no entry of a registry has; the message lists the known names.
 
-    Both a ``KeyError`` (a registry is a mapping) and a ``ValueError`` (a bad option value), so code that caught
-    either before the registries existed still catches it."""
+    A :class:`~abm.errors.ConfigError` (so a ``ValueError``: a bad option value) and a ``KeyError`` (a registry is
+    a mapping), so code that caught either before the registries existed still catches it."""
 
     def __str__(self) -> str:  # KeyError's own would quote the message
         return str(self.args[0]) if self.args else ""

@@ -19,8 +19,10 @@ from typing import Any
 
 import numpy as np
 
+from abm.errors import DataError
 
-class SchemaError(ValueError):
+
+class SchemaError(DataError):
     """A file that does not match its schema: the message names the file, the key and what is expected."""
 
 

@@ -14,6 +14,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from abm.errors import DataError
 from abm.files import is_inside, sha256_file
 
 DEFAULT_ZOO = Path("models")
@@ -21,7 +22,7 @@ DEFAULT_ZOO = Path("models")
 COMPARED_METHODS = ("abm", "rvt")
 
 
-class ZooError(ValueError):
+class ZooError(DataError):
     """The zoo folder is missing, has no index, an index entry cannot be trusted (no sha256, a file outside the
     zoo, a size that is not a number), or a file does not match its recorded checksum."""
 

@@ -5,6 +5,11 @@ light: configuration dataclasses and argparse only) and ``abm.cli.commands.<grou
 functions, which import the library (torch, mujoco, transformers) at module level. A parser names its command
 as ``func="abm.cli.commands.<group>:<function>"``; :func:`main` imports that one module when the command runs,
 so ``abm --help`` imports no command module and stays fast. No library module imports this package.
+
+What a command raises: an :class:`abm.errors.AbmError` (the user's to fix) is one ``abm: error: MESSAGE`` line
+(exit code 2), like a usage error of the parser and an ``OSError`` that is the user's to fix (a full disk, no
+permission: :data:`abm.files.USER_ERRNOS`); Ctrl-C is ``abm: interrupted`` (exit code 130). Any other exception
+is a bug: its traceback, then :data:`BUG_HINT` (exit code 1).
 """
 
 from __future__ import annotations
@@ -14,12 +19,14 @@ import importlib
 import io
 import logging
 import sys
+import traceback
 import typing
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import abm
 from abm.configuration import apply_config_file
+from abm.errors import AbmError
 from abm.files import USER_ERRNOS, write_error
 
 # Modules that add sub-commands, in the order they appear in ``abm --help``.
@@ -38,9 +45,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "abm.cli.experiment",
 )
 
-
-class CommandError(Exception):
-    """A user-facing error: printed as ``abm: error: ...`` without a traceback."""
+#: the line after the traceback of an unexpected exception (a bug: not an :class:`~abm.errors.AbmError`)
+BUG_HINT = ("abm: internal error: this is a bug in abm, not in what you asked for; please report it to the "
+            "maintainers with the command you ran and the traceback above")
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -171,13 +178,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     try:
         return int(command_function(args.func)(args) or 0)
-    except (CommandError, FileNotFoundError, ValueError, KeyError) as err:
-        message = err.args[0] if isinstance(err, KeyError) and err.args else err
-        print(f"abm: error: {message}", file=sys.stderr)
+    except AbmError as err:
+        print(f"abm: error: {err}", file=sys.stderr)
         return 2
     except OSError as err:  # a path or the disk: the user's to fix (other OS errors are bugs: traceback)
         if err.errno not in USER_ERRNOS:
-            raise
+            return _internal_error()
         # a failed write or close names no file: the open file where it failed does
         path = err.filename or file_in_traceback(err) or "a file of the command's output"
         print(f"abm: error: {write_error(path, err, verb='use' if err.filename else 'write')}", file=sys.stderr)
@@ -185,3 +191,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("abm: interrupted", file=sys.stderr)
         return 130
+    except Exception:
+        return _internal_error()
+
+
+def _internal_error() -> int:
+    """Print the exception being handled with its traceback, then :data:`BUG_HINT`; the exit code (1)."""
+    traceback.print_exc()
+    print(BUG_HINT, file=sys.stderr)
+    return 1

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from abm.clip_training.captions import BACKGROUND_CLASSES, FLOOR, ROBOT, TABLE, caption, class_names
+from abm.errors import DataError, OutputError
 from abm.files import atomic_path, write_text_atomic
 from abm.progress import Progress
 from abm.sim.cameras import ensure_headless_gl, make_renderer
@@ -498,8 +499,8 @@ def build_dataset(folder: str | Path, shards: int, config: RenderConfig | None =
     if meta_path.is_file():
         old = json.loads(meta_path.read_text(encoding="utf-8"))
         if {k: old.get(k) for k in meta} != meta:
-            raise ValueError(f"{folder} holds a dataset rendered with other settings ({meta_path}); "
-                             "use another folder or delete it")
+            raise OutputError(f"{folder} holds a dataset rendered with other settings ({meta_path}); "
+                              "use another folder or delete it")
     else:
         write_text_atomic(meta_path, json.dumps(meta, indent=2) + "\n")
     todo = [s for s in range(shards) if not shard_path(folder, s).is_file()]
@@ -553,7 +554,7 @@ def load_dataset(folder: str | Path, shards: int | None = None) -> ClipDataset:
     meta = json.loads((folder / META).read_text(encoding="utf-8"))
     paths = sorted(folder.glob("shard_*[0-9].npz"))[:shards]
     if not paths:
-        raise FileNotFoundError(f"no shards in {folder}")
+        raise DataError(f"no shards in {folder}")
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("images", "classes", "kind", "label", "caption")}
     for path in paths:
         with np.load(path, allow_pickle=False) as z:

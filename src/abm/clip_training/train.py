@@ -42,6 +42,7 @@ import torch.nn.functional as F
 
 from abm.clip_training.captions import GENERIC_PARENT, OBJECT_PARENT, class_prompts
 from abm.clip_training.data import OBJECT_CROP, SCENE, ClipDataset
+from abm.errors import CheckpointError, OutputError
 from abm.files import atomic_path, load_torch_data, write_text_atomic
 from abm.grounding.clip import TEXT_CONTEXT, maskclip_head, run_encoder_layer
 from abm.grounding.config import DEFAULT_NEGATIVES
@@ -342,15 +343,17 @@ def load_training_state(path: str | Path) -> dict[str, Any]:
     so a crafted file is refused instead of running its code).
 
     Raises:
-        ValueError: the file holds other Python objects, or cannot be read, or lacks the training state.
+        DataError: the file holds other Python objects, or cannot be read (a CheckpointError: or lacks the
+            training state).
     """
     state = load_torch_data(path, "abm CLIP training checkpoint")
     missing = [k for k in ("model", "optimizer", "step", "elapsed", "history", "order", "rng", "torch_rng", "mean",
                            "std") if not isinstance(state, dict) or k not in state]
     if missing:
-        raise ValueError(f"{path} is not an abm CLIP training checkpoint (missing {', '.join(missing)}); "
-                         "train into a new --out folder")
-    return state
+        raise CheckpointError(f"{path} is not an abm CLIP training checkpoint (missing {', '.join(missing)}); "
+                              "train into a new --out folder")
+    checked: dict[str, Any] = state
+    return checked
 
 
 def train(data: ClipDataset, out: str | Path, config: ClipTrainConfig | None = None, resume: bool = False,
@@ -358,7 +361,7 @@ def train(data: ClipDataset, out: str | Path, config: ClipTrainConfig | None = N
     """Train on ``data`` and write the model folder ``out``; returns the summary written to ``abm_clip.json``.
 
     Raises:
-        FileExistsError: ``out`` holds a checkpoint and ``resume`` is False.
+        OutputError: ``out`` holds a checkpoint and ``resume`` is False.
     """
     config = config or ClipTrainConfig()
     out = Path(out)
@@ -366,7 +369,7 @@ def train(data: ClipDataset, out: str | Path, config: ClipTrainConfig | None = N
     torch.set_num_threads(config.threads)
     ckpt_path = out / CHECKPOINT
     if ckpt_path.is_file() and not resume:
-        raise FileExistsError(f"{ckpt_path} exists: pass --resume to continue that run, or use another --out")
+        raise OutputError(f"{ckpt_path} exists: pass --resume to continue that run, or use another --out")
     model, tokenizer = new_model(config)
     model.train()
     optimizer = _optimizer(model, config)

@@ -65,6 +65,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from abm.errors import ConfigError, DataError
 from abm.files import WriteError, sha256_file, write_error, write_text_atomic
 from abm.types import (
     TASK_DATA_VERSIONS,
@@ -85,7 +86,7 @@ EPISODE_SUFFIX = ".h5"
 _COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
 
 
-class EpisodeFormatError(ValueError):
+class EpisodeFormatError(DataError):
     """An episode file that cannot be read: the message names the file and the problem."""
 
 
@@ -434,7 +435,7 @@ def _open(path: Path) -> h5py.File:
     import h5py
 
     if not path.is_file():
-        raise FileNotFoundError(f"episode file not found: {path}")
+        raise ConfigError(f"episode file not found: {path}")
     try:
         f = h5py.File(path, "r")
     except OSError as err:
@@ -644,7 +645,7 @@ def find_episode_files(root: str | os.PathLike[str]) -> list[Path]:
     """Episode files under ``root`` (recursively, sorted; temporary files are skipped)."""
     root = Path(root)
     if not root.is_dir():
-        raise FileNotFoundError(f"episode directory not found: {root}")
+        raise ConfigError(f"episode directory not found: {root}")
     return sorted(p for p in root.rglob(f"*{EPISODE_SUFFIX}") if p.is_file() and not p.name.startswith("."))
 
 

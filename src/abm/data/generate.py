@@ -18,8 +18,10 @@ from typing import TYPE_CHECKING, Any
 
 from abm.configuration import CAMERA_RESOLUTION
 from abm.data.episode_store import check_episodes, find_episode_files, load_metadata, read_info, save_episode
+from abm.errors import ConfigError
 from abm.progress import Progress
 from abm.ray_pool import RayActorPool
+from abm.registry import UnknownNameError
 from abm.sim.tasks import TASKS, get_task
 from abm.workers import die_with_parent
 
@@ -30,7 +32,7 @@ MAX_SEED_FACTOR = 3  # give up after trying this many seeds per requested episod
 ALL_TASKS = "all"
 
 
-class EvaluationOnlyTaskError(ValueError):
+class EvaluationOnlyTaskError(ConfigError):
     """Demonstrations were requested for an evaluation-only (compositional) task."""
 
 
@@ -41,14 +43,14 @@ def trainable_tasks() -> list[str]:
 
 def expand_tasks(spec: str) -> list[str]:
     """``"all"`` -> every trainable task; ``"a,b"`` -> ``["a", "b"]``. Raises ``KeyError`` for unknown
-    names and :class:`EvaluationOnlyTaskError` for evaluation-only tasks."""
+    names (:class:`~abm.registry.UnknownNameError`) and :class:`EvaluationOnlyTaskError` for evaluation-only tasks."""
     if spec.strip() == ALL_TASKS:
         return trainable_tasks()
     names = [n.strip() for n in spec.split(",") if n.strip()]
     unknown = [n for n in names if n not in TASKS]
     if unknown or not names:
-        raise KeyError(f"unknown task(s) {unknown or [spec]}; known tasks: {', '.join(sorted(TASKS))} "
-                       f"(or '{ALL_TASKS}')")
+        raise UnknownNameError(f"unknown task(s) {unknown or [spec]}; known tasks: {', '.join(sorted(TASKS))} "
+                               f"(or '{ALL_TASKS}')")
     for name in names:
         check_trainable(name)
     return names
@@ -160,14 +162,14 @@ def _check_resume_settings(folder: Path, resolution: int, dense_fps: float | Non
     signature = read_info(existing[0]).cameras
     size = signature.rsplit("@", 1)[-1]
     if size != f"{resolution}x{resolution}":
-        raise ValueError(f"{folder} holds episodes recorded at {size} pixels ({existing[0].name}); this run asks for "
-                         f"--resolution {resolution}. Use the same resolution to resume, or a new --out folder.")
+        raise ConfigError(f"{folder} holds episodes recorded at {size} pixels ({existing[0].name}); this run asks for "
+                          f"--resolution {resolution}. Use the same resolution to resume, or a new --out folder.")
     stored = load_metadata(existing[0]).get("dense_fps")
     if (float(stored) if stored else None) != (float(dense_fps) if dense_fps else None):
         have = f"dense at {stored} fps" if stored else "keyframes only"
         want = f"--dense at {dense_fps} fps" if dense_fps else "keyframes only (no --dense)"
-        raise ValueError(f"{folder} holds episodes recorded {have} ({existing[0].name}); this run asks for {want}. "
-                         "Use the same setting to resume, or a new --out folder.")
+        raise ConfigError(f"{folder} holds episodes recorded {have} ({existing[0].name}); this run asks for {want}. "
+                          "Use the same setting to resume, or a new --out folder.")
 
 
 def generate(task: str, split: str, episodes: int, out: str | Path, workers: int = 1, seed: int = 0,

@@ -41,6 +41,7 @@ import torch
 from numpy.typing import NDArray
 from torch.utils.data import Dataset, Sampler
 
+from abm.errors import ConfigError, DataError
 from abm.files import atomic_path
 from abm.geometry import Workspace, augment_cloud, transform_points
 from abm.grounding.conditioning import (
@@ -186,7 +187,7 @@ class StepSampler(Sampler[tuple[int, int]]):
     def __init__(self, n: int, batch_size: int, steps: int, start_step: int = 0, world_size: int = 1,
                  rank: int = 0, seed: int = 0) -> None:
         if n <= 0:
-            raise ValueError("the dataset is empty: no keyframes match the selection")
+            raise ConfigError("the dataset is empty: no keyframes match the selection")
         self.n, self.batch, self.steps, self.start = n, batch_size, steps, start_step
         self.world, self.rank, self.seed = world_size, rank, seed
         self._perm_epoch = -1
@@ -268,7 +269,7 @@ class KeyframeDataset(Dataset[Sample]):
             if augment else self.workspace
         self.items = [(j, k) for j, m in enumerate(self.source.meta) for k in range(m.num_steps)]
         if not self.items:
-            raise ValueError("the dataset is empty: the selected episodes have no keyframes")
+            raise ConfigError("the dataset is empty: the selected episodes have no keyframes")
         self.check_inside_workspace()
         self.oracle = isinstance(self.grounder_config, OracleGrounderConfig)
         #: masks computed here, per sample (the oracle's), not read from the cache (the grounders whose kind is
@@ -298,7 +299,7 @@ class KeyframeDataset(Dataset[Sample]):
                 )
             missing = len(self.missing_cache_entries())
             if missing and require_cache:
-                raise ValueError(
+                raise DataError(
                     f"the grounding cache {self.cache_dir} lacks {missing} of {len(self.items)} keyframes for grounder "
                     f"{self.grounder_config.kind!r}: fill it first with `abm data ground` (abm train does this "
                     "itself before training). Entries are keyed by the grounder's options (e.g. the CLIP model), "
@@ -382,7 +383,7 @@ class KeyframeDataset(Dataset[Sample]):
             return self._scene(j, obs, self._live_grounder, self.mask, False)
         path = self._cache_file(j, k)
         if not path.exists():
-            raise FileNotFoundError(f"grounding cache entry {path} is missing; fill the cache with abm data ground")
+            raise DataError(f"grounding cache entry {path} is missing; fill the cache with abm data ground")
         scene = self._scene(j, obs, None, False, False)
         with np.load(path, allow_pickle=False) as data:
             pm = None
@@ -420,7 +421,7 @@ def check_inside_workspace(source: EpisodeSource, workspace: Workspace) -> None:
     if outside:
         meta, count, where = outside[0]
         lo, hi = np.round(workspace.lower, 3).tolist(), np.round(workspace.upper, 3).tolist()
-        raise ValueError(
+        raise ConfigError(
             f"{sum(c for _, c, _ in outside)} keyframes of {len(outside)} episodes lie outside the policy's "
             f"workspace cube {lo}..{hi} (m), e.g. {count} of {meta.task} episode {meta.key} such as "
             f"{np.round(where, 3).tolist()}; enlarge the cube (--workspace-size M --workspace-center X Y Z) or "

@@ -104,6 +104,7 @@ from abm.data.lerobot_schema import (
     intrinsics_key,
     segmentation_key,
 )
+from abm.errors import ConfigError, DataError, OutputError
 from abm.files import is_inside, sha256_file, write_text_atomic
 from abm.geometry.rotations import matrix_to_quat
 from abm.sim.tasks import TASKS
@@ -455,17 +456,17 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
 
     data, out = Path(data), Path(out)
     if not data.is_dir():
-        raise FileNotFoundError(f"--data {data} is not a folder of abm episodes")
+        raise ConfigError(f"--data {data} is not a folder of abm episodes")
     _check_export_target(out)
     if frames not in ("auto", "dense", "keyframes"):
-        raise ValueError(f"--frames must be auto, dense or keyframes, got {frames!r}")
+        raise ConfigError(f"--frames must be auto, dense or keyframes, got {frames!r}")
     if not 0 <= crf <= 51:
-        raise ValueError(f"--crf must be between 0 and 51, got {crf}")
+        raise ConfigError(f"--crf must be between 0 and 51, got {crf}")
     if not (data_file_mb > 0 and video_file_mb > 0):
-        raise ValueError(f"file size limits must be positive, got {data_file_mb} and {video_file_mb} MB")
+        raise ConfigError(f"file size limits must be positive, got {data_file_mb} and {video_file_mb} MB")
     store = EpisodeStore(data)
     if not len(store):
-        raise ValueError(f"no abm episodes (*.h5) under {data}")
+        raise ConfigError(f"no abm episodes (*.h5) under {data}")
     store.check_consistent(range(len(store)))
     bad = check_episodes([info.path for info in store.episodes], data)  # before a byte of the export is written
     if bad:
@@ -481,7 +482,7 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
     dense_all = all("dense_fps" in load_metadata(i.path) for i in store.episodes)
     if frames == "dense" and not dense_all:
         missing = next(i.path for i in store.episodes if "dense_fps" not in load_metadata(i.path))
-        raise ValueError(f"--frames dense: {missing} has no dense trajectory (generate with --dense)")
+        raise ConfigError(f"--frames dense: {missing} has no dense trajectory (generate with --dense)")
     dense = frames == "dense" or (frames == "auto" and dense_all)
     if frames == "auto" and not dense_all and any("dense_fps" in load_metadata(i.path) for i in store.episodes):
         missing = next(i.path for i in store.episodes if "dense_fps" not in load_metadata(i.path))
@@ -489,8 +490,8 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
                                          "at their keyframes; export the --dense ones on their own for a dense "
                                          "dataset", data, missing)
     if dense and (size[0] % 2 or size[1] % 2):
-        raise ValueError(f"the episodes' images are {size[0]}x{size[1]}; H.264 video (yuv420p) needs even sizes "
-                         "(export --frames keyframes keeps the images as PNG)")
+        raise ConfigError(f"the episodes' images are {size[0]}x{size[1]}; H.264 video (yuv420p) needs even sizes "
+                          "(export --frames keyframes keeps the images as PNG)")
     fps = float(first.trajectory.fps) if dense and first.trajectory is not None else float(KEYFRAME_INDEX_FPS)
     features = _features(cameras, size, dense, segmentation, fps, crf)
     schema = pa.schema([(k, _arrow_type(f)) for k, f in features.items() if f["dtype"] != "video"])
@@ -508,15 +509,15 @@ def export_lerobot(data: str | os.PathLike[str], out: str | os.PathLike[str], fr
 def _check_export_target(out: Path) -> None:
     """``--out`` must be a new or an empty folder (an export never replaces or mixes with other files)."""
     if out.is_symlink() and not out.exists():
-        raise ValueError(f"--out {out} is a symbolic link to a missing folder; give a new folder")
+        raise OutputError(f"--out {out} is a symbolic link to a missing folder; give a new folder")
     if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not an empty folder (it is a file); give a new folder")
+        raise OutputError(f"--out {out} exists and is not an empty folder (it is a file); give a new folder")
     if out.is_dir() and any(out.iterdir()):
         if (out / EXPORT_MARKER).exists():
-            raise ValueError(f"--out {out} exists and is not an empty folder: it holds an export that did not "
-                             f"finish ({out / EXPORT_MARKER}); delete that folder yourself and export again, or "
-                             "give a new folder")
-        raise ValueError(f"--out {out} exists and is not an empty folder; give a new folder")
+            raise OutputError(f"--out {out} exists and is not an empty folder: it holds an export that did not "
+                              f"finish ({out / EXPORT_MARKER}); delete that folder yourself and export again, or "
+                              "give a new folder")
+        raise OutputError(f"--out {out} exists and is not an empty folder; give a new folder")
 
 
 def _first_missing(path: Path) -> Path | None:
@@ -620,10 +621,10 @@ def _write_export(store: EpisodeStore, first: Episode, out: Path, cameras: list[
             episode = load_episode(info.path) if ep_index else first
             if dense:
                 if episode.trajectory is None:
-                    raise ValueError(f"{info.path} has no dense trajectory (generate with --dense)")
+                    raise DataError(f"{info.path} has no dense trajectory (generate with --dense)")
                 if abs(episode.trajectory.fps - fps) > 1e-9:
-                    raise ValueError(f"{info.path} was recorded at {episode.trajectory.fps} fps, the first episode "
-                                     f"at {fps}")
+                    raise DataError(f"{info.path} was recorded at {episode.trajectory.fps} fps, the first episode "
+                                    f"at {fps}")
             cols, rgb = _episode_columns(episode, dense, cameras, segmentation, fps)
             n = len(cols["frame_index"])
             cols["episode_index"] = np.full(n, ep_index, np.int64)
@@ -964,9 +965,9 @@ def import_lerobot(dataset: str | os.PathLike[str], out: str | os.PathLike[str],
     """
     ds, out = Path(dataset), Path(out)
     if not ds.is_dir():
-        raise FileNotFoundError(f"LeRobot dataset folder not found: {ds}")
+        raise ConfigError(f"LeRobot dataset folder not found: {ds}")
     if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} is a file; give a folder")
+        raise OutputError(f"--out {out} is a file; give a folder")
     info = _read_json(ds / "meta" / "info.json", "meta/info.json")
     version = info.get("codebase_version")
     if version != CODEBASE_VERSION:
@@ -1193,13 +1194,13 @@ def _check_targets(plan: list[_PlannedEpisode], out: Path, overwrite: bool) -> N
     if overwrite:
         return
     if (out / IMPORT_MARKER).exists():
-        raise ValueError(f"--out {out} holds an import that did not finish ({out / IMPORT_MARKER}); pass "
-                         "--overwrite to import into it again (replacing the episodes it already wrote), or import "
-                         "into a new folder")
+        raise OutputError(f"--out {out} holds an import that did not finish ({out / IMPORT_MARKER}); pass "
+                          "--overwrite to import into it again (replacing the episodes it already wrote), or import "
+                          "into a new folder")
     taken = [item.path for item in plan if item.path.exists() or item.path.is_symlink()]
     if taken:
-        raise ValueError(f"--out {out} already holds {len(taken)} of the dataset's episodes (e.g. {taken[0]}); pass "
-                         "--overwrite to replace them, or import into a new folder")
+        raise OutputError(f"--out {out} already holds {len(taken)} of the dataset's episodes (e.g. {taken[0]}); pass "
+                          "--overwrite to replace them, or import into a new folder")
 
 
 def _import_episodes(plan: list[_PlannedEpisode], reader: _FrameReader, layout: _Layout,

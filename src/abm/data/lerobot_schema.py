@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import DTypeLike
 
+from abm.errors import DataError
+
 if TYPE_CHECKING:  # pyarrow is imported where datasets are written or read
     import pyarrow as pa
 
@@ -65,7 +67,7 @@ STEP_KEY = "abm.observation_step"
 IMAGE_PREFIX = "observation.images."
 
 
-class LeRobotFormatError(ValueError):
+class LeRobotFormatError(DataError):
     """A dataset folder that is not a LeRobot v3 dataset abm can import (the message says why)."""
 
 
@@ -92,11 +94,6 @@ def intrinsics_key(camera: str) -> str:
 def extrinsics_key(camera: str) -> str:
     """The feature of a camera's pose (float64 ``[4, 4]`` camera-to-world, OpenCV camera axes)."""
     return f"geometry.extrinsics.{camera}"
-
-
-def is_policy_input(key: str) -> bool:
-    """Whether LeRobot's feature routing gives ``key`` (not a camera) to a policy as state or action."""
-    return key.startswith("observation") or key.startswith("action")
 
 
 def format1_key(key: str) -> str:

@@ -1,10 +1,12 @@
 """Result figures: success-rate bar charts (seen / unseen per task and method, error bars over repeats) and
 training curves (losses from ``log.csv``, keyframe error against training steps).
 
-Used by ``abm eval`` (``success.png`` and ``training.png`` beside ``results.md`` and in ``report.html``) and
-by the report scripts under ``benchmarks/`` (the README images under ``docs/images/results/``). Every
-function takes plain data (the dicts of ``results.json``, or :class:`~abm.evaluation.results.SuccessRate`)
-and writes a PNG with matplotlib's Agg backend (no display needed).
+Used by ``abm train`` (``RUN/training_curve.png``), ``abm eval`` (``success.png`` and ``training.png`` beside
+``results.md`` and in ``report.html``), ``abm quickstart`` (its report's ``training_curves.png``) and the
+experiment reports (:mod:`abm.experiments.report`: the README images). :func:`loss_curves` is the one
+training-curve plotter (:func:`run_loss_curves` reads the runs' logs for it). Every function takes plain data
+(the dicts of ``results.json``, or :class:`~abm.evaluation.results.SuccessRate`, ``log.csv`` rows) and writes
+a PNG with matplotlib's Agg backend (no display needed).
 """
 
 from __future__ import annotations
@@ -113,17 +115,28 @@ def read_log(run: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+def run_loss_curves(runs: Mapping[str, str | Path], path: str | Path) -> Path | None:
+    """:func:`loss_curves` of training runs (label -> run folder) that have a ``log.csv``; ``None`` if none has."""
+    logs = {label: rows for label, run in runs.items() if (rows := read_log(run))}
+    return loss_curves(logs, path) if logs else None
+
+
 def loss_curves(runs: Mapping[str, Sequence[Mapping[str, Any]]], path: str | Path,
                 heads: Sequence[str] = ("total", "translation", "rotation", "gripper")) -> Path:
     """Training losses against steps, one panel per loss head, one line per run (label -> ``log.csv`` rows with
-    ``step`` and the head columns). Log scale; rows without a value are skipped."""
+    ``step`` and the head columns). Log scale; rows without a value are skipped. A run that logged a validation
+    loss (``val_total``: ``abm train --val-data``) has it beside its total training loss, dashed with dots."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(heads), figsize=(3.6 * len(heads), 3.0), squeeze=False)
     for label, rows in runs.items():
         for ax, head in zip(axes[0], heads, strict=True):
             pts = [(int(float(r["step"])), float(r[head])) for r in rows if r.get(head) not in (None, "")]
-            if pts:
-                ax.plot(*zip(*pts, strict=True), label=label, linewidth=1.2)
+            colour = ax.plot(*zip(*pts, strict=True), label=label, linewidth=1.2)[0].get_color() if pts else None
+            held_out = [(int(float(r["step"])), float(r["val_total"])) for r in rows
+                        if head == "total" and r.get("val_total") not in (None, "")]
+            if held_out:
+                ax.plot(*zip(*held_out, strict=True), "o--", color=colour, label=f"{label} validation",
+                        linewidth=1.0, markersize=3)
     from matplotlib.ticker import FormatStrFormatter
 
     for ax, head in zip(axes[0], heads, strict=True):

@@ -30,6 +30,7 @@ from typing import Any
 
 import torch
 
+from abm.errors import CheckpointError
 from abm.evaluation.settings import EvalSettings
 from abm.grounding.config import grounder_from_flags
 from abm.policy import KeyframePolicy
@@ -41,7 +42,7 @@ ROLLOUT_THREADS = 1
 _ORIGINALS: dict[tuple[Any, ...], KeyframePolicy] = {}  # per process: policies as loaded, never acted with
 
 
-class PolicyLoadError(ValueError):
+class PolicyLoadError(CheckpointError):
     """A run's policy cannot be built for evaluation (the message names the file and the fix)."""
 
 

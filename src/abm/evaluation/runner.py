@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -21,8 +20,9 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+from abm.errors import ConfigError, OutputError
 from abm.evaluation.html_report import write_html_report
-from abm.evaluation.plots import loss_curves, read_log, success_chart
+from abm.evaluation.plots import run_loss_curves, success_chart
 from abm.evaluation.policies import check_policies, code_digest, forget_policies, load_policy, rollout_state
 from abm.evaluation.results import (
     EpisodeOutcome,
@@ -181,8 +181,8 @@ def check_labels(runs: Sequence[str], labels: dict[str, str]) -> None:
     for r in runs:
         label, file = labels[r], checkpoint_of(r)
         if owner.setdefault(label, file) != file:
-            raise ValueError(f"the runs {owner[label]} and {file} have the same table label {label!r}, so their "
-                             "episodes would be pooled into one row: give each run its own label")
+            raise ConfigError(f"the runs {owner[label]} and {file} have the same table label {label!r}, so their "
+                              "episodes would be pooled into one row: give each run its own label")
 
 
 def plan_jobs(
@@ -293,7 +293,7 @@ def evaluate(
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
     if collect is not None:
         collect.extend(latest.values())
-    write_training_figure({j.method: j.run for j in plan}, out / "training.png")
+    run_loss_curves({j.method: j.run for j in plan}, out / "training.png")
     return write_reports(list(latest.values()), out)
 
 
@@ -335,16 +335,10 @@ def check_same_evaluation(existing: Sequence[EpisodeOutcome], plan: Sequence[Eva
     problems = [f"{key} {', '.join(had[key])} there vs {', '.join(wanted[key])} now"
                 for key in ("tasks", "settings") if had.get(key) != wanted[key]]
     if problems:
-        raise ValueError(f"{out} holds the outcomes of another evaluation ({'; '.join(problems)}): evaluate into "
-                         f"a new --out folder, or delete {out / 'outcomes.jsonl'} and {path.name} to start over")
+        raise OutputError(f"{out} holds the outcomes of another evaluation ({'; '.join(problems)}): evaluate into "
+                          f"a new --out folder, or delete {out / 'outcomes.jsonl'} and {path.name} to start over")
     if record:
         path.write_text(json.dumps(wanted, indent=2) + "\n")
-
-
-def write_training_figure(runs: dict[str, str], path: Path) -> Path | None:
-    """Loss curves of the evaluated runs (label -> run folder) that have a ``log.csv``; ``None`` if none has."""
-    logs = {label: rows for label, run in runs.items() if (rows := read_log(run))}
-    return loss_curves(logs, path) if logs else None
 
 
 def _pool(backend: str, workers: int, ray_address: str | None) -> Any:
@@ -470,8 +464,3 @@ def save_views_figure(explanations: Sequence[Any], path: str | Path, max_side: i
     path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(vstack(rows)).save(path)
     return path
-
-
-def default_workers() -> int:
-    """Half the cores (rendering and the policy each use threads), at least 1."""
-    return max(1, (os.cpu_count() or 2) // 2)

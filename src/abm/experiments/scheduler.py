@@ -26,6 +26,7 @@ from typing import Any, Protocol
 
 import abm
 from abm import ray_pool
+from abm.errors import ConfigError
 
 log = logging.getLogger("abm")
 POLL_S = 0.5  #: how often the local runner looks at its processes (seconds)
@@ -53,7 +54,7 @@ class Source:
     def at(cls, tree: Path) -> Source:
         """The checkout at ``tree`` (refused when it has no ``src/abm``)."""
         if not (tree / "src" / "abm" / "__init__.py").is_file():
-            raise ValueError(f"--source {tree}: not an abm checkout (no src/abm/__init__.py)")
+            raise ConfigError(f"--source {tree}: not an abm checkout (no src/abm/__init__.py)")
         return cls(tree.resolve())
 
     def cli(self, *args: str) -> list[str]:
@@ -63,8 +64,8 @@ class Source:
     def script(self, name: str, *args: str) -> list[str]:
         """``python benchmarks/NAME ARGS`` of this tree."""
         if self.tree is None:
-            raise ValueError(f"benchmarks/{name} is in the repository checkout only; run from a checkout or give "
-                             "--source DIR")
+            raise ConfigError(f"benchmarks/{name} is in the repository checkout only; run from a checkout or give "
+                              "--source DIR")
         return [sys.executable, str(self.tree / "benchmarks" / name), *args]
 
     def env(self, threads: int | None = None) -> dict[str, str]:

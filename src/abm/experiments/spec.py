@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES, SPLITS, WORKERS, builtin_or_file, check_overrides
+from abm.errors import ConfigError
 from abm.files import load_yaml
 from abm.grounding.config import GROUNDERS, grounder_config_from_dict
 from abm.policy.config import PolicyConfig
@@ -38,7 +39,7 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 _MARKER = re.compile(r"^[a-z0-9][a-z0-9-]*$")
 
 
-class SpecError(ValueError):
+class SpecError(ConfigError):
     """An experiment spec that does not load: the message names the file and the key."""
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import yaml
 
 from abm.configuration import load_recipe
+from abm.errors import ConfigError
 from abm.experiments.report import write_report, zoo_index
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Runner, Source
 from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, ExperimentSpec
@@ -84,10 +85,6 @@ class Job:
     minutes: float | None = None
 
 
-class ExperimentError(RuntimeError):
-    """A job failed: the message names it and its log."""
-
-
 def training_steps(spec: ExperimentSpec) -> int:
     """Optimiser steps of every run: the spec's, else its recipe's, else the training default."""
     if spec.training.steps is not None:
@@ -117,8 +114,8 @@ class Engine:
                  runner: Runner | None = None, clip_model: str | None = None) -> None:
         unknown = [r for r in runs or () if r not in spec.runs]
         if unknown:
-            raise ValueError(f"--runs {' '.join(unknown)}: not a run of {spec.name} (its runs: "
-                             f"{', '.join(spec.runs)})")
+            raise ConfigError(f"--runs {' '.join(unknown)}: not a run of {spec.name} (its runs: "
+                              f"{', '.join(spec.runs)})")
         self.spec, self.root = spec, root
         self.layout = Layout.of(spec, root, out)
         self.source = source or Source.here()
@@ -484,7 +481,7 @@ class Engine:
         after a failed one are not run). An interrupt carries the unfinished work and re-raises."""
         unknown = [s for s in stages if s not in STAGES + EXTRA_STAGES]
         if unknown:
-            raise ValueError(f"--stages {' '.join(unknown)}: unknown (stages: {', '.join(STAGES + EXTRA_STAGES)})")
+            raise ConfigError(f"--stages {' '.join(unknown)}: unknown (stages: {', '.join(STAGES + EXTRA_STAGES)})")
         order = [s for s in (*STAGES, *EXTRA_STAGES) if s in stages]
         if not dry_run:
             copied = restore(self.spec, self.layout)

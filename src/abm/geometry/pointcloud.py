@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from abm.errors import ConfigError, DataError
 from abm.geometry.workspace import Workspace
 from abm.types import CameraFrame, Observation
 
@@ -154,10 +155,10 @@ def fuse_cameras(
         pix.append(pixels)
     cloud = PointCloud(np.concatenate(xyz), np.concatenate(rgb), np.concatenate(cam_idx), np.concatenate(pix), names)
     if valid == 0:
-        raise ValueError(f"no valid depth pixel in cameras {names}: every depth is 0, NaN or inf")
+        raise DataError(f"no valid depth pixel in cameras {names}: every depth is 0, NaN or inf")
     if workspace is not None:
         if len(cloud) == 0:
-            raise ValueError(
+            raise ConfigError(
                 f"no point of cameras {names} lies inside the workspace cube "
                 f"{workspace.lower.round(3).tolist()}..{workspace.upper.round(3).tolist()}; "
                 "check the extrinsics (camera-to-world, OpenCV axes) and the workspace"

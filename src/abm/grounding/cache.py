@@ -131,7 +131,3 @@ class GroundingCache:
 
     def __contains__(self, key: str) -> bool:
         return key in self._memory or (self.directory is not None and self._path(key).is_file())
-
-    def clear_memory(self) -> None:
-        """Forget the in-memory entries (disk entries stay)."""
-        self._memory.clear()

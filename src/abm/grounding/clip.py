@@ -35,6 +35,7 @@ import torch
 import torch.nn.functional as F
 
 from abm.configuration import GPU_CLIP_MODEL, TEST_ONLY_CLIP
+from abm.errors import ConfigError, ExternalError
 from abm.files import sha256_file
 from abm.grounding.config import DENSE_MODES
 from abm.grounding.tokenizer import tiny_tokenizer
@@ -73,7 +74,7 @@ CLIP_PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
-class ClipWeightsNotFoundError(FileNotFoundError):
+class ClipWeightsNotFoundError(ExternalError, FileNotFoundError):
     """Pretrained CLIP weights are not available on this machine."""
 
 
@@ -206,7 +207,7 @@ class ClipBackbone:
         """
         h_in, w_in = input_size or (self.image_size, self.image_size)
         if h_in % self.patch_size or w_in % self.patch_size:
-            raise ValueError(f"input_size {(h_in, w_in)} must be a multiple of the patch size {self.patch_size}")
+            raise ConfigError(f"input_size {(h_in, w_in)} must be a multiple of the patch size {self.patch_size}")
         if isinstance(images, torch.Tensor):
             batch = [images[i] for i in range(images.shape[0])] if images.ndim == 4 else [images]
             tensors = [t.float() for t in batch]

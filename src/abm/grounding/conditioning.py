@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
 
+from abm.errors import ConfigError
 from abm.geometry import PointCloud, Workspace, fuse_cameras
 from abm.grounding.instruction import PLACEHOLDER, MultiStepInstructionError, default_parser
 from abm.types import Observation
@@ -85,7 +86,7 @@ def split_roles(instruction: str, object_names: Mapping[int, str] | None = None,
         skill = _replace_target(instruction, name)
         if skill is not None:
             return (name,), skill
-    raise ValueError(f"cannot find the target object in instruction {instruction!r}")
+    raise ConfigError(f"cannot find the target object in instruction {instruction!r}")
 
 
 def split_instruction(instruction: str, object_names: Mapping[int, str] | None = None,

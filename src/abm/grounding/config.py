@@ -33,6 +33,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, overload
 
+from abm.errors import ConfigError
 from abm.registry import Registry, resolve
 
 if TYPE_CHECKING:
@@ -85,13 +86,13 @@ class MaskFieldConfig:
 
     def __post_init__(self) -> None:
         if self.normalization not in NORMALIZATIONS:
-            raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {self.normalization!r}")
+            raise ConfigError(f"normalization must be one of {NORMALIZATIONS}, got {self.normalization!r}")
         if self.fallback not in ("top", "none"):
-            raise ValueError(f"fallback must be 'top' or 'none', got {self.fallback!r}")
+            raise ConfigError(f"fallback must be 'top' or 'none', got {self.fallback!r}")
         if self.fallback_top_k < 1:
-            raise ValueError(f"fallback_top_k must be >= 1, got {self.fallback_top_k}")
+            raise ConfigError(f"fallback_top_k must be >= 1, got {self.fallback_top_k}")
         if self.normalization == "softmax" and not self.negatives:
-            raise ValueError("softmax normalisation needs at least one negative phrase")
+            raise ConfigError("softmax normalisation needs at least one negative phrase")
         object.__setattr__(self, "negatives", tuple(self.negatives))
 
     def key(self) -> str:
@@ -148,10 +149,10 @@ class ProposalConfig:
 
     def __post_init__(self) -> None:
         if self.scoring not in SCORINGS:
-            raise ValueError(f"proposal scoring must be one of {SCORINGS}, got {self.scoring!r}")
+            raise ConfigError(f"proposal scoring must be one of {SCORINGS}, got {self.scoring!r}")
         if self.voxel <= 0 or self.min_points < 1 or self.crop_margin < 1 or not 0 <= self.crop_weight <= 1:
-            raise ValueError("ProposalConfig needs voxel > 0, min_points >= 1, crop_margin >= 1 and crop_weight "
-                             f"in [0, 1]; got {self}")
+            raise ConfigError("ProposalConfig needs voxel > 0, min_points >= 1, crop_margin >= 1 and crop_weight "
+                              f"in [0, 1]; got {self}")
 
     def key(self) -> str:
         """A stable text form used in cache keys."""
@@ -183,7 +184,7 @@ def _explicit(config: DataclassInstance, given: frozenset[str]) -> list[str]:
 
 def _unknown(kind: str, keys: set[str], allowed: tuple[str, ...]) -> None:
     if keys:
-        raise ValueError(f"unknown option(s) {sorted(keys)} for the {kind!r} grounder; it takes {sorted(allowed)}")
+        raise ConfigError(f"unknown option(s) {sorted(keys)} for the {kind!r} grounder; it takes {sorted(allowed)}")
 
 
 def _options(cls: type) -> tuple[str, ...]:
@@ -298,7 +299,7 @@ class ClipGrounderConfig(GrounderConfig):
 
     def __post_init__(self) -> None:
         if self.mode not in CLIP_MODES:
-            raise ValueError(f"clip grounder mode must be one of {CLIP_MODES}, got {self.mode!r}")
+            raise ConfigError(f"clip grounder mode must be one of {CLIP_MODES}, got {self.mode!r}")
         size: object = self.input_size  # a list when read from JSON
         if isinstance(size, list):
             object.__setattr__(self, "input_size", tuple(int(v) for v in size))
@@ -381,7 +382,7 @@ class TrackingGrounderConfig(GrounderConfig):
 
     def __post_init__(self) -> None:
         if isinstance(self.inner, TrackingGrounderConfig):
-            raise ValueError("a tracking grounder cannot track with another tracking grounder")
+            raise ConfigError("a tracking grounder cannot track with another tracking grounder")
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> TrackingGrounderConfig:
@@ -480,13 +481,13 @@ def grounder_config_from_dict(data: Mapping[str, Any]) -> GrounderConfig:
             kind does not take (named in the message).
     """
     if not isinstance(data, Mapping):
-        raise ValueError(f"a grounder configuration must be a dict with a 'kind', got {data!r}")
+        raise ConfigError(f"a grounder configuration must be a dict with a 'kind', got {data!r}")
     kind = data.get("kind", "oracle")
     cls = GROUNDERS[kind].config
     try:
         return cls.from_dict(data)
     except TypeError as err:  # a bad value type reaching a dataclass
-        raise ValueError(f"bad {kind!r} grounder options {dict(data)}: {err}") from err
+        raise ConfigError(f"bad {kind!r} grounder options {dict(data)}: {err}") from err
 
 
 def as_grounder_config(value: GrounderConfig | Mapping[str, Any] | str | None) -> GrounderConfig:
@@ -507,21 +508,21 @@ def grounder_from_flags(kind: str | None, clip_model: str | None = None,
     (:meth:`GrounderConfig.with_clip`: the ``clip`` grounder's, the one ``tracking`` grounds its first step with).
 
     Raises:
-        ValueError: an unknown kind, or CLIP weights for a kind that uses none.
+        ConfigError: an unknown kind, or CLIP weights for a kind that uses none.
     """
     given = clip_model is not None or clip_device is not None
     if kind is None:
         if given:
-            raise ValueError(f"--clip-model applies to --grounder {' or '.join(GROUNDERS.names(clip=True))}, not "
-                             f"the checkpoint default: add --grounder clip to ground with {clip_model or 'it'}")
+            raise ConfigError(f"--clip-model applies to --grounder {' or '.join(GROUNDERS.names(clip=True))}, not "
+                              f"the checkpoint default: add --grounder clip to ground with {clip_model or 'it'}")
         return None
     config = grounder_config_from_dict({"kind": kind})
     if not given:
         return config
     with_clip = config.with_clip(clip_model, clip_device)
     if with_clip is None:
-        raise ValueError(f"--clip-model applies to --grounder {' or '.join(GROUNDERS.names(clip=True))}, not "
-                         f"{kind!r}: add --grounder clip to ground with {clip_model or 'it'}")
+        raise ConfigError(f"--clip-model applies to --grounder {' or '.join(GROUNDERS.names(clip=True))}, not "
+                          f"{kind!r}: add --grounder clip to ground with {clip_model or 'it'}")
     return with_clip
 
 

@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from abm.errors import ConfigError
+
 if TYPE_CHECKING:
     from abm.grounding.mask_field import MaskField  # types only: mask_field.py loads torch
 
@@ -134,7 +136,7 @@ def decide_target(field: MaskField | None, target: str | None, object_names: Map
         The :class:`TargetDecision`; ``found`` is False with a ``reason`` when the target is refused.
     """
     if not 0.0 <= min_confidence <= 1.0:
-        raise ValueError(f"min_confidence must be in [0, 1], got {min_confidence}")
+        raise ConfigError(f"min_confidence must be in [0, 1], got {min_confidence}")
     name = " ".join(str(target or "").split())
     scene = scene_vocabulary(object_names)
     candidates = target_candidates(name, object_names)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from abm.configuration import CPU_CLIP_MODEL, GPU_CLIP_MODEL
+from abm.errors import ConfigError
 
 BENCHMARK_CLIP_ENV = "ABM_BENCHMARK_CLIP"
 DEFAULT_BENCHMARK_CLIP = "~/.cache/abm/benchmark-clip"
@@ -105,19 +106,19 @@ def default_grounder(clip_model: str | None = None, device: str = "cpu", *, down
     """The grounder to use when the command line names none (see the module docstring for the order).
 
     Args:
-        clip_model: ``--clip-model``; when given it is the answer, or :class:`ValueError` when absent.
+        clip_model: ``--clip-model``; when given it is the answer, or :class:`~abm.errors.ConfigError` when absent.
         device: the command's device (the pretrained CLIP is the GPU-sized one on CUDA).
         download: try to download the pretrained CLIP when it is not cached (the quickstart, when the hub answers;
             ``abm ground --allow-download``).
-        clip_only: a CLIP was asked for (``--grounder clip``): :class:`ValueError` instead of the oracle.
+        clip_only: a CLIP was asked for (``--grounder clip``): :class:`~abm.errors.ConfigError` instead of the oracle.
         loader: ``loader(model, allow_download)`` loads the weights and raises ``OSError`` when they cannot be
             had; used for the download (default :func:`abm.grounding.clip.load_clip` on the CPU).
     """
     if clip_model:
         if not clip_present(clip_model) and not _fetch(clip_model, download, loader):
-            raise ValueError(f"--clip-model {clip_model}: no CLIP weights there (a folder written by abm clip train "
-                             f"or save_pretrained, or a hub name in the local cache; the committed benchmark CLIP is "
-                             f"{ZOO_BENCHMARK_CLIP} in a checkout)")
+            raise ConfigError(f"--clip-model {clip_model}: no CLIP weights there (a folder written by abm clip train "
+                              f"or save_pretrained, or a hub name in the local cache; the committed benchmark CLIP is "
+                              f"{ZOO_BENCHMARK_CLIP} in a checkout)")
         return GrounderChoice("clip", clip_model, "given", f"CLIP {clip_model} (--clip-model)")
     pretrained = GPU_CLIP_MODEL if str(device).startswith("cuda") else CPU_CLIP_MODEL
     if clip_present(pretrained) or _fetch(pretrained, download, loader):
@@ -127,11 +128,11 @@ def default_grounder(clip_model: str | None = None, device: str = "cpu", *, down
         return GrounderChoice("clip", str(bench), "benchmark",
                               f"benchmark CLIP trained on ABM-Bench renders ({bench}; abm clip train)")
     if clip_only:
-        raise ValueError(f"no CLIP weights found: the pretrained {pretrained} is not in the local cache "
-                         f"({'the download failed' if download else 'no download without --allow-download'}) and "
-                         f"there is no benchmark CLIP in {bench} (the committed one is {ZOO_BENCHMARK_CLIP} in a "
-                         f"checkout, or set ${BENCHMARK_CLIP_ENV}); give --clip-model DIR, or train one: "
-                         f"abm clip train --out {bench}")
+        raise ConfigError(f"no CLIP weights found: the pretrained {pretrained} is not in the local cache "
+                          f"({'the download failed' if download else 'no download without --allow-download'}) and "
+                          f"there is no benchmark CLIP in {bench} (the committed one is {ZOO_BENCHMARK_CLIP} in a "
+                          f"checkout, or set ${BENCHMARK_CLIP_ENV}); give --clip-model DIR, or train one: "
+                          f"abm clip train --out {bench}")
     print(f"WARNING: no CLIP weights found (pretrained {pretrained} is not cached; no benchmark CLIP in {bench})\n"
           + ORACLE_WARNING.format(bench=bench), file=sys.stderr)
     return GrounderChoice("oracle", None, "oracle",

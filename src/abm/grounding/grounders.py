@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from abm.errors import ConfigError
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
 from abm.grounding.clip import DEFAULT_MODEL, ClipBackbone, load_clip, model_fingerprint
@@ -91,8 +92,8 @@ def segmentation_of_points(observation: Observation, cloud: PointCloud) -> np.nd
     segmentations = {n: observation.camera(n).segmentation for n in cloud.camera_names}
     missing = [n for n, seg in segmentations.items() if seg is None]
     if missing:
-        raise ValueError(f"cameras {missing} have no segmentation; the oracle grounder needs simulator "
-                         "segmentation (use the clip grounder on real data)")
+        raise ConfigError(f"cameras {missing} have no segmentation; the oracle grounder needs simulator "
+                          "segmentation (use the clip grounder on real data)")
     ids: np.ndarray = cloud.gather({n: seg for n, seg in segmentations.items() if seg is not None})
     return ids
 
@@ -128,7 +129,7 @@ class OracleGrounder:
     def from_config(cls, config: OracleGrounderConfig, **runtime: Any) -> OracleGrounder:
         """The oracle of its (option-less) configuration (:data:`abm.grounding.config.GROUNDERS`' builder)."""
         if runtime:
-            raise ValueError(f"the oracle grounder takes no options, got {sorted(runtime)}")
+            raise ConfigError(f"the oracle grounder takes no options, got {sorted(runtime)}")
         return cls()
 
     def ground(
@@ -140,7 +141,7 @@ class OracleGrounder:
     ) -> MaskField:
         _check_cloud(observation, cloud)
         if not object_names:
-            raise ValueError("the oracle grounder needs the episode's object_names (segmentation id -> name)")
+            raise ConfigError("the oracle grounder needs the episode's object_names (segmentation id -> name)")
         mask = target_point_mask(observation, cloud, target, object_names).astype(np.float32)
         found = bool(mask.any())
         return MaskField(mask, mask.copy(), found, target, "", confidence=float(found))
@@ -187,9 +188,9 @@ class ClipGrounder:
         scales: Sequence[int] | None = None,
     ) -> None:
         if dense_mode not in DENSE_MODES:
-            raise ValueError(f"dense_mode must be one of {DENSE_MODES}, got {dense_mode!r}")
+            raise ConfigError(f"dense_mode must be one of {DENSE_MODES}, got {dense_mode!r}")
         if mode not in CLIP_MODES:
-            raise ValueError(f"mode must be one of {CLIP_MODES}, got {mode!r}")
+            raise ConfigError(f"mode must be one of {CLIP_MODES}, got {mode!r}")
         if backbone is None:
             backbone = load_clip(model or DEFAULT_MODEL, device=device, allow_download=allow_download)
         self.backbone = backbone

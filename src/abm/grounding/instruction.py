@@ -34,6 +34,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, NamedTuple, NoReturn, Protocol, runtime_checkable
 
+from abm.errors import ConfigError
 from abm.files import load_yaml, parse_yaml
 
 PLACEHOLDER = "X"
@@ -42,7 +43,7 @@ ARTICLES: frozenset[str] = frozenset({"a", "an", "the"})
 _VOWELS = "aeiou"
 
 
-class InstructionError(ValueError):
+class InstructionError(ConfigError):
     """An instruction the parser refuses (the message says why and lists the known skills with phrasings)."""
 
 
@@ -157,14 +158,14 @@ class SkillTemplate:
 
     def __post_init__(self) -> None:
         if PLACEHOLDER not in self.skill.split():
-            raise ValueError(f"skill {self.skill!r} must contain the placeholder word {PLACEHOLDER!r}")
+            raise ConfigError(f"skill {self.skill!r} must contain the placeholder word {PLACEHOLDER!r}")
         if not self.patterns:
-            raise ValueError(f"skill {self.skill!r} has no patterns")
+            raise ConfigError(f"skill {self.skill!r} has no patterns")
         compiled = tuple(_compile_pattern(p, self.synonyms) for p in self.patterns)
         two = SECOND_PLACEHOLDER in self.skill.split()
         if any(("Y" in regex.groupindex) != two for regex, _, _ in compiled):
-            raise ValueError(f"skill {self.skill!r}: every pattern must contain {{Y}} exactly when the skill text "
-                             f"contains the second placeholder {SECOND_PLACEHOLDER!r}")
+            raise ConfigError(f"skill {self.skill!r}: every pattern must contain {{Y}} exactly when the skill text "
+                              f"contains the second placeholder {SECOND_PLACEHOLDER!r}")
         object.__setattr__(self, "_compiled", tuple((regex, literals) for regex, literals, _ in compiled))
         object.__setattr__(self, "_lead_words", frozenset(w for _, _, lead in compiled for w in lead))
 
@@ -198,7 +199,7 @@ def _expand_option(option: str, synonyms: Synonyms, pattern: str) -> list[str]:
         name = option[1:-1].strip()
         if name not in synonyms:
             known = ", ".join(f"<{g}>" for g in sorted(synonyms)) or "none"
-            raise ValueError(f"pattern {pattern!r} uses unknown synonym group <{name}> (known: {known})")
+            raise ConfigError(f"pattern {pattern!r} uses unknown synonym group <{name}> (known: {known})")
         return list(synonyms[name])
     return [option]
 
@@ -209,9 +210,9 @@ def _compile_pattern(
     """Pattern text -> (regex over ``" " + normalised text``, required literal tokens, leading words)."""
     tokens = _TOKEN.findall(pattern.lower())
     if tokens.count("{x}") != 1:
-        raise ValueError(f"pattern {pattern!r} must contain {{X}} exactly once")
+        raise ConfigError(f"pattern {pattern!r} must contain {{X}} exactly once")
     if tokens.count("{y}") > 1:
-        raise ValueError(f"pattern {pattern!r} may contain {{Y}} at most once")
+        raise ConfigError(f"pattern {pattern!r} may contain {{Y}} at most once")
     regex = ""
     literals = 0
     lead: set[str] = set()
@@ -368,7 +369,7 @@ def _string_list(data: Mapping[str, Any], key: str) -> tuple[str, ...]:
     """The word list ``data[key]`` (lower case, spaces collapsed); empty when absent."""
     value = data.get(key, [])
     if not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(v, str | int | float) for v in value):
-        raise ValueError(
+        raise ConfigError(
             f"templates {key!r} must be a list of words or phrases, got {value!r} (YAML reads bare "
             "on/off/yes/no as booleans: quote them)"
         )
@@ -382,10 +383,10 @@ def parse_templates(data: dict[str, Any], base_synonyms: Synonyms | None = None)
     (a group in both gets the union of the phrases).
     """
     if not isinstance(data, dict) or not isinstance(data.get("skills", []), list):
-        raise ValueError("templates must be a mapping with a 'skills' list")
+        raise ConfigError("templates must be a mapping with a 'skills' list")
     raw_synonyms = data.get("synonyms", {}) or {}
     if not isinstance(raw_synonyms, dict) or not all(isinstance(v, list) for v in raw_synonyms.values()):
-        raise ValueError("templates 'synonyms' must map group names to lists of phrases")
+        raise ConfigError("templates 'synonyms' must map group names to lists of phrases")
     odd = [
         k
         for k, v in raw_synonyms.items()
@@ -393,7 +394,7 @@ def parse_templates(data: dict[str, Any], base_synonyms: Synonyms | None = None)
         if not isinstance(w, str | int | float) or isinstance(w, bool)
     ]
     if odd:
-        raise ValueError(
+        raise ConfigError(
             f"templates synonym groups {sorted(set(map(str, odd)))} hold a non-text entry (YAML reads "
             "bare on/off/yes/no as booleans: quote them)"
         )
@@ -402,7 +403,7 @@ def parse_templates(data: dict[str, Any], base_synonyms: Synonyms | None = None)
     skills = []
     for i, entry in enumerate(data.get("skills", [])):
         if not isinstance(entry, dict) or "skill" not in entry or "patterns" not in entry:
-            raise ValueError(f"templates skills[{i}] needs 'skill' and 'patterns', got {entry!r}")
+            raise ConfigError(f"templates skills[{i}] needs 'skill' and 'patterns', got {entry!r}")
         skills.append(
             SkillTemplate(
                 str(entry["skill"]),
@@ -436,20 +437,20 @@ def load_templates(path: str | Path | None = None, base_synonyms: Synonyms | Non
         return _with_benchmark_tasks(parse_templates(_builtin_data(), base_synonyms))
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"template file not found: {path}")
+        raise ConfigError(f"template file not found: {path}")
     if base_synonyms is None:
         builtin = _builtin_data().get("synonyms", {}) or {}
         base_synonyms = {str(k): tuple(str(p) for p in v) for k, v in builtin.items()}
     data = load_yaml(path, "template file") or {}
     if not isinstance(data, dict):
-        raise ValueError(f"{path}: a template file is a mapping (skills, synonyms, ...), not {type(data).__name__}")
+        raise ConfigError(f"{path}: a template file is a mapping (skills, synonyms, ...), not {type(data).__name__}")
     unknown = sorted(str(k) for k in data if k not in {"skills", "synonyms", *_WORD_LISTS})
     if unknown:
-        raise ValueError(f"{path}: unknown keys {unknown} (expected: {sorted({'skills', 'synonyms', *_WORD_LISTS})})")
+        raise ConfigError(f"{path}: unknown keys {unknown} (expected: {sorted({'skills', 'synonyms', *_WORD_LISTS})})")
     try:
         return parse_templates(data, base_synonyms)
     except ValueError as err:
-        raise ValueError(f"{path}: {err}") from None
+        raise ConfigError(f"{path}: {err}") from None
 
 
 def _with_benchmark_tasks(templates: TemplateSet) -> TemplateSet:
@@ -464,7 +465,7 @@ def _with_benchmark_tasks(templates: TemplateSet) -> TemplateSet:
         try:
             own = parse_templates({"skills": declared}, templates.synonyms)
         except ValueError as err:
-            raise ValueError(f"a task's skills (Task.skills): {err}") from None
+            raise ConfigError(f"a task's skills (Task.skills): {err}") from None
         templates = templates.merged(own)
     parser = TemplateParser(templates)
     users: dict[str, tuple[str, ...]] = {}

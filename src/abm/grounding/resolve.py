@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 from functools import cache
 from typing import Any
 
+from abm.errors import ConfigError
 from abm.grounding.instruction import (
     PLACEHOLDER,
     SECOND_PLACEHOLDER,
@@ -696,7 +697,7 @@ def resolve_instruction(text: str, objects: Iterable[str] | Mapping[int, str] | 
             ``ValueError``, with the template parser's list of known skills and phrasings).
     """
     if not 0.0 <= min_confidence <= 1.0:
-        raise ValueError(f"min_confidence must be in [0, 1], got {min_confidence}")
+        raise ConfigError(f"min_confidence must be in [0, 1], got {min_confidence}")
     parser = parser or default_parser()
     scene = _Scene(_scene_names(objects))
     guesses: list[Resolution] = []

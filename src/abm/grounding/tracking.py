@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from abm.errors import ConfigError
 from abm.geometry import PointCloud
 from abm.grounding.config import TrackingGrounderConfig, build_grounder
 from abm.grounding.mask_field import MaskField
@@ -82,10 +83,10 @@ class TrackingGrounder:
                  closed_below: float = _DEFAULTS.closed_below, color_tol: float = _DEFAULTS.color_tol,
                  reacquire: bool = _DEFAULTS.reacquire, reacquire_ratio: float = _DEFAULTS.reacquire_ratio) -> None:
         if radius <= 0 or not 0 < min_kept <= 1 or color_tol <= 0:
-            raise ValueError(f"radius and color_tol must be > 0 and min_kept in (0, 1], got {radius}, "
-                             f"{color_tol}, {min_kept}")
+            raise ConfigError(f"radius and color_tol must be > 0 and min_kept in (0, 1], got {radius}, "
+                              f"{color_tol}, {min_kept}")
         if not 0 < reacquire_ratio <= 1:
-            raise ValueError(f"reacquire_ratio must be in (0, 1], got {reacquire_ratio}")
+            raise ConfigError(f"reacquire_ratio must be in (0, 1], got {reacquire_ratio}")
         self.inner = inner
         self.reacquire = bool(reacquire)
         self.reacquire_ratio = reacquire_ratio

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from abm.errors import CheckpointError, DataError, OutputError
 from abm.files import atomic_path, is_inside, load_torch_data, seal_torch_archive, sha256_file
 
 try:
@@ -82,9 +83,9 @@ def resolve_checkpoint(run_or_ckpt: str | Path) -> Path:
     if p.is_dir():
         ckpts = list_checkpoints(p)
         if not ckpts:
-            raise FileNotFoundError(f"no checkpoint in {checkpoint_dir(p)} (expected step_XXXXXXXX.pt files)")
+            raise CheckpointError(f"no checkpoint in {checkpoint_dir(p)} (expected step_XXXXXXXX.pt files)")
         return ckpts[-1][1]
-    raise FileNotFoundError(f"no checkpoint or run folder at {p}")
+    raise CheckpointError(f"no checkpoint or run folder at {p}")
 
 
 def load_checkpoint(run_or_ckpt: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
@@ -95,9 +96,9 @@ def load_checkpoint(run_or_ckpt: str | Path, map_location: str | torch.device = 
     # written before the numpy RNG state was stored as a tensor also hold numpy arrays.
     data = load_torch_data(path, "abm checkpoint", _NUMPY_ARRAY_GLOBALS, map_location)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise ValueError(f"{path} is not an abm policy checkpoint")
+        raise CheckpointError(f"{path} is not an abm policy checkpoint")
     if int(data.get("version", 0)) > VERSION:
-        raise ValueError(f"{path} has checkpoint version {data['version']}; this abm reads up to {VERSION}")
+        raise CheckpointError(f"{path} has checkpoint version {data['version']}; this abm reads up to {VERSION}")
     data["path"] = str(path)
     return data
 
@@ -116,8 +117,8 @@ def check_zoo_sha256(path: str | Path) -> None:
     try:
         entries = json.loads(index.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as err:
-        raise ValueError(f"{index} (the model zoo index next to {path.name}) cannot be read ({err}); restore it "
-                         "with git checkout, or rewrite it with abm experiment run paper_tables") from None
+        raise DataError(f"{index} (the model zoo index next to {path.name}) cannot be read ({err}); restore it "
+                        "with git checkout, or rewrite it with abm experiment run paper_tables") from None
     for entry in entries if isinstance(entries, list) else []:
         if not isinstance(entry, dict):
             continue
@@ -128,8 +129,8 @@ def check_zoo_sha256(path: str | Path) -> None:
         if (index.parent / file).resolve() != path.resolve():
             continue
         if not isinstance(entry.get("sha256"), str) or sha256_file(path) != entry["sha256"]:
-            raise ValueError(f"{path} does not match the sha256 that {index} records for it (a changed byte, a "
-                             "partial download or another file): restore it with git checkout, or re-export it")
+            raise CheckpointError(f"{path} does not match the sha256 that {index} records for it (a changed byte, a "
+                                  "partial download or another file): restore it with git checkout, or re-export it")
         return
 
 
@@ -161,16 +162,16 @@ def check_export_target(source: str | Path, out: str | Path, overwrite: bool = F
     out = Path(out)
     parent = next((p for p in out.parents if p.exists()), None)
     if parent is not None and not parent.is_dir():
-        raise ValueError(f"--out {out}: {parent} is a file, not a folder; choose another path")
+        raise OutputError(f"--out {out}: {parent} is a file, not a folder; choose another path")
     if out.is_dir():
-        raise ValueError(f"--out {out} is a folder; give a file path such as {out / 'policy.pt'}")
+        raise OutputError(f"--out {out} is a folder; give a file path such as {out / 'policy.pt'}")
     if out.exists() and out.resolve() == Path(source).resolve():
-        raise ValueError(f"--out {out} is the checkpoint being exported; write the export to another file")
+        raise OutputError(f"--out {out} is the checkpoint being exported; write the export to another file")
     if out.resolve().parent.name == checkpoint_dir("").name:
-        raise ValueError(f"--out {out} is inside a run's checkpoints folder, where abm train and --resume look "
-                         "for the newest checkpoint; write the export outside it (e.g. next to the run)")
+        raise OutputError(f"--out {out} is inside a run's checkpoints folder, where abm train and --resume look "
+                          "for the newest checkpoint; write the export outside it (e.g. next to the run)")
     if out.exists() and not overwrite:
-        raise ValueError(f"--out {out} already exists; pass --overwrite to replace it, or choose another path")
+        raise OutputError(f"--out {out} already exists; pass --overwrite to replace it, or choose another path")
 
 
 def prune_checkpoints(run_dir: str | Path, keep: int) -> None:

@@ -39,10 +39,6 @@ class LossTerms:
     collision: torch.Tensor
     zoom_translation: torch.Tensor
 
-    def as_floats(self) -> dict[str, float]:
-        return {k: float(getattr(self, k).detach()) for k in ("total", "translation", "rotation", "gripper",
-                                                                "collision", "zoom_translation")}
-
 
 def translation_targets(renderer: OrthographicRenderer, positions: torch.Tensor, sigma: float = 1.5) -> torch.Tensor:
     """Per-view Gaussian heatmap targets.

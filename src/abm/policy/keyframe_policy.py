@@ -33,6 +33,7 @@ import torch
 from numpy.typing import NDArray
 from torch import nn
 
+from abm.errors import CheckpointError, ConfigError
 from abm.geometry import Workspace, quat_to_bins
 from abm.grounding.conditioning import condition_cloud
 from abm.grounding.config import (
@@ -176,7 +177,7 @@ class KeyframePolicy(nn.Module):
         self.language = (build_language_encoder(language) if isinstance(language, Mapping | LanguageConfig)
                          else language)
         if self.language.tokens != config.lang_tokens or self.language.dim != config.lang_dim:
-            raise ValueError(
+            raise ConfigError(
                 f"language encoder gives {self.language.tokens} x {self.language.dim} tokens but the policy "
                 f"expects {config.lang_tokens} x {config.lang_dim}"
             )
@@ -316,8 +317,8 @@ class KeyframePolicy(nn.Module):
         """Keep the features of the points seen in some view: ``(B, M, F)`` float32 and the views'
         index into them ``(B, V, H, W)`` (-1 = empty pixel)."""
         if features.shape[-1] != self.config.ifd_feature_dim:
-            raise ValueError(f"CLIP point features have width {features.shape[-1]}, expected "
-                             f"{self.config.ifd_feature_dim}; set the policy's ifd_feature_dim to the CLIP width")
+            raise ConfigError(f"CLIP point features have width {features.shape[-1]}, expected "
+                              f"{self.config.ifd_feature_dim}; set the policy's ifd_feature_dim to the CLIP width")
         idx = torch.where(occupied, index.round().long(), torch.full_like(index, -1, dtype=torch.long))
         kept, compact = [], torch.full_like(idx, -1)
         for i in range(idx.shape[0]):
@@ -452,7 +453,7 @@ class KeyframePolicy(nn.Module):
         """The sample of one observation (fuse, split the instruction, ground), as the dataset makes it."""
         opts = self.sample_options()
         if opts["mask"] and isinstance(self.grounder_config, OracleGrounderConfig) and object_names is None:
-            raise ValueError("the oracle grounder needs object_names (segmentation id -> name)")
+            raise ConfigError("the oracle grounder needs object_names (segmentation id -> name)")
         needs_grounder = opts["mask"] or opts["features"]
         scene = condition_cloud(observation, instruction, self.workspace,
                                 grounder=self.grounder if needs_grounder else None, object_names=object_names,
@@ -544,7 +545,7 @@ class KeyframePolicy(nn.Module):
         self.model.load_state_dict(payload["model"])
         if self.zoom_model is not None:
             if "zoom_model" not in payload:
-                raise ValueError("the checkpoint has no zoomed stage (zoom_model) but the policy config has one")
+                raise CheckpointError("the checkpoint has no zoomed stage (zoom_model) but the policy config has one")
             self.zoom_model.load_state_dict(payload["zoom_model"])
 
     def save(self, path: str | Path, **extra: object) -> Path:
@@ -572,7 +573,8 @@ class KeyframePolicy(nn.Module):
         ckpt = load_checkpoint(run_or_ckpt, map_location="cpu")
         config = PolicyConfig.from_dict(ckpt["policy_config"])
         if expect_variant is not None and config.variant != expect_variant:
-            raise ValueError(f"checkpoint {ckpt['path']} is a {config.variant!r} policy, expected {expect_variant!r}")
+            raise CheckpointError(f"checkpoint {ckpt['path']} is a {config.variant!r} policy, expected "
+                                  f"{expect_variant!r}")
         stored = ckpt.get("grounder")  # the dict form (file boundary)
         stored_config = grounder_config_from_dict(stored) if stored is not None else None
         if grounder is None or isinstance(grounder, (Mapping, GrounderConfig)):

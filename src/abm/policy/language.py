@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from abm.errors import ConfigError
 from abm.grounding.config import build_grounder
 from abm.policy.language_config import ClipLanguageConfig, HashLanguageConfig
 
@@ -61,7 +62,7 @@ class HashLanguageEncoder:
     def __init__(self, dim: int = 512, tokens: int = 77, seed: int = 0) -> None:
         self.dim, self.tokens, self.seed = int(dim), int(tokens), int(seed)
         if self.dim < 1 or self.tokens < 1:
-            raise ValueError(f"the hash encoder needs dim and tokens >= 1, got {self.dim} and {self.tokens}")
+            raise ConfigError(f"the hash encoder needs dim and tokens >= 1, got {self.dim} and {self.tokens}")
         rng = np.random.default_rng([self.seed, 1])
         self._pos = rng.standard_normal((self.tokens, self.dim)).astype(np.float32) * 0.1
 

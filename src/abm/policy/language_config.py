@@ -21,6 +21,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from abm.errors import ConfigError
 from abm.grounding.config import ClipGrounderConfig, GrounderConfig
 from abm.registry import Registry, resolve
 
@@ -56,7 +57,7 @@ class LanguageConfig:
         allowed = sorted(f.name for f in dataclasses.fields(cls))
         unknown = sorted(set(options) - set(allowed))
         if unknown:
-            raise ValueError(f"unknown option(s) {unknown} for the {cls.kind!r} language encoder; it takes {allowed}")
+            raise ConfigError(f"unknown option(s) {unknown} for the {cls.kind!r} language encoder; it takes {allowed}")
         return cls(**options)
 
     def with_width(self, dim: int) -> LanguageConfig:
@@ -172,13 +173,13 @@ def language_config_from_dict(data: Mapping[str, Any]) -> LanguageConfig:
             or options the kind does not take.
     """
     if not isinstance(data, Mapping):
-        raise ValueError(f"a language encoder configuration must be a dict with a 'kind', got {data!r}")
+        raise ConfigError(f"a language encoder configuration must be a dict with a 'kind', got {data!r}")
     kind = data.get("kind")
     cls = LANGUAGES[kind].config  # type: ignore[index]  # None or another non-name: the registry's error
     try:
         return cls.from_dict(data)
     except TypeError as err:  # a bad value type reaching a dataclass
-        raise ValueError(f"bad {kind!r} language encoder options {dict(data)}: {err}") from err
+        raise ConfigError(f"bad {kind!r} language encoder options {dict(data)}: {err}") from err
 
 
 def as_language_config(value: LanguageConfig | Mapping[str, Any] | str) -> LanguageConfig:

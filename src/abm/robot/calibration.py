@@ -19,11 +19,16 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from abm.errors import ConfigError, DataError
 from abm.files import load_yaml, write_text_atomic
 from abm.robot.devices import ReplayCamera
+
+if TYPE_CHECKING:  # OpenCV (the `robot` extra) is imported where it is used
+    import cv2
 
 
 @dataclass(frozen=True)
@@ -35,11 +40,11 @@ class BoardSpec:
     marker_m: float = 0.03
     dictionary: str = "DICT_4X4_50"
 
-    def board(self):
+    def board(self) -> cv2.aruco.CharucoBoard:
         import cv2
 
         if not hasattr(cv2.aruco, self.dictionary):
-            raise ValueError(f"unknown ArUco dictionary {self.dictionary!r}")
+            raise ConfigError(f"unknown ArUco dictionary {self.dictionary!r}")
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         return cv2.aruco.CharucoBoard(self.squares, self.square_m, self.marker_m, dictionary)
 
@@ -138,26 +143,26 @@ def load_calibration(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
     data = load_yaml(path, "calibration file") or {}
     cameras = data.get("cameras") if isinstance(data, dict) else None
     if not isinstance(cameras, dict) or not cameras:
-        raise ValueError(f"{path}: no 'cameras' section")
+        raise ConfigError(f"{path}: no 'cameras' section")
     out = {}
     for name, cam in cameras.items():
         try:
             k = np.asarray(cam["intrinsics"], np.float64)
             t = np.asarray(cam["extrinsics"], np.float64)
         except (KeyError, TypeError, ValueError) as err:
-            raise ValueError(f"{path}: camera {name!r} needs intrinsics (3 x 3) and extrinsics (4 x 4): "
-                             f"{err}") from None
+            raise ConfigError(f"{path}: camera {name!r} needs intrinsics (3 x 3) and extrinsics (4 x 4): "
+                              f"{err}") from None
         if k.shape != (3, 3) or t.shape != (4, 4):
-            raise ValueError(f"{path}: camera {name!r}: intrinsics {k.shape}, extrinsics {t.shape}; "
-                             "expected (3, 3), (4, 4)")
+            raise ConfigError(f"{path}: camera {name!r}: intrinsics {k.shape}, extrinsics {t.shape}; "
+                              "expected (3, 3), (4, 4)")
         if not (np.all(np.isfinite(k)) and np.all(np.isfinite(t))):
-            raise ValueError(f"{path}: camera {name!r}: intrinsics and extrinsics must be finite numbers (no .nan "
-                             "or .inf)")
+            raise ConfigError(f"{path}: camera {name!r}: intrinsics and extrinsics must be finite numbers (no .nan "
+                              "or .inf)")
         unknown = sorted(str(key) for key in cam if key not in ("intrinsics", "extrinsics"))
         if unknown:
-            raise ValueError(f"{path}: camera {name!r}: unknown keys {unknown} (expected: extrinsics, intrinsics)")
+            raise ConfigError(f"{path}: camera {name!r}: unknown keys {unknown} (expected: extrinsics, intrinsics)")
         if not np.allclose(t[:3, :3] @ t[:3, :3].T, np.eye(3), atol=1e-5) or not np.allclose(t[3], [0, 0, 0, 1]):
-            raise ValueError(f"{path}: camera {name!r}: extrinsics is not a rigid transform")
+            raise ConfigError(f"{path}: camera {name!r}: extrinsics is not a rigid transform")
         out[str(name)] = {"intrinsics": k, "extrinsics": t}
     return out
 
@@ -188,7 +193,7 @@ def calibrate_from_recording(folder: str | Path, camera: str, spec: BoardSpec | 
     spec = spec or BoardSpec()
     replay = ReplayCamera(folder)
     if camera not in replay.names:
-        raise ValueError(f"camera {camera!r} is not in the recording (it has {replay.names})")
+        raise ConfigError(f"camera {camera!r} is not in the recording (it has {replay.names})")
     grippers, boards, errors, intrinsics = [], [], [], None
     for k in range(replay.steps):
         frame = replay.read()[camera]
@@ -200,7 +205,8 @@ def calibrate_from_recording(folder: str | Path, camera: str, spec: BoardSpec | 
         boards.append(found[0])
         errors.append(found[1])
     if len(boards) < 3:
-        raise ValueError(f"the board was found in {len(boards)} of {replay.steps} images; hand-eye calibration "
-                         "needs at least 3 (show the whole board, from different angles)")
+        raise DataError(f"the board was found in {len(boards)} of {replay.steps} images; hand-eye calibration "
+                        "needs at least 3 (show the whole board, from different angles)")
+    assert intrinsics is not None  # every image read sets it, and at least 3 were
     return intrinsics, hand_eye_fixed_camera(grippers, boards), {"views": len(boards),
                                                                  "reprojection_px": float(np.mean(errors))}

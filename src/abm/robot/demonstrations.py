@@ -28,6 +28,7 @@ from typing import Any
 
 from abm.configuration import count
 from abm.data.episode_store import save_episode
+from abm.errors import ConfigError
 from abm.geometry.rotations import canonical_gripper_quat, matrix_to_quat
 from abm.grounding.conditioning import split_instruction
 from abm.robot.run import RobotConfig
@@ -50,8 +51,8 @@ def check_instruction(instruction: str, object_names: Mapping[int, str] | None =
     try:
         return split_instruction(instruction, object_names)
     except ValueError as err:
-        raise ValueError(f"instruction {instruction!r} matches no skill template ({err}); use a phrasing that "
-                         "`abm tasks` lists, or add a template (docs/grounding.md)") from None
+        raise ConfigError(f"instruction {instruction!r} matches no skill template ({err}); use a phrasing that "
+                          "`abm tasks` lists, or add a template (docs/grounding.md)") from None
 
 
 def episode_from_snapshots(snapshots: Sequence[Observation], instruction: str, *, task: str = "real",

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from abm.errors import ConfigError
 from abm.files import atomic_path, write_text_atomic
 from abm.types import CameraFrame, KeyframeAction, Observation
 
@@ -51,8 +52,8 @@ class ReplayCamera:
         self.folder = Path(folder)
         meta_path = self.folder / "meta.json"
         if not meta_path.is_file():
-            raise FileNotFoundError(f"{self.folder} is not a camera recording (no meta.json); make one with "
-                                    "abm.robot.record_observations")
+            raise ConfigError(f"{self.folder} is not a camera recording (no meta.json); make one with "
+                              "abm.robot.record_observations")
         meta = json.loads(meta_path.read_text())
         self.names: list[str] = list(meta["cameras"])
         self.steps = int(meta["steps"])

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from abm.errors import ConfigError, RefusedError
 from abm.schema import Field, check_mapping, number, vector
 from abm.types import KeyframeAction
 
@@ -20,7 +21,7 @@ LIMITS_SCHEMA = {
 }
 
 
-class LimitError(ValueError):
+class LimitError(RefusedError):
     """A predicted keyframe violates the robot's motion limits (nothing was moved)."""
 
 
@@ -47,8 +48,8 @@ class MotionLimits:
             object.__setattr__(self, key, value)
         lo, hi = np.asarray(self.workspace_lower), np.asarray(self.workspace_upper)
         if np.any(lo >= hi):
-            raise ValueError(f"motion limits: workspace_lower {list(self.workspace_lower)} must be below "
-                             f"workspace_upper {list(self.workspace_upper)} on every axis")
+            raise ConfigError(f"motion limits: workspace_lower {list(self.workspace_lower)} must be below "
+                              f"workspace_upper {list(self.workspace_upper)} on every axis")
 
     def check(self, current_pose: np.ndarray, action: KeyframeAction) -> None:
         """Raise :class:`LimitError` naming the violated limit and by how much."""

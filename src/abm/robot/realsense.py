@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from abm.errors import ConfigError, ExternalError
 from abm.robot.calibration import load_calibration
 from abm.types import CameraFrame
 
@@ -26,12 +27,12 @@ log = logging.getLogger(__name__)
 
 
 def import_pyrealsense2() -> Any:
-    """The ``pyrealsense2`` module, or an ImportError that says how to install it."""
+    """The ``pyrealsense2`` module, or an :class:`~abm.errors.ExternalError` that says how to install it."""
     try:
         import pyrealsense2
     except ImportError as err:
-        raise ImportError("RealSense cameras need the Intel RealSense SDK's Python bindings: "
-                          "pip install pyrealsense2 (see docs/real-robot.md)") from err
+        raise ExternalError("RealSense cameras need the Intel RealSense SDK's Python bindings: "
+                            "pip install pyrealsense2 (see docs/real-robot.md)") from err
     return pyrealsense2
 
 
@@ -54,14 +55,14 @@ class RealSenseCamera:
         rs_module: the ``pyrealsense2`` module (default: imported here).
     """
 
-    def __init__(self, serials: Sequence[str] | Mapping[str, str], calibration: str | Path | Mapping | None = None,
-                 width: int = 640, height: int = 480, fps: int = 30, timeout_ms: int = 5000,
-                 warmup_frames: int = 15, rs_module: Any = None) -> None:
+    def __init__(self, serials: Sequence[str] | Mapping[str, str],
+                 calibration: str | Path | Mapping[str, Any] | None = None, width: int = 640, height: int = 480,
+                 fps: int = 30, timeout_ms: int = 5000, warmup_frames: int = 15, rs_module: Any = None) -> None:
         rs = rs_module if rs_module is not None else import_pyrealsense2()
         self.rs = rs
         named = dict(serials) if isinstance(serials, Mapping) else {str(s): str(s) for s in serials}
         if not named:
-            raise ValueError("RealSenseCamera needs at least one serial number")
+            raise ConfigError("RealSenseCamera needs at least one serial number")
         self.serials = {str(n): str(s) for n, s in named.items()}
         self.names = list(self.serials)
         self.object_names: dict[int, str] = {}  # no segmentation on a real camera
@@ -71,7 +72,7 @@ class RealSenseCamera:
         connected = [d.get_info(rs.camera_info.serial_number) for d in rs.context().query_devices()]
         missing = [s for s in self.serials.values() if s not in connected]
         if missing:
-            raise RuntimeError(f"RealSense camera(s) {missing} not connected; connected: {connected or 'none'}")
+            raise ExternalError(f"RealSense camera(s) {missing} not connected; connected: {connected or 'none'}")
         self.pipelines: dict[str, Any] = {}
         self.aligners: dict[str, Any] = {}
         self.depth_scale: dict[str, float] = {}
@@ -97,8 +98,8 @@ class RealSenseCamera:
         for name, serial in self.serials.items():
             entry = calibration.get(name, calibration.get(serial))
             if entry is None:
-                raise ValueError(f"camera {name!r} (serial {serial}) is not in the calibration file (it has "
-                                 f"{sorted(calibration)}); calibrate it with `abm calibrate`")
+                raise ConfigError(f"camera {name!r} (serial {serial}) is not in the calibration file (it has "
+                                  f"{sorted(calibration)}); calibrate it with `abm calibrate`")
             out[name] = np.asarray(entry["extrinsics"], np.float64)
         return out
 
@@ -125,7 +126,7 @@ class RealSenseCamera:
             frames = self.aligners[name].process(pipeline.wait_for_frames(self.timeout_ms))
             depth, colour = frames.get_depth_frame(), frames.get_color_frame()
             if not depth or not colour:
-                raise RuntimeError(f"RealSense {name!r}: incomplete frame set (no depth or no colour)")
+                raise ExternalError(f"RealSense {name!r}: incomplete frame set (no depth or no colour)")
             rgb = np.array(np.asanyarray(colour.get_data()), np.uint8)  # copy: the SDK reuses its buffers
             metres = np.asanyarray(depth.get_data()).astype(np.float32) * np.float32(self.depth_scale[name])
             out[name] = CameraFrame(rgb=rgb, depth=metres, intrinsics=self.intrinsics[name],
@@ -147,11 +148,11 @@ class RealSenseCamera:
         calibration: FILE, width, height, fps, timeout_ms, warmup_frames}``."""
         opts = {k: v for k, v in options.items() if k != "kind"}
         if "serials" not in opts:
-            raise ValueError("cameras: kind realsense needs serials (a list, or {name: serial})")
+            raise ConfigError("cameras: kind realsense needs serials (a list, or {name: serial})")
         allowed = {"serials", "calibration", "width", "height", "fps", "timeout_ms", "warmup_frames"}
         unknown = set(opts) - allowed
         if unknown:
-            raise ValueError(f"cameras: unknown realsense options {sorted(unknown)} (allowed: {sorted(allowed)})")
+            raise ConfigError(f"cameras: unknown realsense options {sorted(unknown)} (allowed: {sorted(allowed)})")
         serials = opts.pop("serials")
         serials = {str(k): str(v) for k, v in serials.items()} if isinstance(serials, Mapping) else \
             [str(s) for s in serials]

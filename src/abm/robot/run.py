@@ -22,10 +22,11 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from abm.errors import ConfigError, RefusedError
 from abm.files import load_yaml
 from abm.grounding.conditioning import split_roles
 from abm.grounding.decision import GroundingRecorder, TargetDecision, decide_target, normalize_name
@@ -43,6 +44,9 @@ from abm.robot.kinds import ARM_KINDS, CAMERA_KINDS, Arm, Camera, DeviceKind
 from abm.robot.limits import LIMITS_SCHEMA, LimitError, MotionLimits
 from abm.schema import Field, SchemaError, any_mapping, check_mapping
 from abm.types import Observation
+
+if TYPE_CHECKING:  # torch: the policy is built by the command
+    from abm.policy import KeyframePolicy
 
 log = logging.getLogger(__name__)
 
@@ -105,8 +109,8 @@ class RobotConfig:
             arm_opts = self.arm if ARM_KINDS[self.arm.get("kind", "dry-run")].simulated else {}
             opts = {k: v for k, v in {**self.cameras, **arm_opts}.items() if k != "kind"}
             if "task" not in opts:
-                raise ValueError("a simulated camera or arm needs task: give it in the cameras or arm section "
-                                 "(e.g. arm: {kind: sim, task: pick_block})")
+                raise ConfigError("a simulated camera or arm needs task: give it in the cameras or arm section "
+                                  "(e.g. arm: {kind: sim, task: pick_block})")
             sim = SimRobot(**opts)
         camera = self.build_camera(sim)
         arm: Arm
@@ -124,8 +128,8 @@ class RobotConfig:
         kind = CAMERA_KINDS[self.cameras["kind"]]
         if kind.simulated:
             if sim is None:
-                raise ValueError(f"cameras: kind {self.cameras['kind']} shares the arm's scene; use it with arm kind "
-                                 f"{' or '.join(ARM_KINDS.names(simulated=True))} or dry-run")
+                raise ConfigError(f"cameras: kind {self.cameras['kind']} shares the arm's scene; use it with arm kind "
+                                  f"{' or '.join(ARM_KINDS.names(simulated=True))} or dry-run")
             return sim
         camera: Camera = resolve(kind.build)(self.cameras)
         return camera
@@ -146,11 +150,11 @@ class RobotConfig:
                 if hasattr(real, "close"):
                     real.close()
         real_arms = [name for name, entry in ARM_KINDS.items() if entry.build]
-        raise ValueError(f"a dry run on camera kind {self.cameras.get('kind')!r} needs the arm's start pose: "
-                         f"configure the real arm (kind {' or '.join(real_arms)}; a dry run only reads its pose)")
+        raise ConfigError(f"a dry run on camera kind {self.cameras.get('kind')!r} needs the arm's start pose: "
+                          f"configure the real arm (kind {' or '.join(real_arms)}; a dry run only reads its pose)")
 
 
-class NoTargetError(ValueError):
+class NoTargetError(RefusedError):
     """The instruction's target is not an object the grounder found with confidence (absent, ambiguous, not
     found or unsure; :func:`abm.grounding.decision.decide_target`), so the arm would act blind; nothing moved.
 
@@ -241,8 +245,8 @@ def _refuse(out: Any, step: int, instruction: str, decision: TargetDecision) -> 
     return NoTargetError(reason, decision)
 
 
-def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps: int, log_dir: str | Path,
-              allow_no_target: bool = False) -> list[dict[str, Any]]:
+def run_robot(policy: KeyframePolicy, camera: Camera, arm: Arm, instruction: str, limits: MotionLimits, steps: int,
+              log_dir: str | Path, allow_no_target: bool = False) -> list[dict[str, Any]]:
     """Run the loop for ``steps`` keyframes (or until a simulated arm reports success).
 
     An instruction in plain words is first resolved onto the scene's objects (:func:`resolve_for_policy`; the
@@ -289,18 +293,19 @@ def run_robot(policy, camera, arm, instruction: str, limits: MotionLimits, steps
                 pose, opening = arm.state()
                 obs = Observation(camera.read(), opening, pose, k)
                 seen = policy.explain(obs, instruction, names)  # the action and what the policy saw, in one pass
-                arrays = {f"camera/{n}": f.rgb for n, f in obs.cameras.items()}
+                arrays: dict[str, np.ndarray] = {f"camera/{n}": f.rgb for n, f in obs.cameras.items()}
                 arrays["views"] = seen.view_images[:, :3]
                 if seen.view_mask is not None:
                     arrays["mask"] = seen.view_mask
-                np.savez_compressed(log_dir / f"step_{k:03d}.npz", **arrays)
+                # numpy's stub reads **arrays as able to fill allow_pickle
+                np.savez_compressed(log_dir / f"step_{k:03d}.npz", **arrays)  # type: ignore[arg-type]
                 decision = _step_decision(grounding, seen, names)
                 if decision is not None and not decision.found:
                     if not allow_no_target:
                         raise _refuse(out, k, given, decision)
                     log.warning("step %d: %s (%s: acting anyway)", k, decision.message(given), OVERRIDE)
                 action = seen.action
-                first = {"instruction": given} if k == 0 else {}
+                first: dict[str, Any] = {"instruction": given} if k == 0 else {}
                 if k == 0 and resolution is not None:
                     first["resolved"] = resolution.as_record()
                 record = {"step": k, **first,

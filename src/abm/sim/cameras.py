@@ -12,10 +12,15 @@ import importlib
 import os
 import platform
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from abm.errors import ExternalError
 from abm.types import CameraFrame
+
+if TYPE_CHECKING:
+    import mujoco
 
 # MuJoCo camera axes -> OpenCV camera axes (flip y and z).
 _MJ_TO_CV = np.diag([1.0, -1.0, -1.0])
@@ -27,7 +32,7 @@ def intrinsics_matrix(fovy_deg: float, height: int, width: int) -> np.ndarray:
     return np.array([[fy, 0.0, (width - 1) / 2], [0.0, fy, (height - 1) / 2], [0.0, 0.0, 1.0]])
 
 
-def camera_extrinsics(model, data, camera_id: int) -> np.ndarray:
+def camera_extrinsics(model: mujoco.MjModel, data: mujoco.MjData, camera_id: int) -> np.ndarray:
     """``(4, 4)`` camera-to-world transform in OpenCV axes for MuJoCo camera ``camera_id``."""
     del model
     out = np.eye(4)
@@ -65,7 +70,7 @@ def ensure_headless_gl() -> None:
         _use_backend("egl") or _use_backend("osmesa")
 
 
-def make_renderer(model, height: int, width: int):
+def make_renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
     """A ``mujoco.Renderer`` of ``model`` at ``height`` x ``width`` pixels, headless (EGL, else OSMesa) when
     there is no display; the renderer :class:`CameraRig` and the benchmark-CLIP data renderer use."""
     import mujoco
@@ -79,7 +84,7 @@ def make_renderer(model, height: int, width: int):
                 return mujoco.Renderer(model, height, width)
             except Exception:  # noqa: BLE001
                 pass
-        raise RuntimeError(
+        raise ExternalError(
             f"MuJoCo cannot render offscreen ({first}). Use MUJOCO_GL=egl (Mesa EGL) or MUJOCO_GL=osmesa "
             "with `apt-get install -y libosmesa6`, set before mujoco is imported."
         ) from first
@@ -95,14 +100,14 @@ class CameraRig:
         geom_to_object: ``(ngeom,)`` int32 segmentation id of each geom (-1 = not an object).
     """
 
-    def __init__(self, model, camera_names: Sequence[str], height: int, width: int,
+    def __init__(self, model: mujoco.MjModel, camera_names: Sequence[str], height: int, width: int,
                  geom_to_object: np.ndarray) -> None:
         import mujoco
 
         self.model = model
         self.height, self.width = int(height), int(width)
         self.camera_names = list(camera_names)
-        self.camera_ids = []
+        self.camera_ids: list[int] = []
         for name in self.camera_names:
             cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, name)
             if cid < 0:
@@ -120,7 +125,7 @@ class CameraRig:
             self._renderer.close()
             self._renderer = None
 
-    def render(self, data) -> dict[str, CameraFrame]:
+    def render(self, data: mujoco.MjData) -> dict[str, CameraFrame]:
         """Render every camera at the current simulator state."""
         renderer = self._renderer
         frames: dict[str, CameraFrame] = {}
@@ -173,7 +178,7 @@ class CameraRig:
         return depth, seg_raw
 
 
-def _one_pass_depth_and_segmentation(renderer, model) -> tuple[np.ndarray, np.ndarray]:
+def _one_pass_depth_and_segmentation(renderer: mujoco.Renderer, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
     """Draw the scene in ``renderer`` once with segmentation colours and read its colour and depth buffers:
     ``mujoco.Renderer.render``'s depth mode (reverse-Z buffer to metric depth) and segmentation mode (colour to
     (object id, object type)) in one draw. Uses the renderer's internals (``_scene``, ``_rect``, ``_mjr_context``,

@@ -11,13 +11,17 @@ keyframe-only ones of the same seed).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from abm.errors import ConfigError
 from abm.geometry.rotations import matrix_to_quat
 from abm.sim.scene import PHYSICS_TIMESTEP
 from abm.types import Observation, Trajectory
+
+if TYPE_CHECKING:
+    import mujoco
 
 DEFAULT_FPS = 10.0
 
@@ -26,8 +30,8 @@ def control_period(fps: float, timestep: float = PHYSICS_TIMESTEP) -> int:
     """Physics steps per frame at ``fps``; ``ValueError`` unless ``1 / fps`` is a whole number of them."""
     period = 1.0 / float(fps) / timestep if fps > 0 else 0.0
     if round(period) < 1 or abs(period - round(period)) > 1e-6:
-        raise ValueError(f"--dense-fps {fps:g}: 1/fps must be a whole number of physics steps of "
-                         f"{timestep * 1000:g} ms (e.g. 5, 10, 25 or 50)")
+        raise ConfigError(f"--dense-fps {fps:g}: 1/fps must be a whole number of physics steps of "
+                          f"{timestep * 1000:g} ms (e.g. 5, 10, 25 or 50)")
     return int(round(period))
 
 
@@ -41,7 +45,7 @@ class _SteppingClock:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._module, name)
 
-    def mj_step(self, model, data, *args) -> None:
+    def mj_step(self, model: mujoco.MjModel, data: mujoco.MjData, *args: Any) -> None:
         self._module.mj_step(model, data, *args)
         self._recorder._tick()
 

@@ -215,8 +215,3 @@ def build_spec(scene: SceneSpec, cameras: tuple[CameraSpec, ...] = CAMERAS):
         if entry.movable:
             body.add_freejoint(name=f"{OBJECT_PREFIX.format(i)}free")
     return spec
-
-
-def build_model(scene: SceneSpec, cameras: tuple[CameraSpec, ...] = CAMERAS):
-    """Compile the scene; returns the :class:`mujoco.MjModel`."""
-    return build_spec(scene, cameras).compile()

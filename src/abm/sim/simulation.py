@@ -106,15 +106,6 @@ class Simulation:
         out[:3, 3] = self.data.xpos[body]
         return out
 
-    def object_contacts(self, a: int, b: int) -> bool:
-        """Whether objects ``a`` and ``b`` touch."""
-        g2o = self.geom_to_object
-        for c in self.data.contact[: self.data.ncon]:
-            o1, o2 = g2o[c.geom1], g2o[c.geom2]
-            if {o1, o2} == {a, b} and c.dist < 2e-3:
-                return True
-        return False
-
     def held_objects(self) -> set[int]:
         return self.robot.held_objects()
 

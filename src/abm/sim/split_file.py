@@ -11,9 +11,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from abm.configuration import SPLITS
+from abm.errors import ConfigError
 from abm.files import load_yaml
 from abm.sim.catalog import CATALOG
-from abm.types import SPLITS
 
 if TYPE_CHECKING:
     from abm.sim.tasks.base import Task
@@ -22,7 +23,7 @@ DEFAULT_SPLITS_PATH = Path(__file__).with_name("splits.yaml")
 SPLITS_VERSION = 1
 
 
-class SplitFileError(ValueError):
+class SplitFileError(ConfigError):
     """A split file that cannot be used; the message names the file and the problem."""
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from abm.errors import ConfigError
 from abm.grounding.config import (
     GROUNDERS,
     GrounderConfig,
@@ -225,5 +226,5 @@ def grounding_from_flags(grounder: str, language: str | None = None, clip_model:
     if not ground.clip_options() and with_clip is None:
         clip_grounders = " or ".join(f"--grounder {name}" for name in GROUNDERS.names(per_frame=True, clip=True))
         clip_languages = " or ".join(f"--language {name}" for name in LANGUAGES.names(clip=True))
-        raise ValueError(f"--clip-model/--clip-device need {clip_grounders} or {clip_languages}")
+        raise ConfigError(f"--clip-model/--clip-device need {clip_grounders} or {clip_languages}")
     return ground, with_clip or lang

@@ -44,6 +44,7 @@ from abm.data.keyframes import (
     ground_keyframes,
     worker_init,
 )
+from abm.errors import CheckpointError, ConfigError, DataError, ExternalError, OutputError
 from abm.files import FolderLock, refuse_links, write_text_atomic
 from abm.grounding.config import GROUNDERS, ClipGrounderConfig, build_grounder
 from abm.policy.checkpoint import (
@@ -155,7 +156,10 @@ def build_policy_config(cfg: TrainConfig, lang_dim: int, ifd_dim: int | None) ->
     overrides.setdefault("lang_dim", lang_dim)
     if ifd_dim is not None:
         overrides.setdefault("ifd_feature_dim", ifd_dim)
-    return PolicyConfig.from_preset(cfg.preset, cfg.method, **overrides)
+    try:
+        return PolicyConfig.from_preset(cfg.preset, cfg.method, **overrides)
+    except ValueError as err:  # PolicyConfig's checks of the values it is given (--set, the recipe)
+        raise ConfigError(str(err)) from err
 
 
 def language_spec(cfg: TrainConfig, lang_dim: int) -> dict[str, Any]:
@@ -170,20 +174,20 @@ def _episode_source(cfg: TrainConfig, episodes: Sequence[Episode] | None, data: 
         return EpisodeSource(list(episodes))
     data, splits = (data, splits) if data is not None else (cfg.data, cfg.splits)
     if data is None:
-        raise ValueError("no training data: give --data DIR (an episode store) or --synthetic N")
+        raise ConfigError("no training data: give --data DIR (an episode store) or --synthetic N")
 
     store = EpisodeStore(data)
     indices = store.select(tasks=cfg.tasks, splits=splits)
     if not indices:
-        raise ValueError(store.nothing_selected(cfg.tasks, splits))
+        raise ConfigError(store.nothing_selected(cfg.tasks, splits))
     store.check_consistent(indices)
     if cfg.verify:
         bad = check_episodes([store.episodes[i].path for i in indices], cfg.data)
         if bad:
             shown = "; ".join(reason for _, reason in bad[:3]) + (f"; and {len(bad) - 3} more" if len(bad) > 3 else "")
-            raise ValueError(f"{len(bad)} episode file(s) in {cfg.data} fail verification: {shown}. Run abm data "
-                             "generate again with the same arguments (it re-creates them), or pass --no-verify "
-                             "to train on them anyway")
+            raise DataError(f"{len(bad)} episode file(s) in {cfg.data} fail verification: {shown}. Run abm data "
+                            "generate again with the same arguments (it re-creates them), or pass --no-verify "
+                            "to train on them anyway")
     return EpisodeSource(store, indices)
 
 
@@ -273,13 +277,13 @@ def _check_same_data(run: Path, saved: dict[str, Any], cfg: TrainConfig) -> None
     if "data" not in saved:  # a checkpoint written before the options were saved with it
         return
     old, new = saved["data"], cfg.data
-    same = (old is None) == (new is None) and (
-        old is None or Path(old).expanduser().resolve() == Path(new).expanduser().resolve())
+    same = (old is None and new is None) or (
+        old is not None and new is not None and Path(old).expanduser().resolve() == Path(new).expanduser().resolve())
     if not same:
         was = f"--data {old}" if old is not None else "in-memory episodes (no --data)"
         now = f"--data {new}" if new is not None else "no --data"
-        raise ValueError(f"{run} was trained on {was}; --resume continues a run on the same episodes, not on "
-                         f"{now}: resume with the same --data, or train into a new --out folder")
+        raise ConfigError(f"{run} was trained on {was}; --resume continues a run on the same episodes, not on "
+                          f"{now}: resume with the same --data, or train into a new --out folder")
 
 
 # What abm train (and abm train's training curve) writes or deletes in a run folder: none may be a symbolic link,
@@ -295,8 +299,8 @@ def _claim_run_folder(run: Path, cfg: TrainConfig, dinfo: DistInfo) -> None:
     if occupied and not cfg.resume:
         if not cfg.overwrite:
             at = f" (checkpoint at step {existing[-1][0]})" if existing else ""
-            raise ValueError(f"{run} already holds a training run{at}: continue it with --resume, train into a "
-                             "new --out folder, or pass --overwrite to replace it")
+            raise OutputError(f"{run} already holds a training run{at}: continue it with --resume, train into a "
+                              "new --out folder, or pass --overwrite to replace it")
         if dinfo.main:
             for _, path in existing:
                 path.unlink(missing_ok=True)
@@ -337,12 +341,12 @@ class Trainer:
         self.device = device = torch.device(cfg.device)
         if device.type == "cuda":
             if not torch.cuda.is_available():
-                raise ValueError("--device cuda requested but CUDA is not available")
+                raise ExternalError("--device cuda requested but CUDA is not available")
             if dinfo.enabled:
                 self.device = device = torch.device("cuda", dinfo.local_rank)
             torch.cuda.set_device(device)
         if cfg.resume and cfg.overwrite:
-            raise ValueError("--resume and --overwrite contradict each other: choose one")
+            raise ConfigError("--resume and --overwrite contradict each other: choose one")
         ckpt = self._resume_checkpoint()
 
         torch.manual_seed(cfg.seed)
@@ -353,17 +357,20 @@ class Trainer:
         encoder = build_language_encoder(self.language_spec)
         self.grounder_config = gconfig = cfg.grounder
         if not GROUNDERS[gconfig.kind].per_frame:
-            raise ValueError(f"grounder {gconfig.kind!r} carries state from one step of an episode to the next: "
-                             f"train with one that grounds each frame ({', '.join(GROUNDERS.names(per_frame=True))})")
+            raise ConfigError(f"grounder {gconfig.kind!r} carries state from one step of an episode to the next: "
+                              f"train with one that grounds each frame ({', '.join(GROUNDERS.names(per_frame=True))})")
         ifd_dim = None
         if cfg.method == "ifd":
             if not isinstance(gconfig, ClipGrounderConfig):
-                raise ValueError("method 'ifd' re-renders CLIP features: use --grounder clip")
+                raise ConfigError("method 'ifd' re-renders CLIP features: use --grounder clip")
             g = build_grounder(gconfig)
             ifd_dim = getattr(g, "feature_dim", None) or getattr(getattr(g, "backbone", None), "embed_dim", None)
         self.policy_config = build_policy_config(cfg, encoder.dim, ifd_dim)
         if ckpt is not None:
-            check_compatible(PolicyConfig.from_dict(ckpt["policy_config"]), self.policy_config, ckpt["path"])
+            try:
+                check_compatible(PolicyConfig.from_dict(ckpt["policy_config"]), self.policy_config, ckpt["path"])
+            except ValueError as err:  # the message names the checkpoint, each differing field and the fix
+                raise CheckpointError(str(err)) from err
         self.policy = KeyframePolicy(self.policy_config, encoder, gconfig, cfg.camera_names).to(device)
         if device.type == "cpu" and self.policy.use_cpu_bf16(cfg.bf16) and dinfo.main:
             log.info("abm train: bf16 autocast on the CPU (--bf16 %s)", cfg.bf16)
@@ -424,19 +431,19 @@ class Trainer:
             return None
         ckpt = load_checkpoint(self.run)
         if int(ckpt["step"]) > self.cfg.steps:
-            raise ValueError(f"{self.run} is already at step {ckpt['step']}, past --steps {self.cfg.steps}: resume "
-                             f"with --steps {ckpt['step']} or more")
+            raise ConfigError(f"{self.run} is already at step {ckpt['step']}, past --steps {self.cfg.steps}: resume "
+                              f"with --steps {ckpt['step']} or more")
         _check_same_data(self.run, ckpt.get("train_config") or {}, self.cfg)
         self.changed = changed_settings(ckpt.get("train_config") or {}, self.cfg)
         if self.changed:
             flags = {f.name: f.metadata.get("flag", "--" + f.name.replace("_", "-")) for f in fields(TrainConfig)}
             listed = ", ".join(f"{flags[k]} {old!r} -> {new!r}" for k, (old, new) in self.changed.items())
             if "optimizer" in self.changed:
-                raise ValueError(f"{self.run} was trained with --optimizer {self.changed['optimizer'][0]}; its "
-                                 "optimiser state cannot continue under another optimizer: resume with the same one")
+                raise ConfigError(f"{self.run} was trained with --optimizer {self.changed['optimizer'][0]}; its "
+                                  "optimiser state cannot continue under another optimizer: resume with the same one")
             if not self.cfg.accept_changed_config:
-                raise ValueError(f"{self.run} was trained with other settings ({listed}); resume with the same "
-                                 "values, or pass --accept-changed-config to continue with the new ones")
+                raise ConfigError(f"{self.run} was trained with other settings ({listed}); resume with the same "
+                                  "values, or pass --accept-changed-config to continue with the new ones")
             log.warning("abm train: continuing %s with changed settings: %s", self.run, listed)
         return ckpt
 
@@ -563,8 +570,9 @@ class Trainer:
                     now = time.perf_counter()
                     sps = (step - tick_step) * cfg.batch * world / max(now - tick, 1e-9)
                     tick, tick_step = now, step
-                    logger.log({"step": step, "lr": self.scheduler.get_last_lr()[0], **last, "samples_per_s": sps,
-                                "elapsed_s": self.elapsed_s(), "val_total": "" if val is None else val})
+                    lr = float(self.scheduler.get_last_lr()[0])
+                    logger.log({"step": step, "lr": lr, **last, "samples_per_s": sps, "elapsed_s": self.elapsed_s(),
+                                "val_total": "" if val is None else val})
                 if on_step is not None:
                     on_step(step, last)
                 if step % cfg.checkpoint_every == 0 and step != cfg.steps:

@@ -7,6 +7,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from abm.errors import ExternalError
+
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
 
@@ -28,7 +30,7 @@ def screenshot(url: str, path: str | Path, width: int = 1400, height: int = 900,
     """
     exe = find_chromium()
     if exe is None:
-        raise RuntimeError("no Chromium found for screenshots: install it (Debian: apt-get install chromium)")
+        raise ExternalError("no Chromium found for screenshots: install it (Debian: apt-get install chromium)")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="abm-chromium-") as profile:
@@ -38,5 +40,5 @@ def screenshot(url: str, path: str | Path, width: int = 1400, height: int = 900,
                f"--screenshot={path.resolve()}", url]
         result = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
     if not path.is_file():
-        raise RuntimeError(f"Chromium wrote no screenshot (exit {result.returncode}): {result.stderr[-500:]}")
+        raise ExternalError(f"Chromium wrote no screenshot (exit {result.returncode}): {result.stderr[-500:]}")
     return path

@@ -23,11 +23,13 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
+from abm.errors import ConfigError
 from abm.geometry import Workspace
 from abm.grounding.conditioning import split_instruction
-from abm.grounding.config import build_grounder
+from abm.grounding.config import GrounderConfig, build_grounder
+from abm.grounding.grounders import Grounder
 from abm.grounding.visualize import overlay_views
-from abm.policy.keyframe_policy import explain_grounding
+from abm.policy.keyframe_policy import PolicyExplanation, explain_grounding
 from abm.render import OrthographicRenderer
 from abm.render.orthographic import VIEW_AXES
 from abm.types import Episode, KeyframeAction, Observation
@@ -106,9 +108,10 @@ def _step_from_sample(index: int, sample: Mapping[str, Any], views: list[np.ndar
         value = sample.get(key)
         return None if value is None else np.asarray(value.numpy() if torch.is_tensor(value) else value)
 
-    heat, mask = arr("point_heatmap"), arr("point_mask")
-    return ViewerStep(index=index, points=arr("points").astype(np.float32),
-                      colors=(np.clip(arr("colors"), 0, 1) * 255).astype(np.uint8),
+    heat, mask, points, colors = arr("point_heatmap"), arr("point_mask"), arr("points"), arr("colors")
+    assert points is not None and colors is not None  # every sample has them (abm.samples)
+    return ViewerStep(index=index, points=points.astype(np.float32),
+                      colors=(np.clip(colors, 0, 1) * 255).astype(np.uint8),
                       scores=None if heat is None else heat.astype(np.float32),
                       target=None if mask is None else mask > 0.5, views=views, expert=expert, predicted=predicted,
                       gripper_pose=np.asarray(obs.gripper_pose, np.float64))
@@ -125,14 +128,14 @@ def _select(steps: Sequence[int] | None, count: int) -> list[int]:
     chosen = list(range(count)) if steps is None else list(steps)
     bad = [k for k in chosen if not 0 <= k < count]
     if bad:
-        raise ValueError(f"step {bad[0]} does not exist: the episode has steps 0..{count - 1}")
+        raise ConfigError(f"step {bad[0]} does not exist: the episode has steps 0..{count - 1}")
     return chosen
 
 
 def record_from_episode(
     episode: Episode,
     policy: Any | None = None,
-    grounder: Mapping[str, Any] | Any | None = None,
+    grounder: Grounder | GrounderConfig | Mapping[str, Any] | None = None,
     workspace: Workspace | None = None,
     view_resolution: int = 128,
     steps: Sequence[int] | None = None,
@@ -160,7 +163,7 @@ def record_from_episode(
         ws = workspace or Workspace()
         renderer = OrthographicRenderer(ws, view_resolution)
         names = list(renderer.views)
-        g = grounder if hasattr(grounder, "ground") else build_grounder(grounder)  # a config, its dict or None
+        g = grounder if isinstance(grounder, Grounder) else build_grounder(grounder)  # a config, its dict or None
         record = ViewerRecord(f"{episode.task}/{episode.split} seed {episode.seed}, grounding only",
                             episode.instruction, None, ws, names, success=episode.success)
     for done, k in enumerate(chosen, 1):
@@ -190,7 +193,7 @@ def record_rollout(policy: Any, task: str, split: str = "seen", seed: int = 1_00
     """
     from abm.sim.env import make_env, run_policy  # mujoco (optional `sim` extra): episodes view without it
 
-    explained: list[Any] = []
+    explained: list[PolicyExplanation] = []
     with make_env(task, split, seed, resolution, max_steps=max_steps) as env:
         policy.reset()
 

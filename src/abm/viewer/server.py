@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from abm.errors import ConfigError, ExternalError
 from abm.grounding.visualize import colormap, upscale
 from abm.viewer.record import EXPERT_COLOR, PREDICTED_COLOR, ViewerRecord, ViewerStep, view_camera_pose
 
@@ -55,7 +56,7 @@ class ViewerServer:
         try:
             import viser
         except ImportError as err:  # pragma: no cover - viser is a core dependency
-            raise ImportError("abm view needs viser: pip install viser") from err
+            raise ExternalError("abm view needs viser: pip install viser") from err
         if not record.steps:
             raise ValueError("the record has no steps to show")
         self.record = record
@@ -137,8 +138,8 @@ def check_port(host: str, port: int) -> None:
             probe.bind((host, port))
     except (OSError, OverflowError) as err:
         reason = getattr(err, "strerror", None) or str(err)
-        raise ValueError(f"cannot serve on {host}:{port} ({reason}); choose another --port (e.g. {port % 65535 + 1}) "
-                         "or --host, or stop the program that uses it") from None
+        raise ConfigError(f"cannot serve on {host}:{port} ({reason}); choose another --port (e.g. {port % 65535 + 1}) "
+                          "or --host, or stop the program that uses it") from None
 
 
 def serve(record: ViewerRecord, host: str = "127.0.0.1", port: int = 8080) -> ViewerServer:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from abm.clip_training.data import build_dataset, load_dataset
 from abm.clip_training.train import CHECKPOINT, SUMMARY, ClipTrainConfig, load_training_state, train, zero_shot_accuracy
+from abm.errors import ConfigError, OutputError
 from abm.files import write_text_atomic
 from abm.grounding.clip import load_clip
 
@@ -29,10 +30,10 @@ def run_train(args: argparse.Namespace) -> int:
 
 
     if args.steps < 1 or args.batch < 2 or args.shards < 1:
-        raise ValueError("--steps must be >= 1, --batch >= 2 and --shards >= 1")  # abm: error: ...
+        raise ConfigError("--steps must be >= 1, --batch >= 2 and --shards >= 1")
     if (args.out / CHECKPOINT).is_file() and not args.resume:
-        raise ValueError(f"{args.out} already holds a training run; pass --resume to continue it or choose "
-                         "another --out")
+        raise OutputError(f"{args.out} already holds a training run; pass --resume to continue it or choose "
+                          "another --out")
     if args.resume and (args.out / CHECKPOINT).is_file():
         load_training_state(args.out / CHECKPOINT)  # a crafted or foreign checkpoint is refused before rendering
     torch.set_num_threads(args.threads)

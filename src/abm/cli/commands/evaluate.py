@@ -7,11 +7,12 @@ import json
 import logging
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import abm
-from abm.cli import CommandError
 from abm.configuration import config_from_args
 from abm.data.episode_store import EpisodeStore
+from abm.errors import ConfigError, ExternalError, OutputError
 from abm.evaluation.html_report import write_html_report
 from abm.evaluation.policies import checkpoint_clips
 from abm.evaluation.results import (
@@ -24,7 +25,6 @@ from abm.evaluation.results import (
 )
 from abm.evaluation.runner import (
     EvalJob,
-    EvalSettings,
     check_same_evaluation,
     checkpoint_of,
     crash_summary,
@@ -34,11 +34,11 @@ from abm.evaluation.runner import (
     run_job,
     same_file_runs,
 )
+from abm.evaluation.settings import EvalSettings
 from abm.files import FolderLock
 from abm.grounding.config import GROUNDERS
 from abm.grounding.default import default_grounder
 from abm.policy.checkpoint import load_checkpoint
-from abm.ray_pool import RayBackendError
 from abm.sim.splits import load_splits
 from abm.sim.tasks import TASKS
 
@@ -77,7 +77,7 @@ def plan_tasks(args: argparse.Namespace) -> dict[str, list[str]]:
     if args.tasks:
         unknown = [t for t in args.tasks if t not in TASKS]
         if unknown:
-            raise CommandError(f"unknown tasks {unknown}; known tasks: {sorted(TASKS)}")
+            raise TASKS.unknown(unknown[0])
         return {split: list(args.tasks) for split in splits}
     trained = trained_tasks(args.run)
     plan = {}
@@ -90,17 +90,17 @@ def plan_tasks(args: argparse.Namespace) -> dict[str, list[str]]:
     logging.getLogger("abm").info("abm eval: tasks %s (%s; pick others with --tasks)", "; ".join(
         f"{split}: {', '.join(tasks)}" for split, tasks in plan.items()) or "none", source)
     if not plan:
-        raise CommandError(f"no task the runs were trained on ({', '.join(trained or [])}) defines objects for the "
-                           f"split(s) {', '.join(splits)}; give --tasks")
+        raise ConfigError(f"no task the runs were trained on ({', '.join(trained or [])}) defines objects for the "
+                          f"split(s) {', '.join(splits)}; give --tasks")
     return plan
 
 
 def run(args: argparse.Namespace) -> int:
     for r in args.run:
         if not r.exists():
-            raise CommandError(f"run {r} does not exist (give a training run folder or a checkpoint file)")
+            raise ConfigError(f"run {r} does not exist (give a training run folder or a checkpoint file)")
     if args.episodes < 1 or args.repeats < 1:
-        raise CommandError("--episodes and --repeats must be at least 1")
+        raise ConfigError("--episodes and --repeats must be at least 1")
     args.run = [Path(r) for r in same_file_runs(args.run)]  # a file named twice is one run (one table row)
     plan = plan_tasks(args)
     _check_setup(args, plan)
@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     outs = {split: (args.out or base / f"eval_{split}") if single else parent / f"eval_{split}" for split in plan}
     for out in [*outs.values(), parent]:
         if out.exists() and not out.is_dir():
-            raise CommandError(f"--out {out} is a file; give a folder")
+            raise OutputError(f"--out {out} is a file; give a folder")
     settings = config_from_args(EvalSettings, args)
     rollouts = len(args.run) * sum(map(len, plan.values())) * args.episodes * args.repeats
     logging.getLogger("abm").info("abm eval: %d rollouts (%d run(s) x %s x %d episodes x %d repeats)", rollouts,
@@ -130,17 +130,14 @@ def run(args: argparse.Namespace) -> int:
     rates = []
     outcomes: list[EpisodeOutcome] = []
     for split, tasks in plan.items():
-        try:
-            with FolderLock(outs[split], "abm eval"):  # one writer per results folder
-                (outs[split] / "protocol.json").write_text(json.dumps(protocol, indent=1) + "\n")
-                found_now: list[EpisodeOutcome] = []
-                found = evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers,
-                                 settings, backend=args.backend, ray_address=args.ray_address, collect=found_now)
-                outcomes += found_now
-                if args.gifs:
-                    record_gifs(args.run, tasks, split, outs[split], args.episodes, args.gifs, settings, found_now)
-        except RayBackendError as err:
-            raise CommandError(str(err)) from None
+        with FolderLock(outs[split], "abm eval"):  # one writer per results folder
+            (outs[split] / "protocol.json").write_text(json.dumps(protocol, indent=1) + "\n")
+            found_now: list[EpisodeOutcome] = []
+            found = evaluate(args.run, tasks, split, outs[split], args.episodes, args.repeats, args.workers,
+                             settings, backend=args.backend, ray_address=args.ray_address, collect=found_now)
+            outcomes += found_now
+            if args.gifs:
+                record_gifs(args.run, tasks, split, outs[split], args.episodes, args.gifs, settings, found_now)
         rates += [r for r in found if r.split == split and r.task in tasks]
     if single:
         print(markdown_table(rates))
@@ -159,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"combined table: {parent / 'eval_summary.md'} (also eval_summary.json)")
     crashes = crash_summary(outcomes)
     if crashes:  # a crash is not a measurement: the tables are written, but the command fails
-        raise CommandError(f"{crashes}; outcomes: {', '.join(str(o / 'outcomes.jsonl') for o in outs.values())}")
+        raise ExternalError(f"{crashes}; outcomes: {', '.join(str(o / 'outcomes.jsonl') for o in outs.values())}")
     return 0
 
 
@@ -184,7 +181,7 @@ def eval_seeds(episodes: int, repeats: int) -> list[list[int]]:
     return [[eval_seed(r, e) for e in range(episodes)] for r in range(repeats)]
 
 
-def eval_protocol(args: argparse.Namespace, plan: dict[str, list[str]], settings: EvalSettings) -> dict:
+def eval_protocol(args: argparse.Namespace, plan: dict[str, list[str]], settings: EvalSettings) -> dict[str, Any]:
     """What an evaluation measured, written as ``protocol.json`` beside its outcomes: runs, tasks per split,
     episodes, repeats, the scene seeds and the settings, and the command that reproduces it."""
     seeds = eval_seeds(args.episodes, args.repeats)
@@ -209,10 +206,7 @@ def _eval_grounder(args: argparse.Namespace) -> None:
         log.info("abm eval: grounder: each checkpoint's own (the one it was trained with; --grounder overrides)")
         return
     if GROUNDERS[kind].clip and not args.clip_model and any(not checkpoint_clips(r) for r in args.run):
-        try:
-            choice = default_grounder(None, str(args.device), clip_only=True)
-        except ValueError as err:
-            raise CommandError(str(err)) from None
+        choice = default_grounder(None, str(args.device), clip_only=True)
         args.clip_model = choice.model
         log.info("%s", choice.startup_line("eval"))
         return
@@ -271,12 +265,9 @@ def _check_setup(args: argparse.Namespace, plan: dict[str, list[str]]) -> None:
         for task in tasks:
             defined = sorted(splits.tasks.get(task, {}))
             if split not in defined:
-                raise CommandError(f"task {task} has no objects in the {split!r} split "
-                                   f"(it defines: {', '.join(defined) or 'none'})")
+                raise ConfigError(f"task {task} has no objects in the {split!r} split "
+                                  f"(it defines: {', '.join(defined) or 'none'})")
     if str(args.device).startswith("cuda") and not torch.cuda.is_available():
-        raise CommandError(f"--device {args.device}: CUDA is not available on this machine (use --device cpu)")
+        raise ExternalError(f"--device {args.device}: CUDA is not available on this machine (use --device cpu)")
     for r in args.run:
-        try:
-            load_checkpoint(r)
-        except (ValueError, FileNotFoundError) as err:
-            raise CommandError(str(err)) from err
+        load_checkpoint(r)  # a missing, damaged or foreign checkpoint is refused before the first rollout

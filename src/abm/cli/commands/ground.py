@@ -23,14 +23,14 @@ import json
 import logging
 from typing import TYPE_CHECKING, Any
 
-from abm.cli import CommandError
 from abm.data.episode_store import load_episode
+from abm.errors import ConfigError, ExternalError, OutputError, RefusedError
 from abm.files import write_text_atomic
 from abm.geometry import Workspace, fuse_cameras
 from abm.grounding.config import GROUNDERS
 from abm.grounding.decision import decide_target
 from abm.grounding.default import default_grounder
-from abm.grounding.grounders import make_grounder
+from abm.grounding.grounders import ClipGrounder, make_grounder
 from abm.grounding.instruction import InstructionError, decompose_instruction
 from abm.grounding.mask_field import mask_views
 from abm.grounding.resolve import Resolution, UnresolvedInstructionError, resolve_instruction
@@ -47,7 +47,7 @@ def _load_observation(args: argparse.Namespace) -> tuple[Any, dict[int, str], st
     if args.episode is not None:
         episode = load_episode(args.episode)
         if not 0 <= args.step < len(episode.steps):
-            raise ValueError(f"--step {args.step} is out of range: the episode has {len(episode.steps)} keyframes")
+            raise ConfigError(f"--step {args.step} is out of range: the episode has {len(episode.steps)} keyframes")
         obs = episode.steps[args.step][0]
         return obs, dict(episode.object_names), episode.instruction, f"{args.episode} step {args.step}"
 
@@ -104,11 +104,11 @@ def run(args: argparse.Namespace) -> int:
 
 
     if args.instruction is not None and not args.instruction.strip():
-        raise CommandError("--instruction is empty; give the instruction to ground, or leave the option out")
+        raise ConfigError("--instruction is empty; give the instruction to ground, or leave the option out")
     if args.out.exists() and not args.out.is_dir():
-        raise CommandError(f"--out {args.out} is a file; give a folder")
+        raise OutputError(f"--out {args.out} is a file; give a folder")
     if str(args.device).startswith("cuda") and not torch.cuda.is_available():
-        raise CommandError(f"--device {args.device}: CUDA is not available on this machine (use --device cpu)")
+        raise ExternalError(f"--device {args.device}: CUDA is not available on this machine (use --device cpu)")
     obs, names, episode_instruction, where = _load_observation(args)
     instruction = args.instruction or episode_instruction or f"put the {next(iter(names.values()))} in the plate"
     target, skill, resolution = _resolve(instruction, names)
@@ -120,11 +120,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"abm ground: grounder: CLIP {args.clip_model} (--clip-model)")
     elif args.grounder is None or GROUNDERS[args.grounder].clip:  # no --grounder, or clip without --clip-model:
         # the order every command uses
-        try:
-            choice = default_grounder(args.clip_model, str(args.device), download=args.allow_download,
-                                      clip_only=args.grounder == "clip")
-        except ValueError as err:
-            raise CommandError(str(err)) from None
+        choice = default_grounder(args.clip_model, str(args.device), download=args.allow_download,
+                                  clip_only=args.grounder == "clip")
         args.grounder, args.clip_model = choice.kind, choice.model
         print(choice.startup_line("ground"))
     else:
@@ -142,9 +139,9 @@ def run(args: argparse.Namespace) -> int:
         options.update({k: v for k in ("mode", "dense_mode", "input_size", "scoring", "scales")
                         if (v := getattr(args, k)) is not None})
     elif any(getattr(args, k) is not None for k in ("mode", "dense_mode", "input_size", "scoring", "scales")):
-        raise ValueError("--mode, --dense-mode, --input-size, --scales and --scoring apply to --grounder clip only")
+        raise ConfigError("--mode, --dense-mode, --input-size, --scales and --scoring apply to --grounder clip only")
     elif args.normalization or args.threshold is not None or args.clip_model:
-        raise ValueError("--clip-model, --normalization and --threshold apply to --grounder clip only")
+        raise ConfigError("--clip-model, --normalization and --threshold apply to --grounder clip only")
     grounder = make_grounder(args.grounder, **options)
     field = grounder.ground(obs, cloud, target, names)
     scene_objects = sorted(set(names.values()))
@@ -164,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     for vi, view in enumerate(renderer.views):
         rgb = upscale(to_uint8(views.rgb[0, vi].permute(1, 2, 0).cpu().numpy()), 2)
         rows, cols = np.nonzero(mviews.center[vi].cpu().numpy())
-        rgb = mark_pixels(rgb, [(2 * r + 1, 2 * c + 1) for r, c in zip(rows, cols, strict=True)], radius=7)
+        rgb = mark_pixels(rgb, [(2 * int(r) + 1, 2 * int(c) + 1) for r, c in zip(rows, cols, strict=True)], radius=7)
         full = upscale(gray(mviews.full[vi].cpu().numpy()), 2)
         tile = vstack([label(rgb, f"{view} (center pixel marked)"), label(full, "re-rendered mask")])
         Image.fromarray(_flag(tile, notice)).save(args.out / f"view_{view}.png")
@@ -183,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
         "center_pixels": {v: [int(x) for x in np.argwhere(mviews.center[i].cpu().numpy()).reshape(-1)]
                           for i, v in enumerate(renderer.views)},
     }
-    if args.grounder == "clip":
+    if isinstance(grounder, ClipGrounder):  # --grounder clip
         summary.update(model=grounder.backbone.name, model_fingerprint=grounder.model_name,
                        normalization=grounder.config.normalization,
                        threshold=grounder.config.threshold)
@@ -202,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
     if missing:
         message = f"{decision.message(instruction)} (the images are marked NOT FOUND)"
         if args.strict:
-            raise CommandError(f"{message}; --strict")
+            raise RefusedError(f"{message}; --strict")
         logging.getLogger("abm").warning("abm ground: WARNING: %s", message)
     return 0
 

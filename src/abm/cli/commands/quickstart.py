@@ -13,10 +13,11 @@ from abm.cli.quickstart import SPEC, QuickstartConfig, recipe
 from abm.cli.train import POLICY_DEST
 from abm.configuration import config_from_args, overrides_from_args
 from abm.data.episode_store import EpisodeStore
+from abm.errors import ConfigError, ExternalError
 from abm.evaluation.html_report import write_html_report
-from abm.evaluation.plots import success_chart
-from abm.evaluation.report import plot_training_curves, views_figure
-from abm.evaluation.results import EpisodeOutcome, OutcomeLog, aggregate, combined_table
+from abm.evaluation.plots import run_loss_curves, success_chart
+from abm.evaluation.report import views_figure
+from abm.evaluation.results import EpisodeOutcome, OutcomeLog, SuccessRate, aggregate, combined_table
 from abm.evaluation.runner import crash_summary, write_tables
 from abm.experiments.spec import EvalSplit, ExperimentSpec, Resources, RunSpec, load_spec
 from abm.experiments.stages import Engine
@@ -38,10 +39,7 @@ def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict, str]:
     with a loud warning.
     """
     online = not cfg.offline and hub_reachable()
-    try:
-        choice = default_grounder(cfg.clip_model, cfg.device, download=online)
-    except ValueError as err:
-        raise ValueError(str(err)) from None
+    choice = default_grounder(cfg.clip_model, cfg.device, download=online)
     print(choice.startup_line("quickstart"))
     return choice.kind, choice.options, choice.description
 
@@ -75,7 +73,10 @@ def quickstart_spec(cfg: QuickstartConfig, grounder: str) -> ExperimentSpec:
 def run_quickstart(cfg: QuickstartConfig) -> Path:
     """Run the quickstart spec's stages (:mod:`abm.experiments`: data, grounding, training, evaluation; every
     stage resumes), then write the report folder; returns it."""
-    PolicyConfig.from_preset("small", "abm", **cfg.policy_overrides)  # bad policy settings fail before any work
+    try:  # bad policy settings fail before any work
+        PolicyConfig.from_preset("small", "abm", **cfg.policy_overrides)
+    except ValueError as err:  # PolicyConfig's checks of the values it is given
+        raise ConfigError(str(err)) from err
     start = time.perf_counter()
     grounder, options, grounder_text = choose_grounder(cfg)
     spec = quickstart_spec(cfg, grounder)
@@ -91,7 +92,7 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     for i, (stages, what) in enumerate(steps, 1):
         print(f"[{i}/4] {what}")
         if engine.run(stages) != 0:
-            raise ValueError(f"the quickstart's {' and '.join(stages)} stage failed: see the logs in "
+            raise ExternalError(f"the quickstart's {' and '.join(stages)} stage failed: see the logs in "
                              f"{layout.out / 'logs'}")
 
     print(f"[4/4] report -> {report}")
@@ -107,17 +108,18 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
     crashes = crash_summary(outcomes)
     if crashes:  # the report is written, but a crash is not a measurement: the command fails
-        raise ValueError(f"{crashes}; report: {report}/README.md")
+        raise ExternalError(f"{crashes}; report: {report}/README.md")
     return report
 
 
 def write_report(report: Path, runs: dict[str, Path], eval_dirs: list[Path], data: Path, cfg: QuickstartConfig,
-                 grounder: str, rates: list | None = None, outcomes: list[EpisodeOutcome] | None = None) -> None:
+                 grounder: str, rates: list[SuccessRate] | None = None,
+                 outcomes: list[EpisodeOutcome] | None = None) -> None:
     """Table, curves, example views and GIFs in one folder with a README that links them (``eval_dirs``: the
     evaluation folders, one per run and split; ``rates``: the success rates, for the combined seen / unseen
     table; ``outcomes``: the episodes behind them, default every outcome logged in ``eval_dirs``)."""
     report.mkdir(parents=True, exist_ok=True)
-    plot_training_curves({m: r for m, r in runs.items()}, report / "training_curves.png")
+    run_loss_curves(runs, report / "training_curves.png")
     figures = []
     if "abm" in runs:
         store = EpisodeStore(data)

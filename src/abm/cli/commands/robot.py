@@ -6,23 +6,22 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from abm.cli import CommandError
 from abm.cli.robot import parse_board_text
-from abm.files import LinkError, refuse_links
+from abm.errors import ConfigError, OutputError, RefusedError
+from abm.files import refuse_links
 from abm.grounding.config import grounder_from_flags
 from abm.policy import KeyframePolicy
 from abm.robot.calibration import BoardSpec, calibrate_from_recording, load_calibration, save_calibration
 from abm.robot.devices import record_observations
-from abm.robot.limits import LimitError
-from abm.robot.run import NoTargetError, RobotConfig, run_robot
+from abm.robot.run import RobotConfig, run_robot
 
 
-def parse_board(text: str):
+def parse_board(text: str) -> BoardSpec:
     """``"5x7:0.04:0.03:DICT_4X4_50"`` -> :class:`abm.robot.calibration.BoardSpec`."""
     try:
         squares, square, marker, dictionary = parse_board_text(text)
     except argparse.ArgumentTypeError as err:
-        raise ValueError(f"--board {err}") from None
+        raise ConfigError(f"--board {err}") from None
     return BoardSpec(squares, square, marker, dictionary)
 
 
@@ -44,22 +43,19 @@ def check_record_target(out: Path, overwrite: bool) -> list[Path]:
     """The recording files ``abm record --out OUT`` replaces (empty for a new or empty folder).
 
     Raises:
-        CommandError: ``out`` is a file, a recording file in it is a symbolic link, or ``out`` holds anything
+        OutputError: ``out`` is a file, a recording file in it is a symbolic link, or ``out`` holds anything
             and ``overwrite`` is not set (nothing is written before this check).
     """
     if out.exists() and not out.is_dir():
-        raise CommandError(f"--out {out} is a file; give a folder")
+        raise OutputError(f"--out {out} is a file; give a folder")
     if not out.is_dir():
         return []
-    try:
-        refuse_links(out, RECORDING_FILES, fix="remove the link, or record into a new --out folder")
-    except LinkError as err:
-        raise CommandError(str(err)) from None
+    refuse_links(out, RECORDING_FILES, fix="remove the link, or record into a new --out folder")
     old = sorted(p for pattern in RECORDING_FILES for p in out.glob(pattern))
     if not overwrite and any(out.iterdir()):
         held = f"a recording ({len(old)} files, e.g. {old[0]})" if old else "other files"
-        raise CommandError(f"--out {out} already holds {held}; pass --overwrite to replace the recording, or "
-                           "record into a new folder")
+        raise OutputError(f"--out {out} already holds {held}; pass --overwrite to replace the recording, or "
+                          "record into a new folder")
     return old
 
 
@@ -79,29 +75,26 @@ def run_record(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     if not args.robot.is_file():
-        raise CommandError(f"--robot {args.robot} is not a file")
+        raise ConfigError(f"--robot {args.robot} is not a file")
     if args.steps < 1:
-        raise CommandError("--steps must be at least 1")
-    try:
-        grounder = grounder_from_flags(args.grounder, args.clip_model)
-    except ValueError as err:
-        raise CommandError(str(err)) from err
+        raise ConfigError("--steps must be at least 1")
+    grounder = grounder_from_flags(args.grounder, args.clip_model)
     if args.instruction is not None and not args.instruction.strip():
-        raise CommandError("--instruction is empty; give the instruction to carry out, naming one object of the "
-                           "scene (e.g. --instruction 'put the red block on the target'), or leave the option out "
-                           "to use the recording's or the scene's")
+        raise ConfigError("--instruction is empty; give the instruction to carry out, naming one object of the "
+                          "scene (e.g. --instruction 'put the red block on the target'), or leave the option out "
+                          "to use the recording's or the scene's")
     config = RobotConfig.load(args.robot)
     camera, arm = config.build(dry_run=args.dry_run)
     instruction = args.instruction if args.instruction is not None else getattr(camera, "instruction", "")
     if not instruction or not instruction.strip():
-        raise CommandError(f"give --instruction: the camera source of {args.robot} "
-                           f"(kind {config.cameras.get('kind')}) has no instruction")
+        raise ConfigError(f"give --instruction: the camera source of {args.robot} "
+                          f"(kind {config.cameras.get('kind')}) has no instruction")
     policy = KeyframePolicy.from_checkpoint(args.run, device=args.device, grounder=grounder)
     try:
         records = run_robot(policy, camera, arm, instruction, config.limits, args.steps, args.log,
                             allow_no_target=args.allow_no_target)
-    except (LimitError, NoTargetError) as err:
-        raise CommandError(f"refused before moving: {err} (log: {args.log})") from None
+    except RefusedError as err:
+        raise RefusedError(f"refused before moving: {err} (log: {args.log})") from None
     finally:
         if hasattr(camera, "close"):
             camera.close()

@@ -4,20 +4,16 @@ from __future__ import annotations
 
 import argparse
 
-from abm.cli import CommandError
-from abm.sim.splits import SplitFileError, load_splits
+from abm.sim.splits import load_splits
 from abm.sim.tasks import TASKS
 
 
 def _tasks(args: argparse.Namespace) -> int:
-    try:
-        splits = load_splits(args.splits)
-    except SplitFileError as err:
-        raise CommandError(str(err)) from None
+    splits = load_splits(args.splits)
     names = sorted(TASKS)
     if args.task is not None:
         if args.task not in TASKS:
-            raise CommandError(str(TASKS.unknown(args.task))) from None
+            raise TASKS.unknown(args.task)
         names = [args.task]
     print(f"object splits: {splits.path}")
     for name in names:

@@ -17,7 +17,6 @@ import logging
 import os
 from pathlib import Path
 
-from abm.cli import CommandError
 from abm.cli.train import POLICY_DEST
 from abm.configuration import (
     check_overrides,
@@ -25,7 +24,8 @@ from abm.configuration import (
     overrides_from_args,
 )
 from abm.data.episode_store import held_out_overlap
-from abm.evaluation.report import plot_training_curves
+from abm.errors import ConfigError, ExternalError
+from abm.evaluation.plots import run_loss_curves
 from abm.files import FolderLock
 from abm.grounding.default import default_grounder
 from abm.policy.checkpoint import check_export_target, export_checkpoint, resolve_checkpoint
@@ -67,10 +67,7 @@ def train_grounder(args: argparse.Namespace) -> tuple[str, str | None]:
         if main:
             print("abm train: grounder: oracle (--synthetic episodes; give --grounder clip for CLIP masks)")
         return "oracle", args.clip_model
-    try:
-        choice = default_grounder(args.clip_model, str(args.device))
-    except ValueError as err:
-        raise CommandError(str(err)) from None
+    choice = default_grounder(args.clip_model, str(args.device))
     if main:
         print(choice.startup_line("train"))
     return choice.kind, choice.model or args.clip_model
@@ -81,35 +78,29 @@ def run(args: argparse.Namespace) -> int:
         try:
             import torch_optimizer  # noqa: F401
         except ImportError as err:
-            raise CommandError("--optimizer lamb needs torch-optimizer: pip install 'abm[train]'") from err
+            raise ExternalError("--optimizer lamb needs torch-optimizer: pip install 'abm[train]'") from err
 
     if args.steps < 1 or args.batch < 1:
-        raise CommandError("--steps and --batch must be positive")
+        raise ConfigError("--steps and --batch must be positive")
     if args.data is None and args.synthetic <= 0:
-        raise CommandError("give --data DIR (an episode store) or --synthetic N")
+        raise ConfigError("give --data DIR (an episode store) or --synthetic N")
     if args.data is not None and not Path(args.data).is_dir():
-        raise CommandError(f"--data {args.data} is not a folder")
-    try:
-        overrides = check_overrides(PolicyConfig, dict(args.overrides))
-    except ValueError as err:
-        raise CommandError(str(err)) from None
+        raise ConfigError(f"--data {args.data} is not a folder")
+    overrides = check_overrides(PolicyConfig, dict(args.overrides))
     if args.warmup is not None and args.warmup >= args.steps:
         logging.getLogger("abm").warning("abm train: --warmup %d is not shorter than --steps %d: the learning rate "
                                          "never reaches its peak", args.warmup, args.steps)
     if args.grounder is None:
         args.grounder, args.clip_model = train_grounder(args)
-    try:
-        grounder, language = grounding_from_flags(args.grounder, args.language, args.clip_model, args.clip_device)
-    except ValueError as err:
-        raise CommandError(str(err)) from None
+    grounder, language = grounding_from_flags(args.grounder, args.language, args.clip_model, args.clip_device)
     cfg = config_from_args(TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
                            grounder=grounder, language=language)
     if cfg.val_data is not None and cfg.data is not None:
         overlap = held_out_overlap(cfg.data, cfg.val_data)
         if overlap:
-            raise CommandError(f"{overlap}: validation episodes must be held out (other scenes, in their own "
-                               "folder: abm data generate --seed with seeds the training data does not use), or "
-                               "leave --val-data out")
+            raise ConfigError(f"{overlap}: validation episodes must be held out (other scenes, in their own "
+                              "folder: abm data generate --seed with seeds the training data does not use), or "
+                              "leave --val-data out")
     episodes = None
     if args.data is None:
         episodes = synthetic_episodes(args.synthetic, args.camera_resolution)
@@ -117,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     if int(os.environ.get("RANK", "0")) == 0:
         loss = summary["final_loss"].get("total", float("nan"))
         print(f"abm train: {summary['steps']} steps, final loss {loss:.4f}, checkpoint {summary['checkpoint']}")
-        if (Path(cfg.out) / "log.csv").is_file():
-            curve = plot_training_curves({cfg.method: cfg.out}, Path(cfg.out) / "training_curve.png")
+        curve = run_loss_curves({cfg.method: cfg.out}, Path(cfg.out) / "training_curve.png")
+        if curve is not None:
             print(f"abm train: training curve {curve}")
     return 0

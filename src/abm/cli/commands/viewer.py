@@ -6,8 +6,8 @@ import argparse
 import logging
 import time
 
-from abm.cli import CommandError
 from abm.data.episode_store import load_episode
+from abm.errors import ConfigError, ExternalError
 from abm.grounding.config import grounder_from_flags
 from abm.policy import KeyframePolicy
 from abm.viewer.browser import find_chromium, screenshot
@@ -18,15 +18,15 @@ from abm.viewer.server import check_port, serve
 def run(args: argparse.Namespace) -> int:
     log = logging.getLogger("abm")
     if (args.episode is None) == (args.task is None):
-        raise CommandError("give --episode FILE (optionally with --run) or --run RUN --task TASK")
+        raise ConfigError("give --episode FILE (optionally with --run) or --run RUN --task TASK")
     if args.task is not None and args.run is None:
-        raise CommandError("--task rolls a policy out: give its --run too")
+        raise ConfigError("--task rolls a policy out: give its --run too")
 
     check_port(args.host, args.port)  # a busy or bad address fails now, not after preparing the record
     if args.screenshot is not None:
         if find_chromium() is None:
-            raise CommandError("--screenshot needs Chromium, and none is on PATH: install it (Debian: apt-get "
-                               "install chromium) or leave --screenshot out to serve the page")
+            raise ExternalError("--screenshot needs Chromium, and none is on PATH: install it (Debian: apt-get "
+                                "install chromium) or leave --screenshot out to serve the page")
     grounder = grounder_from_flags(args.grounder, args.clip_model)
     policy = None
     if args.run is not None:
@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
         record = record_rollout(policy, args.task, args.split, args.seed)
     else:
         if not args.episode.is_file():
-            raise CommandError(f"--episode {args.episode} is not a file")
+            raise ConfigError(f"--episode {args.episode} is not a file")
 
         episode = load_episode(args.episode)
         record = record_from_episode(episode, policy=policy, grounder=grounder, steps=args.steps,

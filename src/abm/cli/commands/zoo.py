@@ -6,9 +6,11 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from abm.errors import ExternalError
 from abm.evaluation.policies import checkpoint_clips
 from abm.evaluation.results import EpisodeOutcome, markdown_table
-from abm.evaluation.runner import EvalSettings, crash_summary, evaluate
+from abm.evaluation.runner import crash_summary, evaluate
+from abm.evaluation.settings import EvalSettings
 from abm.zoo import COMPARED_METHODS, ZooError, entry_path, pick, read_index, verify
 
 
@@ -76,5 +78,5 @@ def evaluate_zoo(args: argparse.Namespace) -> int:
     print(f"results: {args.out / 'results.md'}; the full tables: docs/results/paper_tables.md")
     crashes = crash_summary(outcomes)
     if crashes:  # a crash is not a measurement: the table is written, but the command fails
-        raise ZooError(f"{crashes}; outcomes: {args.out / '{seen,unseen}' / 'outcomes.jsonl'}")
+        raise ExternalError(f"{crashes}; outcomes: {args.out / '{seen,unseen}' / 'outcomes.jsonl'}")
     return 0

@@ -36,6 +36,7 @@ The layout keeps extra room around containers that rise above the hand's undersi
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -52,6 +53,10 @@ from abm.sim.tasks.base import (
 )
 from abm.types import KeyframeAction
 
+if TYPE_CHECKING:
+    from abm.sim.simulation import Simulation
+    from abm.sim.split_file import ObjectSplits
+
 SLOT = "containers"               # split-file key of the second slot
 NUM_DISTRACTORS = 2               # other objects of X's split list
 NUM_CONTAINER_DISTRACTORS = 1     # other containers of the split
@@ -67,7 +72,7 @@ CONTAINER_SUBGOAL_KINDS = frozenset({"move", "place", "retreat"})    # sub-goal 
 COMPOSITIONAL = "compositional"
 
 
-def held_out_pairs(splits, task: str = "put_in_container") -> set[tuple[str, str]]:
+def held_out_pairs(splits: ObjectSplits, task: str = "put_in_container") -> set[tuple[str, str]]:
     """The (object, container) pairs the pairing rule keeps out of training (see the module docstring).
 
     Args:
@@ -81,7 +86,7 @@ def held_out_pairs(splits, task: str = "put_in_container") -> set[tuple[str, str
     return {(x, containers[i % len(containers)]) for i, x in enumerate(objects)}
 
 
-def split_pairs(splits, split: str, task: str = "put_in_container") -> list[tuple[str, str]]:
+def split_pairs(splits: ObjectSplits, split: str, task: str = "put_in_container") -> list[tuple[str, str]]:
     """The (object, container) pairs a split draws from, in list order (objects outer, containers inner).
 
     ``compositional``: only held-out pairs of its lists; any other split: every pair of its lists except
@@ -94,7 +99,8 @@ def split_pairs(splits, split: str, task: str = "put_in_container") -> list[tupl
     return [(x, y) for x in objects for y in containers if ((x, y) in held) == want_held]
 
 
-def _pairs_trained_elsewhere(splits, pairs: set[tuple[str, str]], task: str) -> list[tuple[str, str, str]]:
+def _pairs_trained_elsewhere(splits: ObjectSplits, pairs: set[tuple[str, str]], task: str
+                             ) -> list[tuple[str, str, str]]:
     """``(object, container, other task)`` for each pair another trainable task demonstrates: the
     container is one of that task's fixtures and the object is in its ``seen`` list."""
     found = []
@@ -122,7 +128,7 @@ class PutInContainer(Task):
 
     # --- splits ----------------------------------------------------------------------------------
     @classmethod
-    def check_splits(cls, splits) -> str | None:
+    def check_splits(cls, splits: ObjectSplits) -> str | None:
         """Every split has pairs to draw, and no held-out pair is demonstrated by another task."""
         for split in splits.tasks.get(cls.name, {}):
             if not split_pairs(splits, split, cls.name):
@@ -199,7 +205,7 @@ class PutInContainer(Task):
 
     # --- success and expert ----------------------------------------------------------------------
     @staticmethod
-    def opening(sim, index: int) -> tuple[np.ndarray, np.ndarray, float]:
+    def opening(sim: Simulation, index: int) -> tuple[np.ndarray, np.ndarray, float]:
         """``(centre (2,), rotation (2, 2), rim height)`` of container ``index``: its collision box centre
         in the world (m), its horizontal axes, and the height of its top above the table (m)."""
         geo = object_geometry(sim.scene.objects[index].name)
@@ -208,14 +214,14 @@ class PutInContainer(Task):
         return centre[:2], pose[:2, :2], float(pose[2, 3] + geo.upper[2])
 
     @staticmethod
-    def lowest_point(sim, index: int) -> float:
+    def lowest_point(sim: Simulation, index: int) -> float:
         """World height (m) of the lowest corner of object ``index``'s collision box, in any orientation."""
         geo = object_geometry(sim.scene.objects[index].name)
         pose = sim.object_pose(index)
         corners = np.array(np.meshgrid(*zip(geo.lower, geo.upper, strict=True))).reshape(3, -1).T
         return float((corners @ pose[:3, :3].T + pose[:3, 3])[:, 2].min())
 
-    def inside(self, sim, target: int, container: int) -> bool:
+    def inside(self, sim: Simulation, target: int, container: int) -> bool:
         """Whether object ``target`` lies in ``container``'s opening, below its rim (holding not checked)."""
         name = sim.scene.objects[container].name
         geo = object_geometry(name)
@@ -231,21 +237,21 @@ class PutInContainer(Task):
             within = bool(np.all(np.abs(local) < half))
         return bool(within and self.lowest_point(sim, target) < rim)
 
-    def success(self, sim, instance: TaskInstance) -> bool:
+    def success(self, sim: Simulation, instance: TaskInstance) -> bool:
         target, container = instance.info["target"], instance.info["container"]
         if target in sim.held_objects():
             return False
         return self.inside(sim, target, container)
 
-    def release_surface(self, sim, target: int, rim: float) -> float:
+    def release_surface(self, sim: Simulation, target: int, rim: float) -> float:
         """Height (m) to pass to :func:`pick_and_place` as the support surface: X is released
         ``DROP_HEIGHT`` above it, as low as possible with the fingertips still ``DROP_HEIGHT`` above the
         rim (the hand never enters the container), but the surface no lower than ``FLOOR_CLEARANCE`` (above
         every container's floor)."""
-        hang = grasp_pose(sim, target)[2, 3] - self.lowest_point(sim, target)  # X's bottom below the TCP
+        hang = float(grasp_pose(sim, target)[2, 3]) - self.lowest_point(sim, target)  # X's bottom below the TCP
         return max(FLOOR_CLEARANCE, rim + FINGERTIP_BELOW_TCP - hang)
 
-    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+    def expert(self, sim: Simulation, instance: TaskInstance) -> Iterator[KeyframeAction]:
         target = instance.info["target"]
         centre, _, rim = self.opening(sim, instance.info["container"])
         yield from pick_and_place(sim, target, centre, self.release_surface(sim, target, rim))

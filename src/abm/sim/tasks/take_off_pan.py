@@ -9,6 +9,7 @@ outside the pan's rim circle.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,6 +17,9 @@ from abm.sim.catalog import object_geometry
 from abm.sim.scene import PlacedObject, SceneSpec
 from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, resting_on, sample_layout
 from abm.types import KeyframeAction
+
+if TYPE_CHECKING:
+    from abm.sim.simulation import Simulation
 
 NUM_DISTRACTORS = 2
 PAN = "frypan"
@@ -32,7 +36,8 @@ TABLE_CONTACT = 0.012          # m
 
 
 def _bowl_centre(pose: np.ndarray) -> np.ndarray:
-    return pose[:2, :2] @ np.asarray(PAN_CENTRE) + pose[:2, 3]
+    centre: np.ndarray = pose[:2, :2] @ np.asarray(PAN_CENTRE) + pose[:2, 3]
+    return centre
 
 
 @register_task
@@ -61,14 +66,14 @@ class TakeOffPan(Task):
         return TaskInstance(self.name, split, seed, variation, self.instruction(target),
                             SceneSpec([pan, food, *rest]), [target], {"target": 1, "pan": 0})
 
-    def success(self, sim, instance: TaskInstance) -> bool:
+    def success(self, sim: Simulation, instance: TaskInstance) -> bool:
         target = instance.info["target"]
         bowl = _bowl_centre(sim.object_pose(instance.info["pan"]))
         outside = np.hypot(*(sim.object_pose(target)[:2, 3] - bowl)) > PAN_RIM_RADIUS + 0.01
         return bool(outside and resting_on(sim, target, max_bottom=TABLE_CONTACT))
 
     @staticmethod
-    def drop_point(sim, instance: TaskInstance) -> np.ndarray:
+    def drop_point(sim: Simulation, instance: TaskInstance) -> np.ndarray:
         """``(2,)`` free table spot beside the pan, farthest from the other objects (world, m)."""
         pan = sim.object_pose(instance.info["pan"])
         bowl = _bowl_centre(pan)
@@ -83,7 +88,9 @@ class TakeOffPan(Task):
                          if j not in (instance.info["pan"], instance.info["target"])), default=1.0)
             if clear > best_clear:
                 best, best_clear = point, clear
+        if best is None:  # the angles always leave a spot on the table: a bug if not
+            raise RuntimeError(f"no table spot beside the pan at {bowl.round(3).tolist()}")
         return best
 
-    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+    def expert(self, sim: Simulation, instance: TaskInstance) -> Iterator[KeyframeAction]:
         yield from pick_and_place(sim, instance.info["target"], self.drop_point(sim, instance), 0.0)
