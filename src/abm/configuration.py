@@ -116,7 +116,7 @@ RANGES: dict[str, tuple[float | None, float | None]] = {
 _POSITIVE_REALS = {"lr", "workspace_size", "mlp_ratio"}
 
 
-def field_type(f: dataclasses.Field, kind: Any) -> Any:
+def field_type(f: dataclasses.Field[Any], kind: Any) -> Any:
     """The range-checked argparse ``type`` of a numeric field (``kind`` int or float), see the module docstring."""
     default = (1, INT_MAX) if kind is int else (0.0, None)
     low, high = f.metadata.get("range", RANGES.get(f.name, default))  # None: unbounded on that side
@@ -204,7 +204,7 @@ def _plain(text: str) -> str:
     return re.sub(r"\*(\w[^*]*?)\*", r"\1", text.replace("``", ""))
 
 
-def field_choices(f: dataclasses.Field) -> Any:
+def field_choices(f: dataclasses.Field[Any]) -> Any:
     """A field's allowed values (its ``choices`` metadata, called now when it is a function), or ``None``."""
     choices = f.metadata.get("choices")
     return tuple(choices()) if callable(choices) else choices
@@ -217,8 +217,8 @@ def flag_value(value: Any) -> Any:
     return kind if isinstance(kind, str) and callable(getattr(value, "to_dict", None)) else value
 
 
-def _flag(f: dataclasses.Field) -> str:
-    return f.metadata.get("flag", "--" + f.name.replace("_", "-"))
+def _flag(f: dataclasses.Field[Any]) -> str:
+    return str(f.metadata.get("flag", "--" + f.name.replace("_", "-")))
 
 
 def _base_type(annotation: Any) -> tuple[Any, Any, bool]:
@@ -234,8 +234,8 @@ def _base_type(annotation: Any) -> tuple[Any, Any, bool]:
         (element,) = typing.get_args(annotation) or (str,)
         return element, "+", optional
     if origin is tuple:
-        args = typing.get_args(annotation) or (str, ...)
-        return args[0], ("+" if len(args) == 2 and args[1] is Ellipsis else len(args)), optional
+        items = typing.get_args(annotation) or (str, ...)
+        return items[0], ("+" if len(items) == 2 and items[1] is Ellipsis else len(items)), optional
     return annotation, None, optional
 
 
@@ -420,7 +420,7 @@ def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
     while True:  # descend to the (sub-)command the arguments name
         choices = next((a.choices for a in sub._actions if isinstance(a, argparse._SubParsersAction)), None)
         index = next((i for i, t in enumerate(tokens) if choices and t in choices), None)
-        if index is None:
+        if index is None or choices is None:
             break
         sub, tokens = choices[tokens[index]], tokens[index + 1:]
     if "--config" not in sub._option_string_actions:

@@ -177,7 +177,7 @@ def _strict_loader(text: str) -> Any:
     """A ``yaml.SafeLoader`` (plain data only) over ``text`` that refuses a mapping naming a key twice."""
     import yaml
 
-    class StrictSafeLoader(yaml.SafeLoader):
+    class StrictSafeLoader(yaml.SafeLoader):  # type: ignore[misc]  # PyYAML has no type information here
         def construct_mapping(self, node: Any, deep: bool = False) -> Any:  # noqa: FBT001, FBT002 - PyYAML's
             if isinstance(node, yaml.MappingNode):
                 seen: dict[Any, int] = {}
@@ -286,7 +286,7 @@ def write_error(path: Path | str, err: OSError, verb: str = "write") -> WriteErr
             errno.EROFS: "choose a folder on a writable disk",
             errno.ENOTDIR: "a parent of it is a file, not a folder: choose another path",
             errno.EEXIST: "a parent of it is a file, not a folder: choose another path",
-            errno.EISDIR: "it is a folder: give a file path"}.get(code, "")
+            errno.EISDIR: "it is a folder: give a file path"}.get(code, "") if code is not None else ""
     return WriteError(f"cannot {verb} {path}: {reason}" + (f"; {hint}" if hint else ""))
 
 

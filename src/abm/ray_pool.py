@@ -166,12 +166,12 @@ class RayActorPool:
         actor = ray.remote(num_cpus=cpus_per_worker, max_restarts=0)(_Worker)
         self._actors = [actor.remote(initializer) for _ in range(max(1, workers))]
         self._idle = deque(self._actors)
-        self._queue: deque[tuple[Future, Callable[..., Any], tuple]] = deque()
+        self._queue: deque[tuple[Future[Any], Callable[..., Any], tuple[Any, ...]]] = deque()
         self._lock = threading.Lock()
         self._ray = ray
 
-    def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
-        fut: Future = Future()
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
+        fut: Future[Any] = Future()
         with self._lock:
             self._queue.append((fut, fn, args))
         self._dispatch()
@@ -187,7 +187,7 @@ class RayActorPool:
             ref = actor.run.remote(fn, *args)
             ref.future().add_done_callback(lambda done, a=actor, f=fut: self._finished(a, f, done))
 
-    def _finished(self, actor: Any, fut: Future, done: Future) -> None:
+    def _finished(self, actor: Any, fut: Future[Any], done: Future[Any]) -> None:
         err = done.exception()
         if err is not None:
             fut.set_exception(err)
@@ -205,5 +205,5 @@ class RayActorPool:
     def __enter__(self) -> RayActorPool:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.shutdown()

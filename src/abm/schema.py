@@ -74,7 +74,7 @@ def integer(low: int | None = None, high: int | None = None) -> Check:
 
     def check(value: Any) -> int:
         if isinstance(value, bool) or not isinstance(value, numbers.Integral) or \
-                (low is not None and value < low) or (high is not None and value > high):
+                (low is not None and int(value) < low) or (high is not None and int(value) > high):
             raise _Mismatch(expected.strip())
         return int(value)
 
@@ -109,7 +109,7 @@ def vector(length: int) -> Check:
     return check
 
 
-def any_mapping(value: Any) -> dict:
+def any_mapping(value: Any) -> dict[Any, Any]:
     """A mapping whose content is checked elsewhere."""
     if not isinstance(value, Mapping):
         raise _Mismatch("a mapping")

@@ -128,4 +128,4 @@ def pick(entries: list[dict[str, Any]], method: str) -> dict[str, Any] | None:
         return next(e for e in compared if edition(e) == newest)
     first = [e for e in runnable if edition(e) == 1] or runnable
     grounded = [e for e in first if e.get("grounder") == "clip"]
-    return (grounded or first or [None])[0]
+    return (grounded or first)[0] if grounded or first else None

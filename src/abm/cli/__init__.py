@@ -70,7 +70,7 @@ class Parser(argparse.ArgumentParser):
     """``abm``'s parsers (and their sub-commands'): help with defaults (:class:`HelpFormatter`); a bad option is
     one ``abm: error:`` line (exit code 2) naming the option, what it expects, and the help."""
 
-    def __init__(self, *args, **kwargs) -> None:
+    def __init__(self, *args: typing.Any, **kwargs: typing.Any) -> None:
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
         #: checks of options that go together, run once this (sub-)command's arguments are parsed: each returns
@@ -110,15 +110,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class _StderrHandler(logging.StreamHandler):
+class _StderrHandler(logging.StreamHandler[typing.TextIO]):
     """Writes to ``sys.stderr`` as it is when a message is logged (so later redirections are honoured)."""
 
-    @property
-    def stream(self):  # noqa: ANN201 - logging.StreamHandler's attribute
+    @property  # logging.StreamHandler's attribute, read from sys each time
+    def stream(self) -> typing.TextIO:
         return sys.stderr
 
     @stream.setter
-    def stream(self, value) -> None:  # noqa: ANN001 - set by StreamHandler.__init__; the property wins
+    def stream(self, value: typing.TextIO) -> None:  # set by StreamHandler.__init__; the property wins
         pass
 
 
@@ -126,9 +126,9 @@ def configure_logging(level: int = logging.INFO) -> None:
     """abm's own messages (the ``abm`` logger) to stderr as plain lines; other libraries keep their defaults."""
     logger = logging.getLogger("abm")
     if not logger.handlers:
-        handler = _StderrHandler()
-        handler.setFormatter(logging.Formatter("%(message)s"))
-        logger.addHandler(handler)
+        ours = _StderrHandler()
+        ours.setFormatter(logging.Formatter("%(message)s"))
+        logger.addHandler(ours)
         logger.propagate = False
     for handler in logger.handlers:  # the current stderr, also when main() runs again with stderr redirected
         if type(handler) is logging.StreamHandler and handler.stream is not sys.stderr:
@@ -142,7 +142,8 @@ def command_function(func: str | Callable[[argparse.Namespace], int | None]
     if not isinstance(func, str):
         return func
     module, name = func.split(":")
-    return getattr(importlib.import_module(module), name)
+    function: Callable[[argparse.Namespace], int | None] = getattr(importlib.import_module(module), name)
+    return function
 
 
 def file_in_traceback(err: BaseException) -> str | None:

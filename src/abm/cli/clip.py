@@ -17,7 +17,7 @@ DEFAULT_HELDOUT_SHARDS = 4
 DEFAULT_STEPS, DEFAULT_BATCH, DEFAULT_LR, DEFAULT_MINUTES = 1600, 48, 5e-4, 35.0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("clip", help="the benchmark CLIP: train one on simulator renders",
                               description="Commands for the benchmark CLIP model (see docs/grounding.md).")
     sub = p.add_subparsers(dest="clip_command", metavar="SUBCOMMAND")
@@ -48,4 +48,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--resume", action="store_true", help="continue the run in --out (rendering always resumes)")
     t.add_argument("--no-progress", action="store_true", help="no progress bars")
     t.set_defaults(func="abm.cli.commands.clip:run_train")
-    p.set_defaults(func=lambda args: p.print_help() or 1)
+
+    def usage(args: argparse.Namespace) -> int:  # the group without a sub-command
+        p.print_help()
+        return 1
+
+    p.set_defaults(func=usage)

@@ -10,6 +10,7 @@ tests/test_fuzz.py).
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from abm.configuration import CAMERA_RESOLUTION, SPLITS, WORKERS, clip_model_help, float_range, int_range, seed_int
@@ -18,7 +19,7 @@ from abm.grounding.config import GROUNDERS
 from abm.ray_pool import add_backend_arguments
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     data = subparsers.add_parser("data", help="generate and inspect demonstration episodes")
     sub = data.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
 
@@ -125,4 +126,9 @@ def register(subparsers) -> None:
     info.add_argument("--quick", action="store_true",
                       help="read metadata only (default: read every dataset and check its checksum)")
     info.set_defaults(func="abm.cli.commands.data:_info")
-    data.set_defaults(func=lambda args: data.print_help() or 1)
+
+    def usage(args: argparse.Namespace) -> int:  # the group without a sub-command
+        data.print_help()
+        return 1
+
+    data.set_defaults(func=usage)

@@ -10,7 +10,7 @@ from abm.evaluation.settings import EvalSettings
 from abm.ray_pool import add_backend_arguments
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "eval",
         help="evaluate trained policies on seeded benchmark episodes (success tables)",

@@ -30,7 +30,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="only these runs (and their evaluations and diagnoses; default: every run of the spec)")
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("experiment", help="run an experiment spec stage by stage (resumable), or its status",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="experiment_command", metavar="EXPERIMENT_COMMAND", required=True)

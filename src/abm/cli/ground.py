@@ -23,7 +23,7 @@ from abm.configuration import clip_model_help, count, float_range, int_range, se
 from abm.grounding.config import CLIP_MODES, DENSE_MODES, GROUNDERS, NORMALIZATIONS, SCORINGS
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "ground",
         help="ground an instruction's target object and write heatmap / mask / virtual-view PNGs",

@@ -99,7 +99,7 @@ class QuickstartConfig:
     seed: int = 0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "quickstart",
         help="generate data, train abm and rvt, evaluate on seen/unseen objects, write a report (22.7 min on 2 cores)",

@@ -8,7 +8,7 @@ from pathlib import Path
 from abm.configuration import int_range, seed_int
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "render",
         help="render the built-in synthetic scene into the 5 virtual views (PNG)",

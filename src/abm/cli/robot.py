@@ -50,7 +50,7 @@ def board_spec(text: str) -> str:
     return text
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "run", help="run a trained policy on a robot (recorded camera, MuJoCo arm or dry run), logged per step",
         description="observe -> ground -> predict -> check limits -> move, for --steps keyframes. The robot "

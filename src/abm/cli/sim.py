@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser("tasks", help="list benchmark tasks, instruction templates and splits")
     parser.add_argument("--splits", type=Path, default=None, help="object split YAML replacing the default")
     parser.add_argument("--task", default=None, help="show only this task")

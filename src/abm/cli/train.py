@@ -38,7 +38,7 @@ def parse_override(text: str) -> tuple[str, Any]:
         return key.strip(), value
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "train",
         help="train a policy variant (abm, rvt, ifd, ablations) by behaviour cloning",

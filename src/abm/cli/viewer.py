@@ -9,7 +9,7 @@ from abm.configuration import SPLITS, clip_model_help, count, port_number, seed_
 from abm.grounding.config import GROUNDERS
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "view", help="3-D browser viewer: point cloud, mask field, virtual views, heatmaps and keyframes",
         description="Serve a local web page (viser; works offline) showing, for each keyframe step, the fused "

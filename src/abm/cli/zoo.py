@@ -28,7 +28,7 @@ ZOO_EVAL_TASKS = ("close_jar", "insert_peg", "pick_block", "place_food", "place_
 ZOO_EVAL_EPISODES = 5
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("zoo", help="the committed model zoo: list and verify it, or evaluate its models",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="zoo_command", metavar="ZOO_COMMAND", required=True)

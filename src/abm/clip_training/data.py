@@ -243,7 +243,7 @@ class World:
         import mujoco
 
         def colour() -> list[float]:
-            return rng.uniform(0.15, 0.95, 3).tolist()
+            return [float(v) for v in rng.uniform(0.15, 0.95, 3)]
 
         builtin = mujoco.mjtBuiltin
         spec.add_texture(name="floor_tex", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=builtin.mjBUILTIN_CHECKER,
@@ -470,7 +470,7 @@ def _write_shard(folder: Path, shard: int, base_seed: int, config: RenderConfig,
     arrays = render_shard(shard, base_seed, config, classes)
     path = shard_path(folder, shard)
     with atomic_path(path) as tmp, tmp.open("wb") as fh:
-        np.savez_compressed(fh, **arrays)
+        np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]  # numpy's stub: **arrays vs allow_pickle
     return int(arrays["kind"].shape[0])
 
 

@@ -414,7 +414,7 @@ def train(data: ClipDataset, out: str | Path, config: ClipTrainConfig | None = N
             batch = make_batch(data, order.next(), mean, std, rng)
             losses = train_step(model, tokenizer, batch, vocab_prompts, parents, num_objects, config)
             optimizer.zero_grad(set_to_none=True)
-            losses["loss"].backward()
+            losses["loss"].backward()  # type: ignore[no-untyped-call]  # torch's Tensor.backward is unannotated
             torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
             optimizer.step()
             with torch.no_grad():

@@ -84,7 +84,7 @@ def write_html_report(outcomes: Sequence[EpisodeOutcome], path: str | Path, gif_
         parts.append(_table(["method", "task", "split", "sub-goal 1", "sub-goal 2", "episodes"], rows))
 
     parts.append("<h2>Why episodes failed</h2>")
-    counts: dict[tuple[str, str, str], Counter] = defaultdict(Counter)
+    counts: dict[tuple[str, str, str], Counter[str]] = defaultdict(Counter)
     for o in outcomes:
         if not o.success:
             counts[(o.method, o.task, o.split)][o.failure or "unknown"] += 1

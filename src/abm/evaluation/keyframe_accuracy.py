@@ -21,6 +21,7 @@ from __future__ import annotations
 import statistics
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -117,7 +118,7 @@ def summarise(errors: Iterable[KeyframeDeviation]) -> list[dict[str, object]]:
     return rows
 
 
-def markdown(rows: Sequence[Mapping[str, object]], kinds: Sequence[str] | None = None) -> str:
+def markdown(rows: Sequence[Mapping[str, Any]], kinds: Sequence[str] | None = None) -> str:
     """A markdown table of :func:`summarise` rows (optionally only some kinds)."""
     lines = [f"| method | task | split | keyframe | n | position error cm (median) | within "
              f"{GRASP_TOLERANCE_CM:g} cm | rotation error ° (median, symmetry-aware) | gripper agrees |",

@@ -14,14 +14,18 @@ from __future__ import annotations
 import csv
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn
+    from matplotlib.figure import Figure
 
 SPLIT_ORDER = ("seen", "unseen", "compositional")
 
 
-def _pyplot():
+def _pyplot() -> ModuleType:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -37,7 +41,7 @@ def _as_dict(rate: Any) -> dict[str, Any]:
             "episodes": rate.episodes, "mean": rate.mean, "std": rate.std}
 
 
-def _save(fig, path: str | Path, dpi: int = 100) -> Path:
+def _save(fig: Figure, path: str | Path, dpi: int = 100) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, metadata={"Software": None})  # no version string: reruns give the same bytes

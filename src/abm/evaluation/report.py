@@ -30,7 +30,7 @@ def views_figure(images: np.ndarray, mask: np.ndarray | None, view_names: list[s
         tiles.append(np.concatenate([rgb, overlay], axis=0))
     img = Image.fromarray((np.concatenate(tiles, axis=1) * 255).round().astype(np.uint8))
     scale = max(1, 192 // images.shape[-1])
-    img = img.resize((img.width * scale, img.height * scale), Image.NEAREST)
+    img = img.resize((img.width * scale, img.height * scale), Image.Resampling.NEAREST)
     draw = ImageDraw.Draw(img)
     for v, name in enumerate(view_names):
         draw.text((v * images.shape[-1] * scale + 3, 3), name, fill=(255, 255, 255))

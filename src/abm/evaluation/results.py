@@ -145,7 +145,7 @@ class OutcomeLog:
             outcomes.append(EpisodeOutcome(**{k: v for k, v in record.items() if k in names}))
         return outcomes
 
-    def done(self) -> set[tuple]:
+    def done(self) -> set[tuple[str, str, str, int, int, str, str]]:
         """Keys of the episodes already recorded without an error (crashed ones are run again)."""
         return {o.key for o in self.read() if not o.error}
 

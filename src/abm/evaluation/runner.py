@@ -396,7 +396,7 @@ def save_rollout_gif(episode: Any, path: str | Path, camera: str = "front", seco
     frames = []
     for k, (obs, action) in enumerate(episode.steps):
         frame = obs.camera(camera)
-        img = Image.fromarray(frame.rgb).resize((frame.width * 2, frame.height * 2), Image.NEAREST)
+        img = Image.fromarray(frame.rgb).resize((frame.width * 2, frame.height * 2), Image.Resampling.NEAREST)
         u, v, z = project_to_camera(action.position[None], frame.intrinsics, frame.extrinsics)[0]
         if z > 0 and math.isfinite(u) and math.isfinite(v):
             draw = ImageDraw.Draw(img)

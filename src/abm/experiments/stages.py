@@ -595,4 +595,3 @@ class Engine:
             return False
         last = starts[-1]
         return last.get("host") == socket.gethostname() and isinstance(last.get("pid"), int) and pid_alive(last["pid"])
-

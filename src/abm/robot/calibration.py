@@ -64,7 +64,7 @@ def board_pose(image: np.ndarray, intrinsics: np.ndarray, spec: BoardSpec, min_c
     corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(gray)
     if corners is None or ids is None or len(ids) < min_corners:
         return None
-    obj = board.getChessboardCorners()[ids.reshape(-1)].astype(np.float64)
+    obj = np.asarray(board.getChessboardCorners())[ids.reshape(-1)].astype(np.float64)
     img = corners.reshape(-1, 2).astype(np.float64)
     k = np.asarray(intrinsics, np.float64)
     ok, rvec, tvec = cv2.solvePnP(obj, img, k, None, flags=cv2.SOLVEPNP_ITERATIVE)
@@ -80,7 +80,8 @@ def board_pose(image: np.ndarray, intrinsics: np.ndarray, spec: BoardSpec, min_c
 
 def _nearest_rotation(m: np.ndarray) -> np.ndarray:
     u, _, vt = np.linalg.svd(m)
-    return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    rotation: np.ndarray = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    return rotation
 
 
 def hand_eye_fixed_camera(gripper_poses: Sequence[np.ndarray], board_poses: Sequence[np.ndarray]) -> np.ndarray:

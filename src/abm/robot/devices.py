@@ -38,7 +38,7 @@ def record_observations(observations: Sequence[Observation], folder: str | Path,
             if frame.segmentation is not None:
                 arrays[f"{name}/segmentation"] = frame.segmentation
         with atomic_path(folder / f"step_{k:03d}.npz") as tmp, tmp.open("wb") as fh:
-            np.savez_compressed(fh, **arrays)
+            np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]  # numpy's stub: **arrays vs allow_pickle
     meta = {"steps": len(observations), "cameras": sorted(observations[0].cameras) if observations else [],
             "object_names": {str(k): v for k, v in (object_names or {}).items()}, "instruction": instruction}
     write_text_atomic(folder / "meta.json", json.dumps(meta, indent=1))

@@ -20,9 +20,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
+from abm.configuration import SPLITS
 from abm.registry import Registry
 from abm.schema import Field, any_mapping, integer, number, strings, text, vector
-from abm.types import SPLITS
 
 if TYPE_CHECKING:
     import numpy as np

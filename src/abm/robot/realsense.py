@@ -87,7 +87,7 @@ class RealSenseCamera:
             self.close()
             raise
 
-    def _extrinsics(self, calibration: str | Path | Mapping | None) -> dict[str, np.ndarray]:
+    def _extrinsics(self, calibration: str | Path | Mapping[str, Any] | None) -> dict[str, np.ndarray]:
         if calibration is None:
             log.warning("RealSenseCamera without a calibration file: extrinsics are the identity (fine for "
                         "recording calibration images, not for running a policy)")

@@ -16,12 +16,15 @@ A :class:`abm.types.KeyframeAction` is executed in three stages:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from abm.sim.scene import ARM_JOINTS, FINGER_JOINTS, GRIPPER_ACTUATOR, HOME_QPOS, TCP_SITE, robot_spec
+
+if TYPE_CHECKING:
+    import mujoco
 
 MotionStatus = Literal["reached", "unreachable", "blocked", "collided"]
 STOPPED: tuple[MotionStatus, ...] = ("unreachable", "blocked")
@@ -180,8 +183,8 @@ class RobotController:
         geom_names: name for each geom (for messages).
     """
 
-    def __init__(self, model, data, robot_geoms: np.ndarray, finger_geoms: np.ndarray,
-                 geom_to_object: np.ndarray, geom_names: list[str]) -> None:
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, robot_geoms: np.ndarray,
+                 finger_geoms: np.ndarray, geom_to_object: np.ndarray, geom_names: list[str]) -> None:
         import mujoco
 
         self._mujoco = mujoco
@@ -200,7 +203,8 @@ class RobotController:
     # --- state -------------------------------------------------------------------------------
     @property
     def arm_q(self) -> np.ndarray:
-        return self.data.qpos[self.arm_qpos_adr].copy()
+        q: np.ndarray = self.data.qpos[self.arm_qpos_adr].copy()
+        return q
 
     def tcp_pose(self) -> np.ndarray:
         """``(4, 4)`` current TCP-to-world transform."""

@@ -9,13 +9,19 @@ entry into a stand-alone :class:`mujoco.MjSpec` whose world body holds one body 
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from abm.sim import props
 from abm.sim.assets import libero_file
+
+if TYPE_CHECKING:
+    import mujoco
 
 # Geom group for collision-only geometry: hidden by the default visualisation flags (groups 0-2 drawn).
 COLLISION_GROUP = 3
@@ -155,7 +161,7 @@ def rack_slot_offsets() -> np.ndarray:
     return np.stack([np.zeros_like(ys), ys], axis=-1)
 
 
-def _absolutise_files(spec, folder) -> None:
+def _absolutise_files(spec: mujoco.MjSpec, folder: Path) -> None:
     """Make mesh and texture paths absolute so the spec can be attached into another spec."""
     for mesh in spec.meshes:
         if mesh.file:
@@ -168,9 +174,10 @@ def _absolutise_files(spec, folder) -> None:
     spec.texturedir = ""
 
 
-def _libero_spec(entry: CatalogEntry):
+def _libero_spec(entry: CatalogEntry) -> mujoco.MjSpec:
     import mujoco
 
+    assert entry.asset is not None  # a LIBERO object names its asset
     path = libero_file(entry.asset)
     spec = mujoco.MjSpec.from_file(str(path))
     _absolutise_files(spec, path.parent)
@@ -192,7 +199,7 @@ def _libero_spec(entry: CatalogEntry):
     return spec
 
 
-def _scale_spec(spec, factor: float) -> None:
+def _scale_spec(spec: mujoco.MjSpec, factor: float) -> None:
     """Scale a LIBERO object uniformly: meshes, geom sizes and positions, body and site positions."""
     import mujoco
 
@@ -209,11 +216,12 @@ def _scale_spec(spec, factor: float) -> None:
         site.pos = [float(v) * factor for v in site.pos]
 
 
-def _box(body, size, pos, rgba, mass=None, collide=True):
+def _box(body: mujoco.MjsBody, size: Sequence[float], pos: Sequence[float], rgba: Sequence[float],
+         mass: float | None = None, collide: bool = True) -> mujoco.MjsGeom:
     return props._geom(body, "box", size, pos, rgba, mass=mass, collide=collide)
 
 
-def _primitive_spec(entry: CatalogEntry):
+def _primitive_spec(entry: CatalogEntry) -> mujoco.MjSpec:
     import mujoco
 
     spec = mujoco.MjSpec()
@@ -260,7 +268,7 @@ def _primitive_spec(entry: CatalogEntry):
     return spec
 
 
-_PROP_BUILDERS = {
+_PROP_BUILDERS: dict[str, Callable[[mujoco.MjsBody, tuple[float, float, float, float]], None]] = {
     "jar": props.build_jar,
     "lid": props.build_lid,
     "peg": props.build_peg,
@@ -270,7 +278,7 @@ _PROP_BUILDERS = {
 }
 
 
-def object_spec(name: str):
+def object_spec(name: str) -> mujoco.MjSpec:
     """A fresh :class:`mujoco.MjSpec` for one object; its world body holds one body named ``"root"``."""
     entry = catalog_entry(name)
     return _libero_spec(entry) if entry.uses_libero else _primitive_spec(entry)
@@ -301,7 +309,8 @@ class ObjectGeometry:
 
     @property
     def center(self) -> np.ndarray:
-        return (np.asarray(self.lower) + np.asarray(self.upper)) / 2
+        center: np.ndarray = (np.asarray(self.lower) + np.asarray(self.upper)) / 2
+        return center
 
 
 @cache

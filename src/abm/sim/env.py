@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, overload
 
 import mujoco
 
@@ -86,6 +86,14 @@ class TaskEnv:
     def success(self) -> bool:
         return bool(self.task.success(self._require_sim(), self.instance))
 
+    @overload
+    def step(self, action: KeyframeAction, render: Literal[True] = True) -> tuple[Observation, bool, dict[str, Any]]:
+        ...
+
+    @overload
+    def step(self, action: KeyframeAction, render: bool) -> tuple[Observation | None, bool, dict[str, Any]]:
+        ...
+
     def step(self, action: KeyframeAction, render: bool = True
              ) -> tuple[Observation | None, bool, dict[str, Any]]:
         """Execute one keyframe.
@@ -105,7 +113,7 @@ class TaskEnv:
         obs = sim.observe() if render else None
         return obs, success, {"motion": motion, "done": done, "step": self.steps}
 
-    def expert_actions(self):
+    def expert_actions(self) -> Iterator[KeyframeAction]:
         """The task's scripted expert for the current state (a generator of keyframes)."""
         return self.task.expert(self._require_sim(), self.instance)
 
@@ -117,16 +125,17 @@ class TaskEnv:
     def __enter__(self) -> TaskEnv:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-def make_env(task: str, split: str = "seen", seed: int = 0, resolution: int = 128, **kwargs) -> TaskEnv:
+def make_env(task: str, split: str = "seen", seed: int = 0, resolution: int = 128, **kwargs: Any) -> TaskEnv:
     """Create a :class:`TaskEnv` (see its arguments)."""
     return TaskEnv(task, split, seed, resolution, **kwargs)
 
 
-def _episode(env: TaskEnv, steps, success: bool, extra: dict[str, Any]) -> Episode:
+def _episode(env: TaskEnv, steps: list[tuple[Observation, KeyframeAction]], success: bool, extra: dict[str, Any]
+             ) -> Episode:
     return Episode(task=env.task.name, variation=env.instance.variation, split=env.split,
                    instruction=env.instruction, object_names=env.object_names,
                    target_names=env.target_names, steps=steps, success=success, seed=env.seed,
@@ -169,7 +178,7 @@ def run_expert(env: TaskEnv, record: bool = True, dense_fps: float | None = None
         motion = sim.execute(action)
         motions.append(motion.status)
         subgoals.append(env.task.keyframe_subgoal(action))
-        if record:
+        if obs is not None:  # recording
             steps.append((obs, executed_action(action, motion.flipped)))
         if motion.status in STOPPED:
             break

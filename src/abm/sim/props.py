@@ -9,6 +9,10 @@ its origin at the centre of the footprint (jars, lids, pegs, rings: at the colli
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import mujoco
 
 # --- dimensions (m) -------------------------------------------------------------------------------
 JAR_RADIUS = 0.032
@@ -40,8 +44,8 @@ LID_GREY = (0.6, 0.6, 0.62, 1.0)
 RING_GREY = (0.35, 0.35, 0.38, 1.0)
 
 
-def _geom(body, kind: str, size: Sequence[float], pos: Sequence[float], rgba: Sequence[float],
-          mass: float | None = None, collide: bool = True, quat: Sequence[float] | None = None):
+def _geom(body: mujoco.MjsBody, kind: str, size: Sequence[float], pos: Sequence[float], rgba: Sequence[float],
+          mass: float | None = None, collide: bool = True, quat: Sequence[float] | None = None) -> mujoco.MjsGeom:
     """Add a box / cylinder / ellipsoid geom with abm's contact parameters."""
     import mujoco
 
@@ -59,7 +63,7 @@ def _geom(body, kind: str, size: Sequence[float], pos: Sequence[float], rgba: Se
     return geom
 
 
-def build_jar(root, rgba: Sequence[float]) -> None:
+def build_jar(root: mujoco.MjsBody, rgba: Sequence[float]) -> None:
     """A coloured jar (fixed) with a light rim band; origin at its centre."""
     _geom(root, "cylinder", (JAR_RADIUS, JAR_HALF_HEIGHT), (0, 0, 0), rgba)
     _geom(root, "cylinder", (JAR_RADIUS * 1.03, 0.006), (0, 0, JAR_HALF_HEIGHT - 0.008),
@@ -68,7 +72,7 @@ def build_jar(root, rgba: Sequence[float]) -> None:
           collide=False)
 
 
-def build_lid(root, rgba: Sequence[float] = LID_GREY) -> None:
+def build_lid(root: mujoco.MjsBody, rgba: Sequence[float] = LID_GREY) -> None:
     """A jar lid: a disc with a dark bar handle across its top along local x (``LID_HANDLE_HALF``); origin at
     the centre of its bounding box."""
     total = LID_HALF_THICKNESS + LID_HANDLE_HALF[2]
@@ -77,12 +81,12 @@ def build_lid(root, rgba: Sequence[float] = LID_GREY) -> None:
     _geom(root, "box", LID_HANDLE_HALF, (0, 0, total - LID_HANDLE_HALF[2]), (0.3, 0.3, 0.32, 1.0), mass=0.015)
 
 
-def build_peg(root, rgba: Sequence[float]) -> None:
+def build_peg(root: mujoco.MjsBody, rgba: Sequence[float]) -> None:
     """A coloured square peg (fixed); origin at its centre."""
     _geom(root, "box", PEG_HALF, (0, 0, 0), rgba)
 
 
-def build_ring(root, rgba: Sequence[float] = RING_GREY) -> None:
+def build_ring(root: mujoco.MjsBody, rgba: Sequence[float] = RING_GREY) -> None:
     """A square ring of four bars around a square hole; origin at its centre."""
     o, w, h = RING_OUTER_HALF, RING_BAR_HALF_WIDTH, RING_HALF_HEIGHT
     c = o - w
@@ -90,7 +94,7 @@ def build_ring(root, rgba: Sequence[float] = RING_GREY) -> None:
         _geom(root, "box", (sx, sy, h), (x, y, 0), rgba, mass=0.02)
 
 
-def build_shelf(root, rgba: Sequence[float] = WOOD) -> None:
+def build_shelf(root: mujoco.MjsBody, rgba: Sequence[float] = WOOD) -> None:
     """A stepped two-shelf unit (fixed), open from above so a top-down gripper reaches both shelves.
 
     Local frame: origin on the table at the footprint centre; the bottom shelf (surface at
@@ -113,7 +117,7 @@ def build_shelf(root, rgba: Sequence[float] = WOOD) -> None:
     _geom(root, "box", (0.004, wy, 0.004), (0.004, 0, SHELF_TOP_Z - 0.003), edge, collide=False)
 
 
-def build_plant(root) -> None:
+def build_plant(root: mujoco.MjsBody) -> None:
     """A potted plant (fixed): a terracotta pot (collides) with leaves (visual only) above it.
 
     Origin at the centre of the pot's bottom on the table.

@@ -7,13 +7,17 @@ from the Panda files of ``dm-robotics-panda`` and the objects of :mod:`abm.sim.c
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from abm.sim.assets import panda_dir
 from abm.sim.catalog import catalog_entry, object_geometry, object_spec
+
+if TYPE_CHECKING:
+    import mujoco
 
 ARM_JOINTS: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
 HAND_PREFIX = "hand_"
@@ -111,7 +115,7 @@ CAMERAS: tuple[CameraSpec, ...] = (
 CAMERA_NAMES: tuple[str, ...] = tuple(c.name for c in CAMERAS)
 
 
-def lookat_quat(position, target, up) -> np.ndarray:
+def lookat_quat(position: Sequence[float], target: Sequence[float], up: Sequence[float]) -> np.ndarray:
     """MuJoCo camera quaternion ``(w, x, y, z)``: camera looks along its -z with +y up."""
     forward = np.asarray(target, float) - np.asarray(position, float)
     forward /= np.linalg.norm(forward)
@@ -129,7 +133,7 @@ def _yaw_quat(yaw: float) -> list[float]:
     return [float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))]
 
 
-def robot_spec(with_actuators: bool = True):
+def robot_spec(with_actuators: bool = True) -> mujoco.MjSpec:
     """Panda arm + hand as an :class:`mujoco.MjSpec` (base at the world origin)."""
     import mujoco
 
@@ -171,7 +175,7 @@ def robot_spec(with_actuators: bool = True):
     return arm
 
 
-def build_spec(scene: SceneSpec, cameras: tuple[CameraSpec, ...] = CAMERAS):
+def build_spec(scene: SceneSpec, cameras: tuple[CameraSpec, ...] = CAMERAS) -> mujoco.MjSpec:
     """Assemble the full scene (robot, table, cameras, objects) as an :class:`mujoco.MjSpec`."""
     import mujoco
 

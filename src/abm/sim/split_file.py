@@ -117,7 +117,7 @@ def read_splits(path: str | Path | None, registry: Mapping[str, type[Task]]) -> 
     return result
 
 
-def _object_list(path: Path, where: str, names) -> list[str]:
+def _object_list(path: Path, where: str, names: object) -> list[str]:
     """``names`` as a list of known canonical object names, else a :class:`SplitFileError` about ``where``."""
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
         raise SplitFileError(f"{path}: {where} must be a non-empty list of object names")
@@ -130,7 +130,7 @@ def _object_list(path: Path, where: str, names) -> list[str]:
     return list(names)
 
 
-def _slot_lists(path: Path, task: str, slot: str, lists, categories: tuple[str, ...]) -> dict[str, list[str]]:
+def _slot_lists(path: Path, task: str, slot: str, lists: object, categories: tuple[str, ...]) -> dict[str, list[str]]:
     """The ``split -> objects`` mapping of a task's second slot, checked like the first slot's lists."""
     if not isinstance(lists, dict) or not lists:
         raise SplitFileError(f"{path}: {task}/{slot} must map split names to object lists")

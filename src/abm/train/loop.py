@@ -117,10 +117,12 @@ def _lr_lambda(warmup: int, total: int, min_ratio: float) -> Callable[[int], flo
 
 
 def _rng_state() -> dict[str, Any]:
+    numpy_state = np.random.get_state(legacy=True)  # noqa: NPY002
+    assert isinstance(numpy_state, tuple)  # the global generator is a MT19937: its legacy tuple
     state = {
         "torch": torch.get_rng_state(),
         # as (name, tensor, pos, has_gauss, cached) so checkpoints load with weights_only=True
-        "numpy": _numpy_state_plain(np.random.get_state()),  # noqa: NPY002
+        "numpy": _numpy_state_plain(numpy_state),
         "python": random.getstate(),
     }
     if torch.cuda.is_available():
@@ -128,7 +130,7 @@ def _rng_state() -> dict[str, Any]:
     return state
 
 
-def _numpy_state_plain(state: tuple) -> tuple:
+def _numpy_state_plain(state: tuple[str, np.ndarray, int, int, float]) -> tuple[str, torch.Tensor, int, int, float]:
     name, keys, pos, has_gauss, cached = state
     return str(name), torch.from_numpy(np.asarray(keys, np.int64)), int(pos), int(has_gauss), float(cached)
 
@@ -215,7 +217,7 @@ class _Logger:
         except ImportError:  # tensorboard is optional
             self.tb = None
 
-    def log(self, row: dict[str, float]) -> None:
+    def log(self, row: dict[str, float | str]) -> None:
         if not self.enabled:
             return
         with self.path.open("a", newline="") as f:

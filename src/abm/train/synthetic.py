@@ -22,7 +22,8 @@ def synthetic_episode(seed: int, camera_resolution: int = 64) -> Episode:
     target_id = int(rng.choice(sorted(names)))
     target = names[target_id]
     cloud = fuse_cameras(obs, Workspace())
-    seg = cloud.gather({n: f.segmentation for n, f in obs.cameras.items()})
+    seg = cloud.gather({n: f.segmentation for n, f in obs.cameras.items()
+                        if f.segmentation is not None})  # the synthetic scene's cameras all have one
     pts = cloud.xyz[seg == target_id]
     if len(pts) == 0:
         raise ValueError(f"synthetic scene {seed}: target {target!r} is not visible")

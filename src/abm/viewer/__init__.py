@@ -11,10 +11,10 @@ from abm.lazy import lazy_exports
 
 if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm.lazy), so importing the
     # package (every `abm` command does) stays light
+    from abm.grounding.visualize import overlay_views
     from abm.viewer.record import (
         ViewerRecord,
         ViewerStep,
-        overlay_views,
         record_from_episode,
         record_rollout,
         view_camera_pose,

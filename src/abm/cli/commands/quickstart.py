@@ -31,7 +31,7 @@ from abm.policy import KeyframePolicy
 from abm.policy.config import PolicyConfig
 
 
-def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict, str]:
+def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict[str, str], str]:
     """The best grounder this machine has: ``(kind, options, description for the report)``, in the order every
     command uses (:func:`abm.grounding.default.default_grounder`): ``--clip-model`` if given (an error if it does
     not load); the pretrained CLIP (from the local Hugging Face cache, or fetched from the hub when it answers

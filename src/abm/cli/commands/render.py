@@ -16,7 +16,8 @@ if TYPE_CHECKING:  # numpy is imported by the command itself, so `abm --help` st
 def _to_uint8(img: np.ndarray) -> np.ndarray:
     import numpy as np
 
-    return (np.clip(img, 0.0, 1.0) * 255).round().astype(np.uint8)
+    out: np.ndarray = (np.clip(img, 0.0, 1.0) * 255).round().astype(np.uint8)
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -28,7 +29,8 @@ def run(args: argparse.Namespace) -> int:
     obs, names = synthetic_scene(seed=args.seed, resolution=args.camera_resolution)
     workspace = Workspace()
     cloud = fuse_cameras(obs, workspace)
-    seg = cloud.gather({name: frame.segmentation for name, frame in obs.cameras.items()})
+    seg = cloud.gather({name: frame.segmentation for name, frame in obs.cameras.items()
+                        if frame.segmentation is not None})  # the synthetic scene's cameras all have one
     target_id, target = next(iter(names.items()))
     mask = torch.from_numpy((seg == target_id).astype(np.float32))[:, None]
     renderer = OrthographicRenderer(workspace, args.resolution, splat_radius=args.splat, device=args.device)

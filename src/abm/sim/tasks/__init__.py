@@ -6,6 +6,7 @@ file, :mod:`abm.sim.splits`); nothing lists the tasks by name.
 import importlib
 import pkgutil
 
+from abm.sim.split_file import ObjectSplits
 from abm.sim.tasks.base import TASKS, Task, TaskInstance, register_task
 
 for _module in pkgutil.iter_modules(__path__):  # alphabetical: the order tasks are registered in
@@ -13,7 +14,7 @@ for _module in pkgutil.iter_modules(__path__):  # alphabetical: the order tasks 
         importlib.import_module(f"{__name__}.{_module.name}")
 
 
-def get_task(name: str, splits=None) -> Task:
+def get_task(name: str, splits: ObjectSplits | None = None) -> Task:
     """An instance of a registered task (``splits``: :class:`abm.sim.splits.ObjectSplits` or ``None``).
 
     Raises:

@@ -30,7 +30,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -38,8 +38,11 @@ from abm.geometry.rotations import GRIPPER_SYMMETRY, canonical_gripper_matrix, m
 from abm.registry import Registry
 from abm.sim.catalog import catalog_entry, object_geometry
 from abm.sim.scene import PlacedObject, SceneSpec
-from abm.sim.split_file import read_splits
+from abm.sim.split_file import ObjectSplits, read_splits
 from abm.types import KeyframeAction
+
+if TYPE_CHECKING:
+    from abm.sim.simulation import Simulation
 
 #: every task, by name (its class); filled by importing :mod:`abm.sim.tasks`, which imports every module of the
 #: package (a task is one module with a :func:`register_task` class)
@@ -104,7 +107,7 @@ class Task(ABC):
     #: instruction parser's (abm.grounding.instruction.load_templates).
     skills: ClassVar[tuple[dict[str, Any], ...]] = ()
 
-    def __init__(self, splits=None) -> None:
+    def __init__(self, splits: ObjectSplits | None = None) -> None:
         self.splits = splits if splits is not None else read_splits(None, TASKS)
 
     @classmethod
@@ -116,7 +119,7 @@ class Task(ABC):
         return None
 
     @classmethod
-    def check_splits(cls, splits) -> str | None:
+    def check_splits(cls, splits: ObjectSplits) -> str | None:
         """A problem with this task's lists in a loaded split file (:class:`abm.sim.splits.ObjectSplits`),
         else ``None``; called once every task's lists are read. The default has nothing to check."""
         return None
@@ -171,11 +174,11 @@ class Task(ABC):
                             [target], self.roles())
 
     @abstractmethod
-    def success(self, sim, instance: TaskInstance) -> bool:
+    def success(self, sim: Simulation, instance: TaskInstance) -> bool:
         """Whether the task is solved in the simulator's current state."""
 
     @abstractmethod
-    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+    def expert(self, sim: Simulation, instance: TaskInstance) -> Iterator[KeyframeAction]:
         """Scripted expert keyframes; reads ``sim`` between keyframes."""
 
 
@@ -252,7 +255,7 @@ def grasp_symmetry(name: str) -> int:
     return catalog_entry(name).yaw_symmetry
 
 
-def grasp_pose(sim, index: int) -> np.ndarray:
+def grasp_pose(sim: Simulation, index: int) -> np.ndarray:
     """Top-down grasp of object ``index`` at its grasp height, in the canonical yaw of its symmetry.
 
     Fingers close across the narrower horizontal side. A square footprint (symmetry 4) is grasped
@@ -277,7 +280,7 @@ def grasp_pose(sim, index: int) -> np.ndarray:
     return top_down_pose(np.array([center[0], center[1], z]), yaw, grasp_symmetry(name))
 
 
-def pick_and_place(sim, index: int, place_xy: np.ndarray, surface_z: float,
+def pick_and_place(sim: Simulation, index: int, place_xy: np.ndarray, surface_z: float,
                    place_yaw: float | None = None, grasp: np.ndarray | None = None,
                    align_origin: bool = False) -> Iterator[KeyframeAction]:
     """Six RLBench-style keyframes: approach, grasp, lift, move, place (release), retreat.
@@ -331,7 +334,7 @@ def _rot2(angle: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
-def resting_on(sim, index: int, max_bottom: float) -> bool:
+def resting_on(sim: Simulation, index: int, max_bottom: float) -> bool:
     """Whether object ``index`` is not held and its bottom is below ``max_bottom`` (m)."""
     if index in sim.held_objects():
         return False

@@ -13,6 +13,7 @@ pixel of the views) grasped with a four-fold symmetric label, so its approach ya
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,13 +22,16 @@ from abm.sim.props import JAR_HALF_HEIGHT
 from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, top_down_pose
 from abm.types import KeyframeAction
 
+if TYPE_CHECKING:
+    from abm.sim.simulation import Simulation
+
 NUM_DISTRACTORS = 2          # other jars of the split
 MAX_OFFSET = 0.015           # m, lid centre to jar axis
 MAX_TILT_DEG = 15.0
 LID = "jar lid"
 
 
-def handle_grasp(sim, index: int) -> np.ndarray:
+def handle_grasp(sim: Simulation, index: int) -> np.ndarray:
     """``(4, 4)`` top-down TCP pose grasping the lid ``index`` across its bar handle.
 
     The handle lies along the lid's local x axis, so the fingers close along the lid's local y axis (the
@@ -52,7 +56,7 @@ class CloseJar(Task):
     fixtures = (("lid", LID),)
     distractors = NUM_DISTRACTORS
 
-    def success(self, sim, instance: TaskInstance) -> bool:
+    def success(self, sim: Simulation, instance: TaskInstance) -> bool:
         lid_i, jar_i = instance.info["lid"], instance.info["target"]
         if lid_i in sim.held_objects():
             return False
@@ -63,7 +67,7 @@ class CloseJar(Task):
         jar_top = jar[2, 3] + JAR_HALF_HEIGHT
         return bool(offset < MAX_OFFSET and tilt < MAX_TILT_DEG and abs(lid_bottom - jar_top) < 0.01)
 
-    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+    def expert(self, sim: Simulation, instance: TaskInstance) -> Iterator[KeyframeAction]:
         jar = sim.object_pose(instance.info["target"])
         lid = instance.info["lid"]
         yield from pick_and_place(sim, lid, jar[:2, 3], jar[2, 3] + JAR_HALF_HEIGHT,

@@ -9,6 +9,7 @@ and has slid down below the peg's top.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,12 +25,15 @@ from abm.sim.tasks.base import (
 )
 from abm.types import KeyframeAction
 
+if TYPE_CHECKING:
+    from abm.sim.simulation import Simulation
+
 NUM_DISTRACTORS = 2          # other pegs of the split
 RING = "ring"
 DROP_ABOVE_PEG = 0.006       # m, ring bottom above the peg top when released
 
 
-def ring_grasp(sim, ring: int) -> np.ndarray:
+def ring_grasp(sim: Simulation, ring: int) -> np.ndarray:
     """Top-down grasp across one of the ring's four bars: the one whose fingers stay clearest of others."""
     pose = sim.object_pose(ring)
     bar = RING_OUTER_HALF - RING_BAR_HALF_WIDTH
@@ -53,6 +57,7 @@ def ring_grasp(sim, ring: int) -> np.ndarray:
             if best is None or key > best[0]:
                 yaw = float(np.arctan2(axis[1], axis[0]))
                 best = (key, top_down_pose(np.array([centre[0], centre[1], z]), yaw))
+    assert best is not None  # a ring has four bars
     return best[1]
 
 
@@ -65,7 +70,7 @@ class InsertPeg(Task):
     fixtures = (("ring", RING),)
     distractors = NUM_DISTRACTORS
 
-    def success(self, sim, instance: TaskInstance) -> bool:
+    def success(self, sim: Simulation, instance: TaskInstance) -> bool:
         ring_i, peg_i = instance.info["ring"], instance.info["target"]
         if ring_i in sim.held_objects():
             return False
@@ -76,7 +81,7 @@ class InsertPeg(Task):
         peg_top = peg[2, 3] + PEG_HALF[2]
         return bool(around and ring[2, 3] - RING_HALF_HEIGHT < peg_top - 0.02)
 
-    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+    def expert(self, sim: Simulation, instance: TaskInstance) -> Iterator[KeyframeAction]:
         peg = sim.object_pose(instance.info["target"])
         grasp = ring_grasp(sim, instance.info["ring"])
         yield from pick_and_place(sim, instance.info["ring"], peg[:2, 3], peg[2, 3] + PEG_HALF[2] + DROP_ABOVE_PEG,

@@ -8,6 +8,7 @@ both. Success = X released with its centre over the named shelf and its bottom o
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,6 +17,9 @@ from abm.sim.props import SHELF_BOTTOM_Z, SHELF_HALF_WIDTH, SHELF_TIER_DEPTH, SH
 from abm.sim.scene import PlacedObject, SceneSpec
 from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, resting_on, sample_layout
 from abm.types import KeyframeAction
+
+if TYPE_CHECKING:
+    from abm.sim.simulation import Simulation
 
 NUM_DISTRACTORS = 2
 SHELF_X = (0.5, 0.56)          # m, range of the shelf origin
@@ -53,13 +57,14 @@ class PutInShelf(Task):
                             [target], {"target": 1, "shelf": 0, "level": level})
 
     @staticmethod
-    def shelf_centre(sim, shelf_index: int, level: str) -> np.ndarray:
+    def shelf_centre(sim: Simulation, shelf_index: int, level: str) -> np.ndarray:
         """``(3,)`` centre of a shelf's surface (world, m)."""
         pose = sim.object_pose(shelf_index)
         local = np.array([SHELF_TIER_DEPTH / 2 * (1 if level == "top" else -1), 0.0, LEVELS[level]])
-        return pose[:3, :3] @ local + pose[:3, 3]
+        centre: np.ndarray = pose[:3, :3] @ local + pose[:3, 3]
+        return centre
 
-    def success(self, sim, instance: TaskInstance) -> bool:
+    def success(self, sim: Simulation, instance: TaskInstance) -> bool:
         target, level = instance.info["target"], instance.info["level"]
         shelf = sim.object_pose(instance.info["shelf"])
         obj = sim.object_pose(target)
@@ -72,7 +77,7 @@ class PutInShelf(Task):
         on_level = bool(bottom > LEVELS[level] - 0.01)
         return bool(inside and on_level and resting_on(sim, target, max_bottom=LEVELS[level] + 0.02))
 
-    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+    def expert(self, sim: Simulation, instance: TaskInstance) -> Iterator[KeyframeAction]:
         level = instance.info["level"]
         shelf = sim.object_pose(instance.info["shelf"])
         goal = self.shelf_centre(sim, instance.info["shelf"], level)

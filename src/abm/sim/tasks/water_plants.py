@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -35,6 +36,9 @@ from abm.sim.tasks.base import (
     top_down_pose,
 )
 from abm.types import KeyframeAction
+
+if TYPE_CHECKING:
+    from abm.sim.simulation import Simulation
 
 NUM_DISTRACTORS = 1          # other containers of the split (plus one grocery)
 MIN_TILT_DEG = 45.0
@@ -62,12 +66,13 @@ def handle_clear_yaw(name: str, drawn_yaw: float) -> float:
     return float(np.mod(yaw + np.pi, 2 * np.pi) - np.pi)
 
 
-def opening_point(sim, index: int) -> np.ndarray:
+def opening_point(sim: Simulation, index: int) -> np.ndarray:
     """``(3,)`` centre of the container's opening (top of its collision box), world."""
     geo = object_geometry(sim.scene.objects[index].name)
     pose = sim.object_pose(index)
     top = np.array([geo.center[0], geo.center[1], geo.upper[2]])
-    return pose[:3, :3] @ top + pose[:3, 3]
+    point: np.ndarray = pose[:3, :3] @ top + pose[:3, 3]
+    return point
 
 
 def _tilted(pose: np.ndarray, angle: float) -> np.ndarray:
@@ -105,7 +110,7 @@ class WaterPlants(Task):
         instance.scene = dataclasses.replace(instance.scene, objects=objects)
         return instance
 
-    def success(self, sim, instance: TaskInstance) -> bool:
+    def success(self, sim: Simulation, instance: TaskInstance) -> bool:
         target, plant = instance.info["target"], instance.info["plant"]
         if target not in sim.held_objects():
             return False
@@ -116,7 +121,7 @@ class WaterPlants(Task):
         above = np.hypot(*(opening[:2] - axis)) < POUR_RADIUS and opening[2] > PLANT_HEIGHT
         return bool(tilt > MIN_TILT_DEG and above)
 
-    def expert(self, sim, instance: TaskInstance) -> Iterator[KeyframeAction]:
+    def expert(self, sim: Simulation, instance: TaskInstance) -> Iterator[KeyframeAction]:
         target = instance.info["target"]
         # At the box's grasp point, fingers at the reference yaw (the handle lies across them, see sample).
         grasp = top_down_pose(grasp_pose(sim, target)[:3, 3], GRASP_YAW)
