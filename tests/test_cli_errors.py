@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -129,3 +130,23 @@ def test_the_commands_do_not_turn_builtin_exceptions_into_user_errors() -> None:
                 silent.append(f"{path.relative_to(ROOT.parent)}:{node.lineno}")
     assert not silent, "handlers that turn a built-in exception into an abm error without a reason:\n" + "\n".join(
         silent)
+
+
+def test_a_checkpoint_of_unknown_policy_settings_is_a_checkpoint_error(tiny_run, tmp_path, capsys) -> None:
+    """A checkpoint whose policy settings this abm cannot read (a newer abm's field) is the user's file problem:
+    a :class:`CheckpointError` naming the file, and one line from a command that builds the policy."""
+    from abm.policy import KeyframePolicy
+    from abm.policy.checkpoint import load_checkpoint, save_checkpoint
+
+    payload = load_checkpoint(tiny_run)
+    payload.pop("path")
+    payload["policy_config"] = {**payload["policy_config"], "a_newer_field": 1}
+    newer = save_checkpoint(tmp_path / "newer.pt", payload)
+    with pytest.raises(CheckpointError, match="newer.pt: its policy settings cannot be read .*a_newer_field"):
+        KeyframePolicy.from_checkpoint(newer)
+    with socket.socket() as probe:  # a free port: the viewer checks it before it loads the policy
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    assert main(["view", "--run", str(newer), "--task", "pick_block", "--port", str(port)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("abm: error: ") and "a_newer_field" in err[-1] and "Traceback" not in "".join(err)

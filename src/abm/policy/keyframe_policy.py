@@ -568,10 +568,13 @@ class KeyframePolicy(nn.Module):
             grounder: override the grounder stored in the checkpoint (configuration, its dict form, or a
                 grounder object); a configuration of the same kind only overrides the options it names
                 (:func:`abm.grounding.config.merge_grounder_configs`).
-            expect_variant: if given, a checkpoint of another variant raises ``ValueError``.
+            expect_variant: if given, a checkpoint of another variant raises :class:`~abm.errors.CheckpointError`.
         """
         ckpt = load_checkpoint(run_or_ckpt, map_location="cpu")
-        config = PolicyConfig.from_dict(ckpt["policy_config"])
+        try:
+            config = PolicyConfig.from_dict(ckpt["policy_config"])
+        except ValueError as err:  # PolicyConfig's checks of the stored values (unknown fields: a newer abm's)
+            raise CheckpointError(f"{ckpt['path']}: its policy settings cannot be read ({err})") from err
         if expect_variant is not None and config.variant != expect_variant:
             raise CheckpointError(f"checkpoint {ckpt['path']} is a {config.variant!r} policy, expected "
                                   f"{expect_variant!r}")

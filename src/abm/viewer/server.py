@@ -129,7 +129,7 @@ class ViewerServer:
 
 
 def check_port(host: str, port: int) -> None:
-    """Raise ``ValueError`` (one line, with the fix) unless the server can listen on ``host:port``."""
+    """Raise :class:`~abm.errors.ConfigError` (one line, with the fix) unless the server can listen on ``host:port``."""
     import socket
 
     try:
