@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from abm.errors import ConfigError, DataError
 from abm.experiments.spec import SPECS, ExperimentSpec, GrounderVariant, Section
 from abm.experiments.state import Layout, machines, stage_minutes
 from abm.files import sha256_file
@@ -492,7 +493,7 @@ def _table(ctx: Context, number: int | None) -> Section:
     for s in (*ctx.spec.report.summary, *ctx.spec.report.details):
         if s.table == number:
             return s
-    raise ValueError(f"{ctx.spec.path}: no report table {number}")
+    raise ConfigError(f"{ctx.spec.path}: no report table {number}")
 
 
 def _spread(ctx: Context, section: Section) -> list[str]:
@@ -1018,7 +1019,7 @@ def blocks(ctx: Context, sections: Sequence[Section]) -> list[str]:
     for section in sections:
         writer = WRITERS.get(section.kind)
         if writer is None:
-            raise ValueError(f"{ctx.spec.path}: the report cannot write {section.kind!r} sections yet")
+            raise ConfigError(f"{ctx.spec.path}: the report cannot write {section.kind!r} sections yet")
         written = [b for b in writer(ctx, section) if b]
         out += written
         table = any("\n|---" in b or b.startswith("|---") for b in written)
@@ -1134,7 +1135,7 @@ def replace_block(text: str, name: str, body: str, source: str = "README") -> st
     """``text`` with what stands between ``<!-- NAME:start -->`` and ``<!-- NAME:end -->`` replaced by ``body``."""
     start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
     if start not in text or end not in text:
-        raise ValueError(f"{source} has no {start} ... {end} block to replace")
+        raise DataError(f"{source} has no {start} ... {end} block to replace")
     head, rest = text.split(start, 1)
     _, tail = rest.split(end, 1)
     return f"{head}{start}\n{body}{end}{tail}"
