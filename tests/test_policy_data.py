@@ -11,6 +11,7 @@ import torch
 
 import abm.data.keyframes as keyframes
 from abm.data.keyframes import KeyframeDataset, StepSampler, collate
+from abm.errors import ConfigError
 from abm.policy import KeyframePolicy, PolicyConfig
 from abm.policy.language import HashLanguageEncoder
 from abm.train.synthetic import synthetic_episodes
@@ -141,6 +142,36 @@ def test_workers_give_the_same_batches(episodes) -> None:
                 torch.testing.assert_close(b0[k], b2[k])
             else:
                 assert b0[k] == b2[k]
+
+
+@pytest.mark.parametrize("variant", ["abm", "rvt"])
+def test_keyframes_kept_in_memory_give_the_same_samples(episodes, variant, monkeypatch) -> None:
+    policy = _policy(variant)
+    fresh, kept = _dataset(episodes, policy, memory_mb=0), _dataset(episodes, policy)
+    computed = []
+    real = kept._conditioned
+    monkeypatch.setattr(kept, "_conditioned", lambda j, k, obs: computed.append((j, k)) or real(j, k, obs))
+    for draw in range(3 * len(kept)):  # every keyframe three times, each with its own augmentation
+        key = (draw % len(kept), draw)
+        a, b = fresh[key], kept[key]
+        assert set(a) == set(b)
+        for name in a:
+            assert a[name] == b[name] if isinstance(a[name], str) else torch.equal(a[name], b[name]), name
+    assert len(computed) == len(kept)  # fused and grounded once per keyframe
+    assert fresh._memory_used == 0 and kept._memory_used > 0
+
+
+def test_the_keyframe_memory_keeps_to_its_budget(episodes) -> None:
+    policy = _policy("abm")
+    one = _dataset(episodes, policy)
+    one[0]
+    size = one._memory_used
+    small = _dataset(episodes, policy, memory_mb=2.5 * size / 2**20)  # room for two keyframes
+    for i in range(len(small)):
+        small[i]
+    assert len(small._memory) == 2 and small._memory_used <= small.memory_bytes
+    with pytest.raises(ConfigError, match="memory_mb must be >= 0"):
+        _dataset(episodes, policy, memory_mb=-1)
 
 
 def test_step_sampler_sharding_and_resume() -> None:

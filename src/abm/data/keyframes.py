@@ -34,7 +34,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, Protocol, TypeAlias
+from typing import Any, Protocol, TypeAlias, cast
 
 import numpy as np
 import torch
@@ -236,6 +236,10 @@ class KeyframeDataset(Dataset[Sample]):
         camera_names: cameras to fuse (default all).
         require_cache: refuse to start when cache entries are missing (:func:`ground_keyframes` builds
             the dataset without it to fill them).
+        memory_mb: memory (MiB, per data process) for keyframes kept fused and grounded after their first use:
+            training draws each keyframe hundreds of times, and fusing the cameras and grounding is four
+            fifths of a sample's cost; only the augmentation is redone. Keyframes past the budget are
+            recomputed each time; 0 turns it off. Samples are identical either way.
 
     Items are indexed by ``(index, sample_seed)`` keys (see :class:`StepSampler`) or plain indices.
     """
@@ -256,7 +260,13 @@ class KeyframeDataset(Dataset[Sample]):
         max_translation: float = 0.125,
         max_yaw_deg: float = 45.0,
         require_cache: bool = True,
+        memory_mb: float = 1024.0,
     ) -> None:
+        if memory_mb < 0:
+            raise ConfigError(f"memory_mb must be >= 0 (0 turns the keyframe memory off), got {memory_mb}")
+        self.memory_bytes = int(memory_mb * 2**20)
+        self._memory: dict[int, _Remembered] = {}
+        self._memory_used = 0
         self.source = source if isinstance(source, EpisodeSource) else EpisodeSource(source)
         self.grounder_config: GrounderConfig = as_grounder_config(grounder)
         self.split, self.mask, self.features = split or mask, mask, features
@@ -395,18 +405,45 @@ class KeyframeDataset(Dataset[Sample]):
 
     def __getitem__(self, key: int | tuple[int, int]) -> Sample:
         index, sample_seed = (key, index_seed(key)) if isinstance(key, int) else key
-        j, k = self.items[index]
-        obs, action = self.source.load_step(j, k)
-        scene = self._conditioned(j, k, obs)
-        points = scene.cloud.xyz
-        grip_pos = np.asarray(obs.gripper_pose[:3, 3], np.float64)
+        kept = self._memory.get(index)
+        if kept is None:
+            kept = self._remember(index)
+        points, action, grip_pos = kept.points, kept.action, kept.gripper_position
         if self.augment:
             rng = np.random.default_rng([self.seed, sample_seed])
             points, action, transform = augment_cloud(points, action, self.workspace, rng,
                                                       self.max_translation, self.max_yaw_deg)
             grip_pos = transform_points(transform, grip_pos[None])[0]
-        sample: Sample = {**cloud_sample(scene, obs.gripper_open, grip_pos, points), **action_targets(action)}
-        return sample
+        return cast(Sample, {**kept.sample, "points": torch.from_numpy(np.ascontiguousarray(points, np.float32)),
+                             "gripper_position": torch.from_numpy(np.asarray(grip_pos, np.float32).reshape(3)),
+                             **action_targets(action)})
+
+    def _remember(self, index: int) -> _Remembered:
+        """Load, fuse and ground one keyframe; keep it if the memory budget allows."""
+        j, k = self.items[index]
+        obs, action = self.source.load_step(j, k)
+        scene = self._conditioned(j, k, obs)
+        grip_pos = np.asarray(obs.gripper_pose[:3, 3], np.float64)
+        # the parts of a sample that augmentation does not change (collate copies them into each batch)
+        fixed = {key: value for key, value in cloud_sample(scene, obs.gripper_open, grip_pos).items()
+                 if key not in ("points", "gripper_position")}
+        kept = _Remembered(fixed, np.ascontiguousarray(scene.cloud.xyz, np.float32), action, grip_pos)
+        size = kept.points.nbytes + sum(v.untyped_storage().nbytes() for v in fixed.values()
+                                        if isinstance(v, torch.Tensor))
+        if self._memory_used + size <= self.memory_bytes:
+            self._memory[index] = kept
+            self._memory_used += size
+        return kept
+
+
+@dataclass(frozen=True)
+class _Remembered:
+    """One keyframe fused and grounded, before augmentation (see ``KeyframeDataset(memory_mb=...)``)."""
+
+    sample: dict[str, Any]  # the sample entries augmentation leaves alone (colours, masks, features, texts)
+    points: NDArray[np.float32]  # (N, 3) world metres
+    action: KeyframeAction
+    gripper_position: NDArray[np.float64]  # (3,) world metres
 
 
 def check_inside_workspace(source: EpisodeSource, workspace: Workspace) -> None:

@@ -38,7 +38,7 @@ from abm.policy.variants import VARIANTS
 #: options that control a run, not what it trains: left out of the recipe a run writes (RUN/recipe.yaml), so a
 #: recipe reused for another run never resumes, overwrites, skips checks or shares a cache by accident
 RUN_CONTROL = ("out", "resume", "accept_changed_config", "overwrite", "progress", "verify", "cache_dir", "log_every",
-               "keep_checkpoints", "workers")
+               "keep_checkpoints", "workers", "memory_mb")
 
 
 @dataclass
@@ -69,6 +69,8 @@ class TrainConfig:
         keep_checkpoints: periodic checkpoints kept (0 = all).
         log_every: steps between log rows.
         workers: DataLoader worker processes.
+        memory_mb: MiB (per data process) for keyframes kept fused and grounded between their draws; only the
+            augmentation is redone (0 = recompute every draw; samples are identical either way).
         device: ``cpu``, ``cuda`` or ``cuda:N`` (under torchrun CUDA uses ``cuda:LOCAL_RANK``).
         grounder: target-object grounding: oracle or clip, the grounders that ground each frame on its own
             (its CLIP: --clip-model, --clip-device); in files and in Python, its configuration
@@ -116,6 +118,7 @@ class TrainConfig:
     keep_checkpoints: int = 3
     log_every: int = 10
     workers: int = 0
+    memory_mb: float = 1024.0
     device: str = "cpu"
     grounder: GrounderConfig = field(default_factory=OracleGrounderConfig,
                                      metadata={"choices": lambda: GROUNDERS.names(per_frame=True)})

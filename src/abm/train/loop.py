@@ -463,7 +463,8 @@ class Trainer:
         if dinfo.enabled:
             dist.barrier()  # rank 0 has filled the grounding cache
         return KeyframeDataset(source, self.policy.workspace, self.grounder_config, **opts, augment=augment,
-                               cache_dir=cache, seed=cfg.seed, camera_names=cfg.camera_names)
+                               cache_dir=cache, seed=cfg.seed, camera_names=cfg.camera_names,
+                               memory_mb=cfg.memory_mb)
 
     # ------------------------------------------------------------------ checkpoints
     def state(self, step: int) -> dict[str, Any]:
