@@ -20,6 +20,9 @@ the ratio of samples/s is printed and ``--record FILE`` appends both rows to a J
 
     python benchmarks/train_speed.py --threads 1 --optimizer adamw --set resolution=64 --set patch_size=8 \
         --steps 20 --against ecf079f --record docs/results/train_speed.json
+
+``--compile-current`` compiles this tree's network only (the baseline runs eager, as a commit from before
+``--compile`` must).
 """
 
 from __future__ import annotations
@@ -67,6 +70,8 @@ def main() -> None:
                    "steps with torch.profiler and print the ROWS operators with the most self CPU time")
     p.add_argument("--against", default=None, metavar="REF", help="also run the benchmark from a git worktree of REF, "
                    "at the same time, and compare")
+    p.add_argument("--compile-current", action="store_true", help="with --against: compile this tree's network "
+                   "only (the baseline runs eager, e.g. a commit from before --compile)")
     p.add_argument("--record", type=Path, default=None, metavar="FILE", help="with --against: append both rows to "
                    "this JSON list")
     args = p.parse_args()
@@ -168,6 +173,9 @@ def compare(args: argparse.Namespace) -> None:
     if "--record" in argv:
         i = argv.index("--record")
         del argv[i:i + 2]
+    compile_current = "--compile-current" in argv
+    if compile_current:
+        argv.remove("--compile-current")
     with tempfile.TemporaryDirectory() as tmp:
         tree = Path(tmp) / "baseline"
         subprocess.run(["git", "-C", str(here), "worktree", "add", "--detach", "-q", str(tree), args.against],
@@ -178,8 +186,9 @@ def compare(args: argparse.Namespace) -> None:
             for name, root in trees.items():
                 env = {**os.environ, "PYTHONPATH": str(root / "src"), "OMP_NUM_THREADS": str(args.threads or 1)}
                 # this tree's script in both: the measurement is the same, only the library differs
-                procs[name] = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), *argv], env=env,
-                                               stdout=subprocess.PIPE, text=True)
+                extra = ["--compile"] if compile_current and name == "current" else []
+                procs[name] = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), *argv, *extra],
+                                               env=env, stdout=subprocess.PIPE, text=True)
             results = {}
             for name, proc in procs.items():
                 out, _ = proc.communicate()
@@ -189,9 +198,9 @@ def compare(args: argparse.Namespace) -> None:
             commits = {"baseline": _commit(here, args.against), "current": _commit(here)}
         finally:
             subprocess.run(["git", "-C", str(here), "worktree", "remove", "--force", str(tree)], check=False)
-    config = " ".join(argv)
     rows = []
     for name, r in results.items():
+        config = " ".join(argv + (["--compile"] if compile_current and name == "current" else []))
         stage = r["stage_s_per_step"]
         rows.append({"commit": commits[name] + ("+" if name == "current" and _dirty(here) else ""), "config": config,
                      "threads": r["threads"], "samples_per_s": round(r["samples_per_s"], 3),

@@ -260,7 +260,7 @@ class KeyframeDataset(Dataset[Sample]):
         max_translation: float = 0.125,
         max_yaw_deg: float = 45.0,
         require_cache: bool = True,
-        memory_mb: float = 1024.0,
+        memory_mb: float = 2048.0,
     ) -> None:
         if memory_mb < 0:
             raise ConfigError(f"memory_mb must be >= 0 (0 turns the keyframe memory off), got {memory_mb}")

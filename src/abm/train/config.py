@@ -118,7 +118,7 @@ class TrainConfig:
     keep_checkpoints: int = 3
     log_every: int = 10
     workers: int = 0
-    memory_mb: float = 1024.0
+    memory_mb: float = 2048.0
     device: str = "cpu"
     grounder: GrounderConfig = field(default_factory=OracleGrounderConfig,
                                      metadata={"choices": lambda: GROUNDERS.names(per_frame=True)})
