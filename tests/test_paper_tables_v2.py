@@ -53,9 +53,10 @@ def test_the_second_edition_has_the_first_editions_runs_data_and_tasks_plus_a_se
     assert "rvt_clip" not in probe.runs and "ifd_clip" not in probe.runs and "abm_clip_hash_seed1" in probe.runs
 
 
-def test_the_recipe_is_the_first_editions_plus_the_rotation_crop(tmp_path: Path) -> None:
+def test_the_recipe_is_the_first_editions_plus_the_zoom_and_the_rotation_crop(tmp_path: Path) -> None:
     v1, v2 = load_recipe("paper_tables"), load_recipe("paper_tables_v2")
-    assert v2["policy"] == {**v1["policy"], "rotation_crop": 16}
+    assert v2["policy"] == {**v1["policy"], "zoom_size": 0.3, "zoom_resolution": 32, "zoom_patch_size": 4,
+                            "rotation_crop": 16}
     assert {k: v for k, v in v2.items() if k not in ("policy", "steps")} == {
         k: v for k, v in v1.items() if k not in ("policy", "steps")}
     assert v2["steps"] == 6000 and V2.training.steps is None  # the budget: one line of the recipe
@@ -63,7 +64,7 @@ def test_the_recipe_is_the_first_editions_plus_the_rotation_crop(tmp_path: Path)
     engine = Engine(V2, root=_clone(tmp_path))
     recipe = engine.recipe("abm_clip_hash_seed1")
     assert (recipe["steps"], recipe["seed"], recipe["method"], recipe["language"]) == (6000, 1, "abm", "hash")
-    assert recipe["policy"]["rotation_crop"] == 16 and recipe["data"] == "runs/paper_v2/data"
+    assert recipe["policy"]["rotation_crop"] == 16 and recipe["policy"]["zoom_size"] == 0.3 and recipe["data"] == "runs/paper_v2/data"
     assert recipe["cache_dir"] == "runs/paper_v2/cache_masks"
     assert "seed" not in engine.recipe("abm_clip_hash")  # the recipe's default seed, like the first edition
 
