@@ -9,8 +9,12 @@ of the same arm and step:
 * ``--rollouts FILE``: the ``eval_summary.json`` (or a ``results.json``) of ``abm eval``: rows
   ``{arm, step, task, split, successes, episodes}``.
 
+``--tables`` prints the probe's three tables (yaw fit per step and arm, keyframe accuracy and rollouts at ``--step``)
+as markdown, as docs/results/zoom_probe.md shows them.
+
 Usage: python benchmarks/probe_record.py --probe docs/results/zoom_probe.json --arm two-stage+crop --step 3000
            [--accuracy acc.json] [--rollouts runs/.../eval_summary.json]
+       python benchmarks/probe_record.py --probe docs/results/zoom_probe.json --tables [--step 3000]
 """
 
 from __future__ import annotations
@@ -46,16 +50,68 @@ def replace_rows(probe: dict[str, Any], key: str, rows: list[dict[str, Any]]) ->
     probe[key] = [r for r in probe.get(key, []) if (r["arm"], r.get("step")) not in arms] + rows
 
 
+FIT_KINDS = ("all", "approach", "grasp", "move", "place")
+
+
+def markdown_tables(probe: dict[str, Any], step: int) -> str:
+    """The fit table (every step and arm, augmentation on, over both tasks), and the keyframe accuracy (median yaw °
+    / position cm) and rollout tables of every arm at ``step``."""
+    order = ("single-stage", "two-stage", "single-stage+crop", "two-stage+crop")
+    arms = sorted(dict.fromkeys(r["arm"] for r in probe["fit"]), key=lambda a: (a not in order, order.index(a)
+                                                                               if a in order else 0, a))
+    out = ["| step | arm | " + " | ".join("all keyframes" if k == "all" else k for k in FIT_KINDS) + " |",
+           "|---|---|" + "---|" * len(FIT_KINDS)]
+    for s in sorted({r["step"] for r in probe["fit"]}):
+        for arm in arms:
+            ce = {r["keyframe"]: r["yaw_ce"] for r in probe["fit"]
+                  if r["arm"] == arm and r["step"] == s and r["augment"] and r["task"] == "all"}
+            if ce:
+                out.append(f"| {s} | {arm} | " + " | ".join(f"{ce[k]:.2f}" for k in FIT_KINDS) + " |")
+    acc = {(r["arm"], r["task"], r["split"], r["keyframe"]): r for r in probe["accuracy"] if r["step"] == step}
+    ro = {(r["arm"], r["task"], r["split"]): r for r in probe["rollouts"] if r["step"] == step}
+    tasks = list(dict.fromkeys(r["task"] for r in probe["rollouts"]))
+    head = " | ".join(f"{a} ({step})" for a in arms)
+    out += ["", f"| task | split | keyframe | {head} |", "|---|---|---|" + "---|" * len(arms)]
+    for task in tasks:
+        for split in ("seen", "unseen"):
+            for kind in ("approach", "grasp", "move", "place"):
+                found = [acc.get((a, task, split, kind)) for a in arms]
+                cells = [f"{r['yaw_error_deg']:.0f} / {r['position_error_cm']:.1f}" if r else "–" for r in found]
+                out.append(f"| {task} | {split} | {kind} | " + " | ".join(cells) + " |")
+    out += ["", f"| task | split | {head} |", "|---|---|" + "---|" * len(arms)]
+    for split in ("seen", "unseen"):
+        for task in tasks:
+            out.append(f"| {task} | {split} | " + " | ".join(
+                str(ro[(a, task, split)]["successes"]) if (a, task, split) in ro else "–" for a in arms) + " |")
+    averages = []
+    for a in arms:
+        parts = []
+        for split in ("seen", "unseen"):
+            rows = [ro[(a, t, split)] for t in tasks if (a, t, split) in ro]
+            parts.append(f"{100 * sum(r['successes'] for r in rows) / sum(r['episodes'] for r in rows):.0f}"
+                         if rows else "–")
+        averages.append(" / ".join(parts))
+    out.append("| **average %** | seen / unseen | " + " | ".join(averages) + " |")
+    return "\n".join(out)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--probe", type=Path, required=True)
-    p.add_argument("--arm", required=True)
-    p.add_argument("--step", type=int, required=True)
+    p.add_argument("--arm", default=None)
+    p.add_argument("--step", type=int, default=None)
     p.add_argument("--accuracy", type=Path, default=None)
     p.add_argument("--rollouts", type=Path, default=None)
+    p.add_argument("--tables", action="store_true", help="print the probe's tables as markdown (at --step, "
+                   "default 3000)")
     args = p.parse_args()
+    if args.tables:
+        print(markdown_tables(json.loads(args.probe.read_text()), args.step or 3000))
+        return
     if args.accuracy is None and args.rollouts is None:
-        p.error("give --accuracy and/or --rollouts")
+        p.error("give --accuracy and/or --rollouts (or --tables)")
+    if args.arm is None or args.step is None:
+        p.error("--accuracy / --rollouts need --arm and --step")
     probe = json.loads(args.probe.read_text()) if args.probe.exists() else {"fit": [], "accuracy": [], "rollouts": []}
     if args.accuracy is not None:
         rows = accuracy_rows(json.loads(args.accuracy.read_text())["summary"], args.arm, args.step)
