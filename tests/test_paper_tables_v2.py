@@ -64,7 +64,8 @@ def test_the_recipe_is_the_first_editions_plus_the_zoom_and_the_rotation_crop(tm
     engine = Engine(V2, root=_clone(tmp_path))
     recipe = engine.recipe("abm_clip_hash_seed1")
     assert (recipe["steps"], recipe["seed"], recipe["method"], recipe["language"]) == (6000, 1, "abm", "hash")
-    assert recipe["policy"]["rotation_crop"] == 16 and recipe["policy"]["zoom_size"] == 0.3 and recipe["data"] == "runs/paper_v2/data"
+    assert recipe["policy"]["rotation_crop"] == 16 and recipe["policy"]["zoom_size"] == 0.3
+    assert recipe["data"] == "runs/paper_v2/data"
     assert recipe["cache_dir"] == "runs/paper_v2/cache_masks"
     assert "seed" not in engine.recipe("abm_clip_hash")  # the recipe's default seed, like the first edition
 
