@@ -14,8 +14,6 @@ ROOT = Path(__file__).resolve().parents[1]
 MACHINE_PATH = re.compile(r"(?<![\w.~-])/(?:work|home|root|tmp|Users)/[\w.-]")
 #: path prefix -> why its files may name a machine's folder
 ALLOWED = {
-    "tests/data/checkpoints_v1/": "run folders written by the code of an old commit, kept byte for byte: the test "
-                                  "checks that such folders still load and resume",
     "tests/test_no_machine_paths.py": "this test's own examples",
 }
 SKIPPED_DIRS = {".git", ".venv", "runs", "out", "data", "__pycache__", ".pytest_cache", ".ruff_cache", ".mypy_cache",
