@@ -4,6 +4,7 @@ page it serves, opened in a real headless Chromium and checked on the screenshot
 from __future__ import annotations
 
 import socket
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -108,17 +109,21 @@ def test_page_draws_the_cloud_and_the_views_in_a_real_browser(tmp_path) -> None:
     viewer = serve(_vivid_scene(), port=free_port())
     try:
         viewer.show(1)  # the timeline switches steps without error
-        # The page fades its objects in once the scene arrives over the websocket, so on a loaded machine an
-        # early picture can catch them half-transparent: wait longer and try again before failing.
-        for wait_ms in (8000, 16000, 30000, 60000):
-            picture = screenshot(viewer.url, tmp_path / "page.png", 1200, 800, wait_ms=wait_ms,
-                                 timeout_s=wait_ms / 1000 + 90)
+
+        def colours(picture: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             shot = np.asarray(Image.open(picture).convert("RGB"))
             r, g, b = (shot[..., i].astype(int) for i in range(3))
-            magenta = (r > 200) & (g < 60) & (b > 200)
-            green = (r < 60) & (g > 200) & (b < 60)
-            if magenta.sum() > 2000 and green.sum() > 2000:
-                break
+            return shot, (r > 200) & (g < 60) & (b > 200), (r < 60) & (g > 200) & (b < 60)
+
+        def drawn_both(picture: Path) -> bool:
+            _, magenta, green = colours(picture)
+            return bool(magenta.sum() > 2000 and green.sum() > 2000)
+
+        # The scene arrives over a websocket after the page loads and its objects fade in, which on a loaded
+        # machine takes seconds: the picture is retaken until both are drawn (or the time is up).
+        picture = screenshot(viewer.url, tmp_path / "page.png", 1200, 800, wait_ms=3000, timeout_s=240,
+                             ready=drawn_both)
+        shot, magenta, green = colours(picture)
     finally:
         viewer.close()
     drawn = f"magenta pixels {magenta.sum()}, green pixels {green.sum()}"
