@@ -60,7 +60,10 @@ def test_a_tiny_experiment_runs_end_to_end_and_reports(tmp_path: Path, capsys, m
     index = json.loads((tmp_path / "models/index.json").read_text())
     assert [e["name"] for e in index] == ["abm_oracle", "rvt_hash"] and index[0]["data"] == "runs/tiny/data"
     kept = sorted(p.name for p in (tmp_path / "docs/results/tiny").iterdir())
-    assert kept == ["abm_oracle_seen.json", "machines.txt", "rvt_hash_seen.json", "times.txt"]
+    assert kept == ["abm_oracle_seen.json", "machines.txt", "rvt_hash_seen.json", "times.txt",
+                    "training_abm_oracle.csv", "training_rvt_hash.csv"]  # the loss curves kept at the export
+    curve = (tmp_path / "docs/results/tiny/training_abm_oracle.csv").read_text().splitlines()
+    assert curve[0].startswith("step,total,translation,rotation") and curve[-1].startswith("2,")
     # no machine's folder in what the experiment commits
     for path in [*(tmp_path / "docs").rglob("*.*"), tmp_path / "README.md", *(tmp_path / "models").glob("*.*")]:
         if path.suffix in (".md", ".json", ".txt"):

@@ -6,6 +6,7 @@ error)."""
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 from pathlib import Path
@@ -202,3 +203,31 @@ def test_the_keyframe_summary_carries_a_random_yaws_error_for_each_symmetry() ->
                                              deviation("grasp", 2), deviation("lift", 0)])}
     assert (rows["approach"]["yaw_chance_deg"], rows["grasp"]["yaw_chance_deg"], rows["lift"]["yaw_chance_deg"]) == (
         45.0, 22.5, 0.0)
+
+
+def test_a_two_stage_run_is_described_with_its_zoom_and_its_kept_curve_averages_the_batches(tmp_path: Path) -> None:
+    from abm.experiments import report as rep
+
+    layout = Layout.of(V2, tmp_path, tmp_path / "out")
+    run = layout.run_dir("abm_clip")
+    run.mkdir(parents=True)
+    recipe = load_recipe("paper_tables_v2")
+    (run / "config.json").write_text(json.dumps({
+        "train": {"tasks": list(V2.data.tasks), "data": "runs/paper_v2/data", "steps": 6000, "batch": 8,
+                  "optimizer": "adamw", "warmup": 50, "weight_decay": 1e-4, "seed": 0},
+        "lr": 1e-3, "policy": {**recipe["policy"], "preset": "small+custom"},
+        "language": {"kind": "clip"}, "grounder": {"kind": "clip"}}))
+    # the logged losses cycle through three batches' values: the kept curve shows their mean
+    header = "step,total,translation,rotation,gripper,collision,samples_per_s,elapsed_s,zoom_translation\n"
+    (run / "log.csv").write_text(header + "".join(
+        f"{s},{4 + (s // 10) % 3},1,{1 + (s // 10) % 3},0,0,8.0,{s},0.5\n" for s in range(10, 6001, 10)))
+    entry = rep.describe_run(run)
+    assert entry["recipe"]["zoom_size"] == 0.3 and entry["recipe"]["zoom_resolution"] == 32
+    assert entry["recipe"]["zoom_patch_size"] == 4 and entry["recipe"]["rotation_crop"] == 16
+    rep.keep_training_log(run, layout.kept / "training_abm_clip.csv")
+    with (layout.kept / "training_abm_clip.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == ["step", "total", "translation", "rotation", "gripper", "zoom_translation"]
+    assert len(rows) == 200 and rows[-1]["step"] == "6000"
+    assert {r["total"] for r in rows} == {"5"} and {r["rotation"] for r in rows} == {"2"}  # 3 rows a window
+    assert {r["zoom_translation"] for r in rows} == {"0.5"}

@@ -13,8 +13,9 @@ the committed ones count) and writes
   every exported model (method, grounding, recipe, data, steps, minutes, size, sha256) and the benchmark CLIP;
   the entries other specs exported into the same zoo (an earlier or later edition's) are kept as they are, and
   the zoo's README is written by the newest edition's spec;
-* the run summaries (``KEPT/runs.json``) and compact loss curves (``KEPT/training_RUN.csv``) of an
-  experiment without a zoo, and its figures (``report.figures``), drawn from the kept files only.
+* the run summaries (``KEPT/runs.json``) of an experiment without a zoo, every run's compact loss curve
+  (``KEPT/training_RUN.csv``, also kept when a run is exported), and the figures (``report.figures``), drawn from
+  the kept files only.
 
 A report is a list of paragraphs (blocks) joined by blank lines; each section of the spec
 (:data:`abm.experiments.spec.SECTION_KEYS`) adds zero or more. Cells not evaluated yet show "–", so tables fill
@@ -43,7 +44,7 @@ from abm.zoo import edition
 
 Rate = Mapping[str, Any]  #: one evaluation cell (a record of ``abm eval``'s results.json)
 Cells = dict[tuple[str, str, str], dict[str, Any]]  #: (run, task, split) -> its rate
-LOSS_COLUMNS = ("step", "total", "translation", "rotation", "gripper")
+LOSS_COLUMNS = ("step", "total", "translation", "rotation", "gripper", "zoom_translation")
 STAGE_ORDER = ("data", "ground", "train", "export", "eval", "diagnose")
 _WORDS = ("no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten")
 _LINK = re.compile(r"\]\(([^)\s]+)\)")
@@ -152,6 +153,8 @@ def describe_run(run_dir: Path) -> dict[str, Any]:
         entry["recipe"]["workspace_size"] = cfg["policy"]["workspace_size"]
     if cfg["policy"].get("rotation_crop"):  # the rotation head also reads a crop (PolicyConfig.rotation_crop)
         entry["recipe"]["rotation_crop"] = cfg["policy"]["rotation_crop"]
+    if cfg["policy"].get("zoom_size"):  # a zoomed second stage (PolicyConfig.zoom_size)
+        entry["recipe"] |= {k: cfg["policy"][k] for k in ("zoom_size", "zoom_resolution", "zoom_patch_size")}
     trained = training_summary(run_dir)
     if trained is not None:
         entry["train_minutes"] = round(trained["elapsed_min"], 1)
@@ -405,8 +408,11 @@ def _setup(ctx: Context, section: Section) -> list[str]:
                 else f"one training at a time with {_number(t)} thread{'s' if t != 1 else ''}")
         cube = f" over a {recipe['workspace_size']:g} m cube" if "workspace_size" in recipe else ""
         crop = f", a {recipe['rotation_crop']}-pixel rotation crop" if recipe.get("rotation_crop") else ""
+        zoom = (f", a zoomed second stage ({recipe['zoom_resolution']}² views of a {recipe['zoom_size']:g} m cube "
+                f"around the first stage's point, patch {recipe['zoom_patch_size']})" if recipe.get("zoom_size")
+                else "")
         parts["recipe"] = (f"Recipe (every model): `{recipe['preset']}` preset at {recipe['resolution']}² views{cube}, "
-                           f"patch {recipe['patch_size']}{crop}, {trained[0].get('steps')} steps of batch "
+                           f"patch {recipe['patch_size']}{zoom}{crop}, {trained[0].get('steps')} steps of batch "
                            f"{recipe['batch']}, "
                            f"{recipe['optimizer']} lr {recipe['lr']:g}, {side}.")
     if trained:
@@ -1157,15 +1163,27 @@ def _write(path: Path, text: str) -> bool:
 
 
 def keep_training_log(run_dir: Path, path: Path, max_rows: int = 200) -> None:
-    """A compact copy of a run's loss curve (at most ``max_rows`` evenly spaced rows and the last one)."""
+    """A compact copy of a run's loss curve (the loss columns its log has): at most ``max_rows`` rows, each the
+    mean of a window of consecutive logged steps (a logged loss is one batch's, too noisy to read alone) at the
+    window's last step, which for the last window is the run's last logged step."""
     with (run_dir / "log.csv").open() as f:
-        rows = list(csv.DictReader(f))
-    keep = rows[:: max(1, len(rows) // max_rows)] + rows[-1:]
+        reader = csv.DictReader(f)
+        rows = list(reader)
+        columns = [c for c in LOSS_COLUMNS if c in (reader.fieldnames or ())]  # the zoom's only in two-stage runs
+    width = -(-len(rows) // max_rows) if rows else 1
+    kept = []
+    for start in range(0, len(rows), width):
+        window = rows[start:start + width]
+        row = {"step": window[-1]["step"]}
+        for column in columns[1:]:
+            values = [float(r[column]) for r in window if r.get(column) not in (None, "")]
+            row[column] = f"{sum(values) / len(values):.6g}" if values else ""
+        kept.append(row)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, LOSS_COLUMNS, extrasaction="ignore")
+        writer = csv.DictWriter(f, columns)
         writer.writeheader()
-        writer.writerows({r["step"]: r for r in keep}.values())  # the last row may already be kept
+        writer.writerows(kept)
 
 
 def draw_figures(spec: ExperimentSpec, layout: Layout, cells: Cells) -> list[Path]:
@@ -1201,14 +1219,13 @@ def draw_figures(spec: ExperimentSpec, layout: Layout, cells: Cells) -> list[Pat
 
 def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> Written:
     """Write every generated file of the report (see the module docstring); returns their texts."""
-    if layout.zoo is None:  # an experiment without a zoo keeps its runs' summaries and loss curves itself
+    if layout.zoo is None:  # an experiment without a zoo keeps its runs' summaries itself
         entries = kept_run_summaries(spec, layout)
         if entries:
             _write(layout.kept / "runs.json", json.dumps(entries, indent=1) + "\n")
-        if any(f.kind == "losses" for f in spec.report.figures):
-            for name in spec.runs:
-                if (layout.run_dir(name) / "log.csv").is_file():
-                    keep_training_log(layout.run_dir(name), layout.kept / f"training_{name}.csv")
+    for name in spec.runs:  # every run's loss curve, while its folder is here (the export also keeps it)
+        if (layout.run_dir(name) / "log.csv").is_file():
+            keep_training_log(layout.run_dir(name), layout.kept / f"training_{name}.csv")
     outcomes = collect(spec, layout)
     if figures:
         draw_figures(spec, layout, outcomes.cells)

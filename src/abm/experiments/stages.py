@@ -28,7 +28,7 @@ import yaml
 
 from abm.configuration import load_recipe
 from abm.errors import ConfigError
-from abm.experiments.report import write_report, zoo_index
+from abm.experiments.report import keep_training_log, write_report, zoo_index
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Runner, Source
 from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, ExperimentSpec
 from abm.experiments.state import (
@@ -305,6 +305,8 @@ class Engine:
             else:
                 def after(code: int, run: str = run) -> None:
                     if code == 0:
+                        if (self.layout.run_dir(run) / "log.csv").is_file():  # its loss curve, for a fresh clone
+                            keep_training_log(self.layout.run_dir(run), self.layout.kept / f"training_{run}.csv")
                         drop_carry(self.layout, run)
                         self.write_zoo_index()
 
