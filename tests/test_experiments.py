@@ -176,6 +176,8 @@ class FakeRunner:
     def run(self, commands, source, slots, on_start=None):
         codes = {}
         for cmd in commands:
+            if cmd.before:
+                cmd.before()
             if on_start:
                 on_start(cmd, None)
             self.ran.append(cmd.job)
@@ -214,6 +216,8 @@ def test_a_run_does_what_is_left_and_a_rerun_nothing(tmp_path: Path, monkeypatch
 
     def fake_local(self, commands, source, slots, on_start=None):  # data, ground, export: make their files
         for cmd in commands:
+            if cmd.before:
+                cmd.before()
             if cmd.job == "export/abm_oracle":
                 (tmp_path / "models").mkdir(exist_ok=True)
                 (tmp_path / "models/abm_oracle.pt").write_bytes(b"model")
@@ -285,10 +289,11 @@ def _sleeper(tmp_path: Path, name: str) -> Command:
 
 
 def test_the_local_runner_runs_n_at_a_time_and_gives_a_lone_job_every_thread(tmp_path: Path) -> None:
-    ended = []
+    ended, before = [], {}
     commands = [_sleeper(tmp_path, n) for n in ("a", "b", "c")]
     for cmd in commands:
         cmd.after = lambda code, job=cmd.job: ended.append((job, code))
+        cmd.before = lambda job=cmd.job: before.setdefault(job, time.time())
     codes = LocalRunner().run(commands, Source(None), slots=2)
     assert codes == {"a": 0, "b": 0, "c": 0} and sorted(ended) == [("a", 0), ("b", 0), ("c", 0)]
     spans = {n: (tmp_path / f"{n}.txt").read_text().split() for n in "abc"}
@@ -296,6 +301,8 @@ def test_the_local_runner_runs_n_at_a_time_and_gives_a_lone_job_every_thread(tmp
     assert threads == {"a": "1", "b": "1", "c": "2"}  # c ran alone: both slots' threads
     a_end, b_end, c_start = float(spans["a"][2]), float(spans["b"][2]), float(spans["c"][1])
     assert c_start >= min(a_end, b_end) - 0.05  # never three at a time
+    # each job's before() ran right before it started, not when the stage began (c waited for a slot)
+    assert before["c"] >= min(a_end, b_end) - 0.05 and before["c"] <= c_start
 
 
 def test_the_local_runner_stops_its_jobs_when_interrupted(tmp_path: Path) -> None:

@@ -141,14 +141,16 @@ def loss_curves(runs: Mapping[str, Sequence[Mapping[str, Any]]], path: str | Pat
             if held_out:
                 ax.plot(*zip(*held_out, strict=True), "o--", color=colour, label=f"{label} validation",
                         linewidth=1.0, markersize=3)
-    from matplotlib.ticker import FormatStrFormatter
+    from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
     for ax, head in zip(axes[0], heads, strict=True):
         ax.set_title(f"{head} loss", fontsize=9)
         ax.set_xlabel("step")
         ax.set_yscale("log")
+        low, high = ax.get_ylim()
         ax.yaxis.set_major_formatter(FormatStrFormatter("%.3g"))  # plain numbers, also on short ranges
-        ax.yaxis.set_minor_formatter(FormatStrFormatter("%.3g"))
+        # minor ticks labelled only on a short range (over two decades their labels would overlap)
+        ax.yaxis.set_minor_formatter(FormatStrFormatter("%.3g") if high < 100 * low else NullFormatter())
         ax.tick_params(axis="y", which="both", labelsize=7)
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)

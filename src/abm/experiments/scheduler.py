@@ -90,6 +90,7 @@ class Command:
         log: where its output goes (appended).
         threads: torch threads (``None``: the environment's).
         cwd: its working folder (the experiment's root).
+        before: called right before it starts (in the engine's process; on Ray, when it is submitted).
         after: called with the exit code once it ended (in the engine's process).
     """
 
@@ -99,6 +100,7 @@ class Command:
     cwd: Path
     threads: int | None = None
     after: Callable[[int], None] | None = field(default=None, repr=False)
+    before: Callable[[], None] | None = field(default=None, repr=False)
 
 
 class Runner(Protocol):
@@ -131,6 +133,8 @@ class LocalRunner:
                     threads = cmd.threads
                     if threads is not None and not waiting and not running:
                         threads *= slots  # alone: the others' threads too
+                    if cmd.before is not None:
+                        cmd.before()
                     cmd.log.parent.mkdir(parents=True, exist_ok=True)
                     out = cmd.log.open("a")
                     proc = subprocess.Popen(cmd.argv, env=source.env(threads), cwd=cmd.cwd, stdout=out,
@@ -177,6 +181,8 @@ class RayRunner:
         with ray_pool.RayActorPool(slots, self.address, initializer=None, cpus_per_worker=self.cpus) as pool:
             futures: list[tuple[Command, Future[int]]] = []
             for cmd in commands:
+                if cmd.before is not None:
+                    cmd.before()
                 if on_start is not None:
                     on_start(cmd, None)
                 futures.append((cmd, pool.submit(_run_blocking, cmd.argv, source.env(cmd.threads), str(cmd.cwd),

@@ -471,7 +471,8 @@ class Engine:
                     job.after(code)
                 job.state = DONE if code == 0 else FAILED
 
-            commands.append(Command(job.id, job.argv, self.layout.log(job.id), self.root, job.threads, after))
+            commands.append(Command(job.id, job.argv, self.layout.log(job.id), self.root, job.threads, after,
+                                    job.before))
         return commands
 
     def _start(self, command: Command, pid: int | None) -> None:
@@ -553,9 +554,6 @@ class Engine:
             return True
         stamp(self.layout, f"{stage}_start")
         record_machine(self.layout)
-        for job in todo:
-            if job.before is not None:
-                job.before()
         slots, cpus = self.slots(stage)
         runner = self._runner(cpus) if stage in ("train", "eval") else LocalRunner()
         codes = runner.run(self._commands(todo), self.source, slots, on_start=self._start)
