@@ -42,7 +42,10 @@ def test_outcomes_are_the_same_whatever_the_command_workers_gifs_or_working_fold
     pytest.importorskip("transformers")
     if not (ZOO / "abm_clip.pt").is_file() or not (ZOO / "benchmark-clip" / "config.json").is_file():
         pytest.skip("the committed model zoo is not in this checkout")
-    models = [str((ZOO / f"{name}.pt").resolve()) for name in ("abm_clip", "rvt_clip")]
+    # the models abm zoo eval runs: the index's compared ones (the newest edition's abm_clip and rvt_clip)
+    compared = [e["file"] for e in json.loads((ZOO / "index.json").read_text()) if e.get("compared")]
+    models = [str((ZOO / file).resolve()) for file in compared]
+    assert len(models) == 2
 
     threads = torch.get_num_threads()
     torch.set_num_threads(2)  # what a process gets by default on a 2-core machine (pool workers run 1)
@@ -72,14 +75,16 @@ def test_a_zoo_moved_out_of_its_layout_fails_before_any_rollout(tmp_path, capsys
         pytest.skip("the committed model zoo is not in this checkout")
     moved = tmp_path / "elsewhere"  # not named models/: the models' CLIP path models/benchmark-clip finds nothing
     moved.mkdir()
-    for name in ("index.json", "abm_clip.pt", "abm_oracle.pt", "rvt_clip.pt"):
+    index = json.loads((ZOO / "index.json").read_text())
+    for name in ["index.json", *(e["file"] for e in index if e["file"].endswith(".pt"))]:
         shutil.copy(ZOO / name, moved / name)
+    compared = [e["file"] for e in index if e.get("compared")]  # the models abm zoo eval loads
     shutil.copytree(ZOO / "benchmark-clip", moved / "benchmark-clip")
     monkeypatch.chdir(tmp_path)
     assert main(["zoo", "eval", "--zoo", str(moved), "--tasks", "close_jar", "--episodes", "1", "--out", "o"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("abm: error: ")
-    assert "abm_clip.pt names its CLIP 'models/benchmark-clip', which is not found" in err[0]
+    assert any(f"{file} names its CLIP 'models/benchmark-clip', which is not found" in err[0] for file in compared)
     assert "folder named 'models'" in err[0] and "--zoo" in err[0]
     assert not (tmp_path / "o").exists()  # nothing was rolled out
 
