@@ -29,10 +29,11 @@ SETTINGS = EvalSettings(max_steps=3)
 
 
 def _episodes(outcomes: list[EpisodeOutcome], checkpoint: str) -> dict[tuple[str, str, int, int], tuple[Any, ...]]:
-    """(task, split, repeat, episode) -> what the rollout did, for one checkpoint's outcomes."""
+    """(task, split, repeat, episode) -> what the rollout did, for one checkpoint's outcomes (the log names a
+    checkpoint relative to the working folder when inside it, so the file name identifies it across folders)."""
     assert not [o.error for o in outcomes if o.error]
     return {(o.task, o.split, o.repeat, o.episode): (o.success, o.steps, o.failure, o.trajectory)
-            for o in outcomes if o.checkpoint == checkpoint}
+            for o in outcomes if Path(o.checkpoint).name == Path(checkpoint).name}
 
 
 def test_outcomes_are_the_same_whatever_the_command_workers_gifs_or_working_folder(tmp_path, monkeypatch) -> None:

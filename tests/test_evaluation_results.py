@@ -10,6 +10,7 @@ from abm.evaluation.results import (
     aggregate,
     eval_seed,
     markdown_table,
+    portable_path,
     write_csv,
     write_json,
 )
@@ -88,6 +89,21 @@ def test_log_round_trip_and_truncated_line(tmp_path):
     log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, False, error="RuntimeError: boom"))
     assert len(log.read()) == 4  # the record after the torn line is on a line of its own
     assert ("abm", "pick_block", "seen", 0, 0, "", "") not in log.done()  # crashed episodes are retried
+
+
+def test_the_log_names_checkpoints_inside_the_working_folder_relative_to_it(tmp_path, monkeypatch):
+    clone, elsewhere = tmp_path / "clone", tmp_path / "elsewhere"
+    (clone / "models").mkdir(parents=True)
+    monkeypatch.chdir(clone)
+    log = OutcomeLog(clone / "eval" / "outcomes.jsonl")
+    log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, True, checkpoint=str(clone / "models/m.pt")))
+    log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, 1, 2, True, checkpoint=str(elsewhere / "m.pt")))
+    inside, outside = (json.loads(line)["checkpoint"] for line in log.path.read_text().splitlines())
+    assert inside == "models/m.pt" and outside == str(elsewhere / "m.pt")  # outside the folder: as given
+    # an older log naming the absolute path is the same rollout as the relative name (resume does not redo it)
+    old = EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, True, checkpoint=str(clone / "models/m.pt"))
+    assert old.key == log.read()[0].key and old.key in log.done()
+    assert portable_path("models/m.pt") == "models/m.pt" and portable_path("") == ""
 
 
 def test_eval_seeds_are_shared_and_distinct():

@@ -8,6 +8,7 @@ import json
 import sys
 import threading
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,7 @@ import yaml
 
 from abm.cli import main
 from abm.errors import ConfigError
+from abm.evaluation.results import EpisodeOutcome, OutcomeLog
 from abm.experiments import scheduler
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Source
 from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
@@ -256,7 +258,8 @@ def test_a_failed_training_stops_before_the_next_stage_and_carries_its_state(tmp
     assert (tmp_path / "models/carry/abm_oracle/step_00000001.pt").is_file()  # the carry of the unfinished run
 
 
-def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Path) -> None:
+def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)  # the project root the engine runs from
     spec, _ = _spec(tmp_path)
     layout = Layout.of(spec, tmp_path)
     _touch_checkpoint(layout, "abm_oracle", 1)
@@ -265,7 +268,9 @@ def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Pat
     _touch_checkpoint(layout, "rvt_clip", 3)  # finished: nothing to carry
     ev = layout.eval_dir("abm_oracle", "seen")
     ev.mkdir(parents=True)
-    (ev / "outcomes.jsonl").write_text('{"episode": 0}\n')
+    # a log written before checkpoints were recorded relative to the root: the carry names it relative
+    OutcomeLog(ev / "outcomes.jsonl").path.write_text(json.dumps(asdict(EpisodeOutcome(
+        "abm", "pick_block", "seen", 0, 0, 1, True, checkpoint=str(tmp_path / "models/abm_oracle.pt")))) + "\n")
     done = layout.eval_dir("rvt_clip", "seen")
     done.mkdir(parents=True)
     (done / "outcomes.jsonl").write_text("{}\n")
@@ -276,7 +281,8 @@ def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Pat
     fresh = Layout.of(spec, tmp_path, tmp_path / "fresh")
     assert restore_training(fresh, "abm_oracle") and restore_evaluation(fresh, "abm_oracle", "seen")
     assert (fresh.run_dir("abm_oracle") / "checkpoints/step_00000002.pt").is_file()
-    assert (fresh.eval_dir("abm_oracle", "seen") / "outcomes.jsonl").read_text() == '{"episode": 0}\n'
+    carried = (fresh.eval_dir("abm_oracle", "seen") / "outcomes.jsonl").read_text()
+    assert str(tmp_path) not in carried and json.loads(carried)["checkpoint"] == "models/abm_oracle.pt"
     assert not restore_training(fresh, "abm_oracle")  # it has its own checkpoints now: never overwritten
     assert not restore_evaluation(fresh, "rvt_clip", "seen")
 

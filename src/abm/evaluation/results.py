@@ -47,7 +47,8 @@ class EpisodeOutcome:
         steps: keyframes the policy predicted.
         seconds: wall-clock time of the rollout.
         error: the exception text when the rollout crashed (counted as a failure), else ``""``.
-        checkpoint: the checkpoint file that was evaluated.
+        checkpoint: the checkpoint file that was evaluated; the log records it relative to the working folder when
+            it lies inside it (:func:`portable_path`), so a log carried to another clone names the same file.
         settings: the evaluation settings (grounder, resolution, step limit, ...) as compact JSON.
         failure: why a failed rollout failed (:func:`failure_reason`; ``""`` on success or in older logs).
         subgoals: whether each sub-goal was reached, for two-target instructions (``[grasped X, X placed in
@@ -85,8 +86,22 @@ class EpisodeOutcome:
 
     @property
     def key(self) -> tuple[str, str, str, int, int, str, str]:
-        """Identity of the rollout: protocol position plus the checkpoint and evaluation settings used."""
-        return (self.method, self.task, self.split, self.repeat, self.episode, self.checkpoint, self.settings)
+        """Identity of the rollout: protocol position plus the checkpoint (:func:`portable_path`) and evaluation
+        settings used."""
+        return (self.method, self.task, self.split, self.repeat, self.episode, portable_path(self.checkpoint),
+                self.settings)
+
+
+def portable_path(path: str) -> str:
+    """``path`` relative to the working folder (POSIX separators) when it is absolute and lies inside it, else
+    ``path`` unchanged: how an outcome log names a checkpoint, so the log of ``/a/clone/models/m.pt`` and of
+    ``/b/clone/models/m.pt`` agree (``models/m.pt``) when each is run from its clone's root."""
+    if not path or not Path(path).is_absolute():
+        return path
+    try:
+        return Path(path).relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return path
 
 
 def trajectory_digest(actions: Iterable[Any]) -> str:
@@ -145,6 +160,11 @@ class OutcomeLog:
             outcomes.append(EpisodeOutcome(**{k: v for k, v in record.items() if k in names}))
         return outcomes
 
+    def copy_portable(self, target: str | Path) -> None:
+        """Write this log's outcomes to ``target`` with every checkpoint as :func:`portable_path` names it (what an
+        experiment's carry commits: older logs named absolute paths)."""
+        write_text_atomic(target, "".join(json.dumps(portable_record(o)) + "\n" for o in self.read()))
+
     def done(self) -> set[tuple[str, str, str, int, int, str, str]]:
         """Keys of the episodes already recorded without an error (crashed ones are run again)."""
         return {o.key for o in self.read() if not o.error}
@@ -155,8 +175,13 @@ class OutcomeLog:
             f.seek(0, 2)
             torn = f.tell() > 0 and (f.seek(-1, 2), f.read(1))[1] != b"\n"
             # after an interrupted write, start a new line so this record is not glued to the torn one
-            f.write((b"\n" if torn else b"") + (json.dumps(asdict(outcome)) + "\n").encode())
+            f.write((b"\n" if torn else b"") + (json.dumps(portable_record(outcome)) + "\n").encode())
             f.flush()
+
+
+def portable_record(outcome: EpisodeOutcome) -> dict[str, Any]:
+    """The JSON record of one outcome as the log writes it (its checkpoint through :func:`portable_path`)."""
+    return {**asdict(outcome), "checkpoint": portable_path(outcome.checkpoint)}
 
 
 @dataclass

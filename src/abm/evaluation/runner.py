@@ -32,6 +32,7 @@ from abm.evaluation.results import (
     eval_seed,
     failure_reason,
     markdown_table,
+    portable_path,
     subgoal_rates,
     subgoal_results,
     trajectory_digest,
@@ -67,7 +68,9 @@ class EvalJob:
 
     @property
     def key(self) -> tuple[str, str, str, int, int, str, str]:
-        return (self.method, self.task, self.split, self.repeat, self.episode, self.checkpoint, self.settings)
+        """The key of this job's :class:`EpisodeOutcome` (the checkpoint as the log names it)."""
+        return (self.method, self.task, self.split, self.repeat, self.episode, portable_path(self.checkpoint),
+                self.settings)
 
 
 def _load_policy(run: str, settings: EvalSettings) -> Any:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from abm.evaluation.results import OutcomeLog
 from abm.experiments.spec import ExperimentSpec
 from abm.machine import describe_machine
 
@@ -300,9 +301,10 @@ def _eval_folders(layout: Layout) -> Iterator[tuple[str, Path]]:
 def carry_unfinished(spec: ExperimentSpec, layout: Layout, steps: int) -> list[str]:
     """Copy what a continuation on another machine needs into CARRY (then commit it); returns what was copied.
 
-    Unfinished evaluations leave their outcomes so far (``CARRY/eval/RUN/SPLIT/outcomes.jsonl`` and
-    ``evaluation.json``); unfinished trainings (no zoo file yet and fewer than ``steps`` steps) their latest
-    checkpoint and log (``CARRY/RUN/``)."""
+    Unfinished evaluations leave their outcomes so far (``CARRY/eval/RUN/SPLIT/outcomes.jsonl``, each checkpoint
+    relative to the working folder: :func:`abm.evaluation.results.portable_path`; and ``evaluation.json``);
+    unfinished trainings (no zoo file yet and fewer than ``steps`` steps) their latest checkpoint and log
+    (``CARRY/RUN/``)."""
     if layout.carry is None:
         return []
     copied = []
@@ -312,9 +314,9 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout, steps: int) -> list[s
         target = layout.carry / "eval" / name
         shutil.rmtree(target, ignore_errors=True)
         target.mkdir(parents=True)
-        for file in ("outcomes.jsonl", "evaluation.json"):
-            if (folder / file).is_file():
-                shutil.copyfile(folder / file, target / file)
+        OutcomeLog(folder / "outcomes.jsonl").copy_portable(target / "outcomes.jsonl")
+        if (folder / "evaluation.json").is_file():
+            shutil.copyfile(folder / "evaluation.json", target / "evaluation.json")
         copied.append(f"eval/{name}")
     for run in spec.runs:
         if layout.zoo is not None and layout.zoo_file(run).is_file():
