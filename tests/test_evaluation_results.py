@@ -1,6 +1,7 @@
 """Success-table aggregation on made-up outcomes, and the resumable outcome log."""
 
 import json
+from dataclasses import replace
 
 import pytest
 
@@ -14,6 +15,7 @@ from abm.evaluation.results import (
     write_csv,
     write_json,
 )
+from abm.evaluation.runner import EvalJob
 
 
 def outcomes():
@@ -104,6 +106,9 @@ def test_the_log_names_checkpoints_inside_the_working_folder_relative_to_it(tmp_
     old = EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, True, checkpoint=str(clone / "models/m.pt"))
     assert old.key == log.read()[0].key and old.key in log.done()
     assert portable_path("models/m.pt") == "models/m.pt" and portable_path("") == ""
+    # the job that produces a rollout has its outcome's key, so resume skips it
+    job = EvalJob("models/m.pt", "abm", "pick_block", "seen", 0, 0, 1, checkpoint=str(clone / "models/m.pt"))
+    assert job.key in log.done() and replace(job, episode=2).key not in log.done()
 
 
 def test_eval_seeds_are_shared_and_distinct():

@@ -21,7 +21,7 @@ from abm.experiments import scheduler
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Source
 from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
 from abm.experiments.stages import BLOCKED, DONE, LEFT, Engine
-from abm.experiments.state import Layout, carry_unfinished, restore_evaluation, restore_training
+from abm.experiments.state import Layout, carry_unfinished, restore_evaluation, restore_training, span_minutes
 
 TINY: dict = {
     "name": "tiny",
@@ -172,8 +172,8 @@ def test_stages_plan_what_is_left_from_the_files_on_disk(tmp_path: Path) -> None
 class FakeRunner:
     """Runs nothing: records the commands and makes the files each job would write."""
 
-    def __init__(self, engine_root: Path, fail: str = "") -> None:
-        self.root, self.fail, self.ran = engine_root, fail, []
+    def __init__(self, engine_root: Path, fail: str = "", stop: str = "") -> None:
+        self.root, self.fail, self.stop, self.ran = engine_root, fail, stop, []
 
     def run(self, commands, source, slots, on_start=None):
         codes = {}
@@ -182,6 +182,8 @@ class FakeRunner:
                 cmd.before()
             if on_start:
                 on_start(cmd, None)
+            if cmd.job == self.stop:
+                raise KeyboardInterrupt  # Ctrl-C or SIGTERM while the job runs
             self.ran.append(cmd.job)
             argv = cmd.argv
             if cmd.job.startswith("train/") and cmd.job != self.fail:
@@ -256,6 +258,28 @@ def test_a_failed_training_stops_before_the_next_stage_and_carries_its_state(tmp
     failed = status["train/abm_oracle"]
     assert failed.state == "failed" and "logs/train_abm_oracle.log" in failed.note
     assert (tmp_path / "models/carry/abm_oracle/step_00000001.pt").is_file()  # the carry of the unfinished run
+
+
+def test_a_stopped_stage_closes_its_spans_and_leaves_the_job_to_do(tmp_path: Path) -> None:
+    spec, _ = _spec(tmp_path, _one_run())
+    engine = Engine(spec, root=tmp_path, runner=FakeRunner(tmp_path, stop="train/abm_oracle"))
+    _touch_checkpoint(engine.layout, "abm_oracle", 1)
+    with pytest.raises(KeyboardInterrupt):
+        engine.run(["train", "export"])
+    last = [json.loads(line) for line in engine.layout.jobs.read_text().splitlines()][-1]
+    assert last["job"] == "train/abm_oracle" and last["event"] == "end" and last["stopped"] and last["rc"] is None
+    assert engine.layout.times.read_text().split()[0::2] == ["train_start", "train_end"]  # the stage's minutes count
+    status = {j.id: j for j in Engine(spec, root=tmp_path).status()}
+    assert status["train/abm_oracle"].state == LEFT  # neither failed nor done: the next run resumes it
+    assert (tmp_path / "models/carry/abm_oracle/step_00000001.pt").is_file()
+
+
+def test_a_job_resumed_over_sessions_counts_every_session_s_minutes() -> None:
+    events = [{"event": "start", "time": 0.0}, {"event": "end", "time": 600.0, "rc": None, "stopped": True},
+              {"event": "start", "time": 1000.0},  # the machine went down: no end, no minutes
+              {"event": "start", "time": 2000.0}, {"event": "end", "time": 2300.0, "rc": 0}]
+    assert span_minutes(events) == pytest.approx(15.0)
+    assert span_minutes(events[:1]) is None
 
 
 def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Path, monkeypatch) -> None:

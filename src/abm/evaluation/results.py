@@ -85,11 +85,20 @@ class EpisodeOutcome:
     grounding: list[dict[str, Any]] = field(default_factory=list)
 
     @property
-    def key(self) -> tuple[str, str, str, int, int, str, str]:
-        """Identity of the rollout: protocol position plus the checkpoint (:func:`portable_path`) and evaluation
-        settings used."""
-        return (self.method, self.task, self.split, self.repeat, self.episode, portable_path(self.checkpoint),
-                self.settings)
+    def key(self) -> RolloutKey:
+        """Identity of the rollout (:func:`rollout_key`)."""
+        return rollout_key(self)
+
+
+RolloutKey = tuple[str, str, str, int, int, str, str]
+
+
+def rollout_key(rollout: Any) -> RolloutKey:
+    """Identity of one rollout, shared by an :class:`EpisodeOutcome` and the job that produces it: its protocol
+    position (method, task, split, repeat, episode), the checkpoint as :func:`portable_path` names it and the
+    evaluation settings used."""
+    return (rollout.method, rollout.task, rollout.split, rollout.repeat, rollout.episode,
+            portable_path(rollout.checkpoint), rollout.settings)
 
 
 def portable_path(path: str) -> str:

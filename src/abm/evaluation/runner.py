@@ -27,12 +27,13 @@ from abm.evaluation.policies import check_policies, code_digest, forget_policies
 from abm.evaluation.results import (
     EpisodeOutcome,
     OutcomeLog,
+    RolloutKey,
     SuccessRate,
     aggregate,
     eval_seed,
     failure_reason,
     markdown_table,
-    portable_path,
+    rollout_key,
     subgoal_rates,
     subgoal_results,
     trajectory_digest,
@@ -67,10 +68,9 @@ class EvalJob:
     settings: str = ""
 
     @property
-    def key(self) -> tuple[str, str, str, int, int, str, str]:
-        """The key of this job's :class:`EpisodeOutcome` (the checkpoint as the log names it)."""
-        return (self.method, self.task, self.split, self.repeat, self.episode, portable_path(self.checkpoint),
-                self.settings)
+    def key(self) -> RolloutKey:
+        """The key of this job's :class:`EpisodeOutcome` (:func:`rollout_key`)."""
+        return rollout_key(self)
 
 
 def _load_policy(run: str, settings: EvalSettings) -> Any:

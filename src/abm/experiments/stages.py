@@ -47,6 +47,7 @@ from abm.experiments.state import (
     restore,
     restore_evaluation,
     restore_training,
+    span_minutes,
     stamp,
 )
 from abm.grounding.config import GROUNDERS
@@ -125,6 +126,7 @@ class Engine:
         self.clip_model = clip_model
         self.steps = training_steps(spec)
         self._events: dict[str, list[dict[str, Any]]] = {}
+        self._open: set[str] = set()  # jobs started and not ended yet
         self._kept = dict(kept_pairs(spec, self.layout))
 
     # ------------------------------------------------------------------------------------------- helpers
@@ -466,6 +468,7 @@ class Engine:
             assert job.argv is not None
 
             def after(code: int, job: Job = job) -> None:
+                self._open.discard(job.id)
                 log_job(self.layout, job.id, "end", rc=code)
                 if job.after is not None:
                     job.after(code)
@@ -476,6 +479,7 @@ class Engine:
         return commands
 
     def _start(self, command: Command, pid: int | None) -> None:
+        self._open.add(command.job)
         log_job(self.layout, command.job, "start", pid=pid, backend=self.backend)
         LOG.info("  %s  (log: %s)", command.job, self.rel(command.log))
 
@@ -556,7 +560,16 @@ class Engine:
         record_machine(self.layout)
         slots, cpus = self.slots(stage)
         runner = self._runner(cpus) if stage in ("train", "eval") else LocalRunner()
-        codes = runner.run(self._commands(todo), self.source, slots, on_start=self._start)
+        try:
+            codes = runner.run(self._commands(todo), self.source, slots, on_start=self._start)
+        except BaseException:
+            # stopped (Ctrl-C, SIGTERM): close the spans of the jobs that ran and of the stage, so their minutes
+            # count; a stopped job stays left (no exit code: it is neither done nor failed)
+            for job_id in sorted(self._open):
+                log_job(self.layout, job_id, "end", rc=None, stopped=True)
+            self._open.clear()
+            stamp(self.layout, f"{stage}_end")
+            raise
         stamp(self.layout, f"{stage}_end")
         failed = [job for job in todo if codes.get(job.id, 1) != 0]
         for job in failed:
@@ -581,9 +594,9 @@ class Engine:
                         (job.folder is not None and folder_busy(job.folder)) or self._live(starts, ends)):
                     job.state = RUNNING
                 if job.state == RUNNING and starts:
-                    job.minutes = (time.time() - starts[-1]["time"]) / 60
-                elif job.state == DONE and starts and ends and ends[-1]["time"] >= starts[-1]["time"]:
-                    job.minutes = (ends[-1]["time"] - starts[-1]["time"]) / 60
+                    job.minutes = (span_minutes(events) or 0.0) + (time.time() - starts[-1]["time"]) / 60
+                elif job.state == DONE:
+                    job.minutes = span_minutes(events)
                 elif job.state != DONE and ends and ends[-1].get("rc") not in (0, None) and job.state == LEFT:
                     job.state, job.note = FAILED, f"exit code {ends[-1]['rc']}: see {self.rel(self.layout.log(job.id))}"
                 jobs.append(job)

@@ -20,7 +20,7 @@ import re
 import shutil
 import socket
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -223,6 +223,20 @@ def log_job(layout: Layout, job: str, event: str, **extra: Any) -> None:
     record = {"job": job, "event": event, "time": round(time.time(), 1), "host": socket.gethostname(), **extra}
     with layout.jobs.open("a") as f:
         f.write(json.dumps(record) + "\n")
+
+
+def span_minutes(events: Sequence[Mapping[str, Any]]) -> float | None:
+    """Minutes of a job over every session: each ``start`` closed by the next ``end`` adds its span (a job resumed
+    over three sessions counts all three; a start that no end closed, as when the machine went down, adds
+    nothing). ``None`` when no span is closed."""
+    total, opened = None, None
+    for event in events:
+        if event["event"] == "start":
+            opened = event["time"]
+        elif event["event"] == "end" and opened is not None:
+            total = (total or 0.0) + (event["time"] - opened) / 60
+            opened = None
+    return total
 
 
 def job_events(layout: Layout) -> dict[str, list[dict[str, Any]]]:
