@@ -568,9 +568,9 @@ class Engine:
             for job_id in sorted(self._open):
                 log_job(self.layout, job_id, "end", rc=None, stopped=True)
             self._open.clear()
-            stamp(self.layout, f"{stage}_end")
             raise
-        stamp(self.layout, f"{stage}_end")
+        finally:
+            stamp(self.layout, f"{stage}_end")
         failed = [job for job in todo if codes.get(job.id, 1) != 0]
         for job in failed:
             LOG.error("%s failed (exit code %s): see %s", job.id, codes.get(job.id), self.rel(self.layout.log(job.id)))
