@@ -238,13 +238,91 @@ def test_a_run_does_what_is_left_and_a_rerun_nothing(tmp_path: Path, monkeypatch
     assert json.loads((tmp_path / "models/index.json").read_text())[0]["name"] == "abm_oracle"
     assert (tmp_path / "docs/results/tiny/abm_oracle_seen.json").is_file()  # kept for a fresh clone
     times = (tmp_path / "runs/tiny/times.txt").read_text().split()
-    assert times[0::2] == ["data_start", "data_end", "train_start", "train_end", "export_start", "export_end",
-                           "eval_start", "eval_end"]
+    # the export ran as its training ended (inside the train stage): the export stage found nothing left
+    assert times[0::2] == ["data_start", "data_end", "train_start", "train_end", "eval_start", "eval_end"]
     runner.ran.clear()
     assert Engine(spec, root=tmp_path, runner=runner).run(["data", "train", "export", "eval", "report"]) == 0
     assert runner.ran == []  # everything is done: nothing runs twice
     status = {j.id: j for j in Engine(spec, root=tmp_path).status()}
     assert status["eval/abm_oracle/seen"].state == DONE and status["eval/abm_oracle/seen"].minutes is not None
+
+
+def _two_oracle_runs() -> dict:
+    """The tiny spec with two oracle runs (no CLIP needed)."""
+    data = _one_run()
+    data["runs"]["abm_oracle_seed1"] = {"label": "ABM, oracle mask, seed 1",
+                                        "train": {"method": "abm", "grounder": "oracle", "seed": 1}}
+    return data
+
+
+def _fake_export(tmp_path: Path, ran: list[str]):
+    def run(self, commands, source, slots, on_start=None):  # abm export: writes the zoo file
+        for cmd in commands:
+            if on_start:
+                on_start(cmd, None)
+            target = tmp_path / cmd.argv[cmd.argv.index("--out") + 1]
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(b"model")
+            ran.append(cmd.job)
+            if cmd.after:
+                cmd.after(0)
+        return {cmd.job: 0 for cmd in commands}
+    return run
+
+
+def test_each_training_is_exported_as_soon_as_it_ends(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    spec, _ = _spec(tmp_path, _two_oracle_runs())
+    runner = FakeRunner(tmp_path)
+    monkeypatch.setattr(LocalRunner, "run", _fake_export(tmp_path, runner.ran))
+    assert Engine(spec, root=tmp_path, runner=runner).run(["train", "export"]) == 0
+    # the first model is in the zoo before the second training ends, and the export stage has nothing left
+    assert runner.ran == ["train/abm_oracle", "export/abm_oracle", "train/abm_oracle_seed1",
+                          "export/abm_oracle_seed1"]
+    assert (tmp_path / "models/abm_oracle.pt").is_file() and (tmp_path / "models/abm_oracle_seed1.pt").is_file()
+    runner.ran.clear()
+    Engine(spec, root=tmp_path, runner=runner).run(["train"])  # without the export stage: none
+    assert runner.ran == []
+    for path in (tmp_path / "models").glob("*.pt"):
+        path.unlink()
+    (tmp_path / "runs/tiny/abm_oracle_seed1/checkpoints/step_00000003.pt").unlink()
+    Engine(spec, root=tmp_path, runner=runner).run(["train"])
+    assert runner.ran == ["train/abm_oracle_seed1"] and not list((tmp_path / "models").glob("*.pt"))
+
+
+def test_a_finished_training_not_exported_yet_is_carried_and_exported_on_a_fresh_clone(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    spec, _ = _spec(tmp_path, _two_oracle_runs())
+    layout = Layout.of(spec, tmp_path)
+    _touch_checkpoint(layout, "abm_oracle", 3)  # finished while its sibling still trained: the session stopped
+    _touch_checkpoint(layout, "abm_oracle_seed1", 1)
+    assert carry_unfinished(spec, layout) == ["abm_oracle", "abm_oracle_seed1"]
+    assert (tmp_path / "models/carry/abm_oracle/step_00000003.pt").is_file()
+    fresh = tmp_path / "fresh"
+    ran: list[str] = []
+    monkeypatch.setattr(LocalRunner, "run", _fake_export(tmp_path, ran))
+    restored = {}
+
+    class Resuming(FakeRunner):  # what each training found in its folder when it started
+        def run(self, commands, source, slots, on_start=None):
+            for cmd in commands:
+                original = cmd.before
+
+                def before(cmd=cmd, original=original) -> None:
+                    original()
+                    found = (tmp_path / cmd.argv[cmd.argv.index("--out") + 1] / "checkpoints").glob("*.pt")
+                    restored[cmd.job] = sorted((p.name, p.read_bytes()) for p in found)
+                cmd.before = before
+            return super().run(commands, source, slots, on_start)
+
+    engine = Engine(spec, root=tmp_path, out=fresh, runner=Resuming(tmp_path))
+    assert {j.id: j.note for j in engine.plan("train")}["train/abm_oracle"] == "continues from the carry"
+    assert engine.run(["train", "export"]) == 0
+    # each training resumed from its carried checkpoint (abm train --resume at the last step trains no more)
+    assert restored == {"train/abm_oracle": [("step_00000003.pt", b"ckpt")],
+                        "train/abm_oracle_seed1": [("step_00000001.pt", b"ckpt")]}
+    assert ran == ["export/abm_oracle", "export/abm_oracle_seed1"] and (tmp_path / "models/abm_oracle.pt").is_file()
+    assert not (tmp_path / "models/carry/abm_oracle").exists()  # exported: its carry is dropped
 
 
 def test_a_failed_training_stops_before_the_next_stage_and_carries_its_state(tmp_path: Path) -> None:
@@ -289,7 +367,9 @@ def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Pat
     _touch_checkpoint(layout, "abm_oracle", 1)
     _touch_checkpoint(layout, "abm_oracle", 2)
     (layout.run_dir("abm_oracle") / "log.csv").write_text("step,elapsed_s\n2,60\n")
-    _touch_checkpoint(layout, "rvt_clip", 3)  # finished: nothing to carry
+    _touch_checkpoint(layout, "rvt_clip", 3)  # finished and exported: nothing to carry
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models/rvt_clip.pt").write_bytes(b"model")
     ev = layout.eval_dir("abm_oracle", "seen")
     ev.mkdir(parents=True)
     # a log written before checkpoints were recorded relative to the root: the carry names it relative
@@ -299,7 +379,7 @@ def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Pat
     done.mkdir(parents=True)
     (done / "outcomes.jsonl").write_text("{}\n")
     (done / "results.json").write_text("[]")
-    assert carry_unfinished(spec, layout, steps=3) == ["eval/abm_oracle/seen", "abm_oracle"]
+    assert carry_unfinished(spec, layout) == ["eval/abm_oracle/seen", "abm_oracle"]
     assert sorted(p.name for p in (tmp_path / "models/carry/abm_oracle").iterdir()) == ["log.csv",
                                                                                        "step_00000002.pt"]
     fresh = Layout.of(spec, tmp_path, tmp_path / "fresh")

@@ -249,6 +249,10 @@ def test_an_existing_run_is_never_silently_replaced(episodes, tmp_path, capsys) 
     with pytest.raises(ValueError, match="already at step 4, past --steps 2"):
         train(_cfg(tmp_path / "run", steps=2, resume=True), episodes)
     assert json.loads((tmp_path / "run/config.json").read_text())["train"]["steps"] == 4
+    # resuming a finished run (the engine's carry of a model not exported yet) trains nothing more
+    train(_cfg(tmp_path / "run", steps=4, resume=True), episodes)
+    assert list_checkpoints(tmp_path / "run")[-1][0] == 4
+    assert (tmp_path / "run/checkpoints/step_00000004.pt").read_bytes() == before
     # --overwrite replaces it: only the new run's checkpoints remain
     train(_cfg(tmp_path / "run", method="rvt", steps=2, overwrite=True), episodes)
     assert [s for s, _ in list_checkpoints(tmp_path / "run")] == [2]

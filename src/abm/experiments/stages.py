@@ -4,7 +4,8 @@ Each stage is a list of :class:`Job` s planned from the spec and the files on di
 is done and never runs again (a resumed run, a rerun, a fresh clone after :func:`~abm.experiments.state.restore`);
 a job that cannot run yet says why (no benchmark CLIP, not trained yet). Trainings run N at a time × T threads
 (:mod:`abm.experiments.scheduler`), each continuing from its last checkpoint (``abm train --resume``) or, on a
-fresh clone, from the committed carry; evaluations skip finished episodes (``abm eval`` resumes by itself).
+fresh clone, from the committed carry, and is exported the moment it ends when the run has the export stage
+too; evaluations skip finished episodes (``abm eval`` resumes by itself).
 
 ::
 
@@ -127,6 +128,7 @@ class Engine:
         self.steps = training_steps(spec)
         self._events: dict[str, list[dict[str, Any]]] = {}
         self._open: set[str] = set()  # jobs started and not ended yet
+        self._export_with_training = False  # export each training as it ends (run() with train and export)
         self._kept = dict(kept_pairs(spec, self.layout))
 
     # ------------------------------------------------------------------------------------------- helpers
@@ -288,8 +290,20 @@ class Engine:
                                            + yaml.safe_dump(self.recipe(run), sort_keys=False))
 
                 job.before = before
+                job.after = lambda code, run=run: self._export_now(run) if code == 0 else None
             jobs.append(job)
         return jobs
+
+    def _export_now(self, run: str) -> None:
+        """Export ``run`` the moment its training ends, when this invocation runs the export stage too: its
+        sibling may train for hours yet, and until the zoo file exists a session that stops loses the finished
+        model on a fresh machine (and its evaluations cannot start). The export stage then finds it done."""
+        if not self._export_with_training:
+            return
+        todo = [job for job in self._export() if job.id == f"export/{run}" and job.state == LEFT]
+        if todo:
+            LOG.info("export/%s: its training finished, exported now", run)
+            LocalRunner().run(self._commands(todo), self.source, 1, on_start=self._start)
 
     def _export(self) -> list[Job]:
         if self.layout.zoo is None:
@@ -490,6 +504,7 @@ class Engine:
         if unknown:
             raise ConfigError(f"--stages {' '.join(unknown)}: unknown (stages: {', '.join(STAGES + EXTRA_STAGES)})")
         order = [s for s in (*STAGES, *EXTRA_STAGES) if s in stages]
+        self._export_with_training = not dry_run and "train" in order and "export" in order
         if not dry_run:
             copied = restore(self.spec, self.layout)
             if copied:
@@ -522,7 +537,7 @@ class Engine:
 
     def carry(self) -> list[str]:
         """Carry the unfinished trainings and evaluations (see :func:`carry_unfinished`)."""
-        copied = carry_unfinished(self.spec, self.layout, self.steps)
+        copied = carry_unfinished(self.spec, self.layout)
         if copied:
             LOG.info("carried %s into %s (commit it to continue elsewhere)", ", ".join(copied),
                      self.rel(self.layout.carry or self.root))

@@ -312,13 +312,13 @@ def _eval_folders(layout: Layout) -> Iterator[tuple[str, Path]]:
             yield folder.relative_to(root).as_posix(), folder
 
 
-def carry_unfinished(spec: ExperimentSpec, layout: Layout, steps: int) -> list[str]:
+def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
     """Copy what a continuation on another machine needs into CARRY (then commit it); returns what was copied.
 
     Unfinished evaluations leave their outcomes so far (``CARRY/eval/RUN/SPLIT/outcomes.jsonl``, each checkpoint
     relative to the working folder: :func:`abm.evaluation.results.portable_path`; and ``evaluation.json``);
-    unfinished trainings (no zoo file yet and fewer than ``steps`` steps) their latest checkpoint and log
-    (``CARRY/RUN/``)."""
+    trainings without a zoo file yet their latest checkpoint and log (``CARRY/RUN/``): an unfinished one continues
+    from it, a finished one (its export had not run) is exported from it."""
     if layout.carry is None:
         return []
     copied = []
@@ -336,7 +336,7 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout, steps: int) -> list[s
         if layout.zoo is not None and layout.zoo_file(run).is_file():
             continue
         found = checkpoints(layout.run_dir(run))
-        if not found or found[-1][0] >= steps:
+        if not found:
             continue
         target = layout.carry / run
         shutil.rmtree(target, ignore_errors=True)
