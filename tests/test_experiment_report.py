@@ -27,13 +27,19 @@ TASKS = SPEC.split_tasks()["seen"]
 COMPOSITIONAL = SPEC.split_tasks()["compositional"]
 
 
-def _committed_root(tmp_path: Path) -> Path:
-    """A scratch root holding copies of what the paper-tables report reads and writes (the model files and
+#: what a paper-tables report writes (both editions): its document and records, the README, the zoo's index and README
+WRITTEN = {"paper_tables": ("docs/results/paper_tables.json", "docs/results/paper_tables.md", "README.md",
+                            "models/index.json", "models/README.md"),
+           "paper_tables_v2": ("docs/results/paper_tables_v2.json", "docs/results/paper_tables_v2.md", "README.md",
+                               "models/index.json", "models/README.md")}
+
+
+def _committed_root(tmp_path: Path, spec=SPEC) -> Path:
+    """A scratch root holding copies of what a paper-tables report reads and writes (the model files and
     the benchmark CLIP linked, read only)."""
     root = tmp_path / "root"
-    shutil.copytree(REPO / SPEC.kept, root / SPEC.kept)
-    for name in ("docs/results/paper_tables.json", "docs/results/paper_tables.md", "README.md", "models/index.json",
-                 "models/README.md"):
+    shutil.copytree(REPO / spec.kept, root / spec.kept)
+    for name in WRITTEN[spec.name]:
         (root / name).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(REPO / name, root / name)
     for model in (REPO / "models").iterdir():
@@ -47,15 +53,25 @@ def test_the_committed_paper_tables_report_regenerates_from_the_committed_outcom
     engine = Engine(SPEC, root=root)
     assert engine.run(["report"]) == 0  # a fresh clone: OUT is empty, the kept outcomes are restored first
     assert (root / "runs/paper/eval/abm_clip/seen/results.json").is_file()
-    for name in ("README.md", "docs/results/paper_tables.json", "docs/results/paper_tables.md", "models/index.json",
-                 "models/README.md"):
+    for name in WRITTEN[SPEC.name]:  # the README is the second edition's: this one leaves it as it is
         assert (root / name).read_bytes() == (REPO / name).read_bytes(), f"{name} differs from its regeneration"
-    block = rep.block_of((REPO / "README.md").read_text(), "paper-tables")
-    assert "| **average** | **21.2** | **9.5** |" in block and "| stack | 27.2 | 14.8 | 0.54 | 72.8 | 54.9 |" in block
-    assert block.startswith(
-        "Written by `abm experiment run paper_tables` ([src/abm/configs/experiments/paper_tables.yaml]")
+    text = (REPO / "docs/results/paper_tables.md").read_text()
+    assert "| **average** | **21.2** | **9.5** |" in text and "| stack | 27.2 | 14.8 | 0.54 | 72.8 | 54.9 |" in text
     # the report stage adds no machine: only stages that ran work record one
     assert (root / SPEC.kept / "machines.txt").read_bytes() == (REPO / SPEC.kept / "machines.txt").read_bytes()
+
+
+def test_the_committed_second_edition_and_the_readme_block_regenerate_from_the_committed_outcomes(
+        tmp_path: Path) -> None:
+    v2 = load_spec("paper_tables_v2")
+    root = _committed_root(tmp_path, v2)
+    assert Engine(v2, root=root).run(["report"]) == 0
+    for name in WRITTEN[v2.name]:
+        assert (root / name).read_bytes() == (REPO / name).read_bytes(), f"{name} differs from its regeneration"
+    block = rep.block_of((REPO / "README.md").read_text(), "paper-tables")
+    assert block.startswith(
+        "Written by `abm experiment run paper_tables_v2` ([src/abm/configs/experiments/paper_tables_v2.yaml]")
+    assert "**Table 1**" in block and "**Table 3**" in block and "paper_tables.md" in block  # the first edition's
 
 
 def _rate(task: str, split: str, per_repeat: list[float]) -> dict:
