@@ -415,6 +415,20 @@ def test_the_local_runner_runs_n_at_a_time_and_gives_a_lone_job_every_thread(tmp
     assert before["c"] >= min(a_end, b_end) - 0.05 and before["c"] <= c_start
 
 
+def test_threads_given_on_the_command_line_hold_for_every_training_also_a_lone_one(tmp_path: Path) -> None:
+    (cmd,) = [_sleeper(tmp_path, "lone")]
+    assert LocalRunner(lend_idle_threads=False).run([cmd], Source(None), slots=2) == {"lone": 0}
+    assert (tmp_path / "lone.txt").read_text().split()[0] == "1"  # another run shares the machine: no more
+    spec, _ = _spec(tmp_path, _one_run())
+    engine = Engine(spec, root=tmp_path, threads=3)
+    (train,) = engine.plan("train")
+    assert train.threads == 3 and engine.slots("train") == (2, 3)
+    assert not engine._runner(3).lend_idle_threads and Engine(spec, root=tmp_path)._runner(1).lend_idle_threads
+    assert Engine(spec, root=tmp_path).plan("train")[0].threads == 1  # the spec's resources.threads_each
+    with pytest.raises(ConfigError, match="--threads 0: a training needs at least one thread"):
+        Engine(spec, root=tmp_path, threads=0)
+
+
 def test_the_local_runner_stops_its_jobs_when_interrupted(tmp_path: Path) -> None:
     cmd = Command("long", [sys.executable, "-c", "import time; time.sleep(60)"], tmp_path / "long.log", tmp_path)
     started = []

@@ -42,6 +42,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     run.add_argument("--source", type=Path, default=None,
                      help="the checkout whose code the jobs run (e.g. a worktree pinned at a commit; default: the "
                           "one abm is imported from)")
+    run.add_argument("--threads", type=int, default=None, metavar="N",
+                     help="torch threads of every training (default: the spec's resources.threads_each, and a "
+                          "training left alone takes the idle slots' too); give it when another run shares the "
+                          "machine, so a lone training does not take its cores")
     run.add_argument("--dry-run", action="store_true", help="print the jobs left and their commands, run nothing")
     add_backend_arguments(run)  # --backend local|ray, --ray-address
     run.set_defaults(func="abm.cli.commands.experiment:run")

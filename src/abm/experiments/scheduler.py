@@ -119,7 +119,11 @@ def _run_blocking(argv: list[str], env: dict[str, str], cwd: str, log: str) -> i
 
 class LocalRunner:
     """Local subprocesses, ``slots`` at a time, each with its command's threads (a job started last, with no
-    other running or waiting, gets every slot's threads). An interrupt stops the running ones (by their ids)."""
+    other running or waiting, gets every slot's threads unless ``lend_idle_threads`` is off: another run shares
+    the machine). An interrupt stops the running ones (by their ids)."""
+
+    def __init__(self, lend_idle_threads: bool = True) -> None:
+        self.lend_idle_threads = lend_idle_threads
 
     def run(self, commands: Sequence[Command], source: Source, slots: int,
             on_start: Callable[[Command, int | None], None] | None = None) -> dict[str, int]:
@@ -131,7 +135,7 @@ class LocalRunner:
                 while waiting and len(running) < slots:
                     cmd = waiting.pop(0)
                     threads = cmd.threads
-                    if threads is not None and not waiting and not running:
+                    if threads is not None and self.lend_idle_threads and not waiting and not running:
                         threads *= slots  # alone: the others' threads too
                     if cmd.before is not None:
                         cmd.before()

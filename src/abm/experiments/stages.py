@@ -109,11 +109,16 @@ class Engine:
         runner: the runner of the trainings and evaluations (default: from ``backend``; tests pass their own).
         clip_model: the CLIP weights the runs that need one use (a hub name or a folder), instead of the spec's
             ``clip`` folder (``abm quickstart`` passes the one it found).
+        threads: torch threads of every training, instead of the spec's ``resources.threads_each``; also keeps a
+            training left alone at that many (by default it takes the idle slots' threads too), for when another
+            run shares the machine.
     """
 
     def __init__(self, spec: ExperimentSpec, root: Path, out: Path | None = None, source: Source | None = None,
                  runs: Sequence[str] | None = None, backend: str = "local", ray_address: str | None = None,
-                 runner: Runner | None = None, clip_model: str | None = None) -> None:
+                 runner: Runner | None = None, clip_model: str | None = None, threads: int | None = None) -> None:
+        if threads is not None and threads < 1:
+            raise ConfigError(f"--threads {threads}: a training needs at least one thread")
         unknown = [r for r in runs or () if r not in spec.runs]
         if unknown:
             raise ConfigError(f"--runs {' '.join(unknown)}: not a run of {spec.name} (its runs: "
@@ -125,6 +130,7 @@ class Engine:
         self.backend, self.ray_address = backend, ray_address
         self.runner = runner
         self.clip_model = clip_model
+        self.threads = threads
         self.steps = training_steps(spec)
         self._events: dict[str, list[dict[str, Any]]] = {}
         self._open: set[str] = set()  # jobs started and not ended yet
@@ -270,7 +276,7 @@ class Engine:
             recipe_file = self.layout.recipe(run)
             job = Job(f"train/{run}", "train", self.source.cli(
                 "train", "--config", self.rel(recipe_file), "--out", self.rel(folder), "--resume", "--no-progress"),
-                threads=self.spec.resources.threads_each, folder=folder)
+                threads=self.slots("train")[1], folder=folder)
             step = last_logged_step(folder)
             if self.trained(run):
                 job.state = DONE
@@ -474,7 +480,9 @@ class Engine:
     def _runner(self, cpus: int) -> Runner:
         if self.runner is not None:
             return self.runner
-        return RayRunner(self.ray_address, cpus) if self.backend == "ray" else LocalRunner()
+        if self.backend == "ray":
+            return RayRunner(self.ray_address, cpus)
+        return LocalRunner(lend_idle_threads=self.threads is None)
 
     def _commands(self, jobs: Iterable[Job]) -> list[Command]:
         commands = []
@@ -525,9 +533,10 @@ class Engine:
         processes each) and diagnoses (one each) as many as fit the trainings' CPUs; the rest one at a time (the
         generator has its own workers; ``abm export`` locks the zoo folder it writes)."""
         res = self.spec.resources
-        cpus = res.trainings_at_a_time * res.threads_each
+        threads = self.threads or res.threads_each
+        cpus = res.trainings_at_a_time * threads
         if stage == "train":
-            return res.trainings_at_a_time, res.threads_each
+            return res.trainings_at_a_time, threads
         if stage == "eval":
             workers = self.spec.evaluation.workers
             return max(1, cpus // workers), workers

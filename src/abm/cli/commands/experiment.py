@@ -15,7 +15,8 @@ from abm.experiments.stages import Engine
 def _engine(args: argparse.Namespace) -> Engine:
     source = Source.at(args.source) if getattr(args, "source", None) else None
     return Engine(load_spec(args.spec), root=args.root, out=args.out, source=source, runs=args.runs,
-                  backend=getattr(args, "backend", "local"), ray_address=getattr(args, "ray_address", None))
+                  backend=getattr(args, "backend", "local"), ray_address=getattr(args, "ray_address", None),
+                  threads=getattr(args, "threads", None))
 
 
 def _interrupt(signum: int, frame: FrameType | None) -> None:
