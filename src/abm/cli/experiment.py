@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from abm.configuration import int_range
 from abm.experiments.spec import EXTRA_STAGES, STAGES
 from abm.ray_pool import add_backend_arguments
 
@@ -42,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     run.add_argument("--source", type=Path, default=None,
                      help="the checkout whose code the jobs run (e.g. a worktree pinned at a commit; default: the "
                           "one abm is imported from)")
-    run.add_argument("--threads", type=int, default=None, metavar="N",
+    run.add_argument("--threads", type=int_range(1, 256), default=None, metavar="N",
                      help="torch threads of every training (default: the spec's resources.threads_each, and a "
                           "training left alone takes the idle slots' too); give it when another run shares the "
                           "machine, so a lone training does not take its cores")
