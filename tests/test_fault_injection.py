@@ -1,6 +1,6 @@
-"""Fault injection: ``kill -9`` of data generation, training and evaluation at seeded random moments,
-then resume. Nothing is lost or duplicated, the resumed training curve equals an uninterrupted one,
-and no worker process outlives its command."""
+"""Fault injection: ``kill -9`` of data generation, training and evaluation at seeded random moments, and a
+scheduler's SIGTERM during training, then resume. Nothing is lost or duplicated, the resumed training curve equals
+an uninterrupted one, and no worker process outlives its command."""
 
 from __future__ import annotations
 
@@ -116,25 +116,60 @@ def _kill_when(proc: subprocess.Popen, ready, timeout: float = 120) -> None:
     proc.wait()
 
 
-def test_kill_9_during_training_then_resume_gives_the_same_curve(tmp_path):
+def _reference_curve(run: Path, steps: int) -> dict[int, float]:
+    """The loss curve of an uninterrupted :func:`_train_cmd` run (in this process: one interpreter start-up less)."""
     import torch
 
     from abm.cli import main
 
-    steps = 8
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # like OMP_NUM_THREADS=1 of the commands below
-    try:  # the uninterrupted reference runs in this process: one interpreter start-up less
-        assert main(_train_cmd(tmp_path / "ref", steps)[3:]) == 0
+    torch.set_num_threads(1)  # like OMP_NUM_THREADS=1 of the commands
+    try:
+        assert main(_train_cmd(run, steps)[3:]) == 0
     finally:
         torch.set_num_threads(threads)
-    reference = _log(tmp_path / "ref")
+    return _log(run)
+
+
+def test_kill_9_during_training_then_resume_gives_the_same_curve(tmp_path):
+    steps = 8
+    reference = _reference_curve(tmp_path / "ref", steps)
     kill_after = random.Random(0).randint(3, steps - 2)  # a seeded random moment, between checkpoints or not
     run = tmp_path / "run"
     proc = subprocess.Popen(_train_cmd(run, steps), env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     log = run / "log.csv"
     _kill_when(proc, lambda: log.is_file() and len(log.read_text().splitlines()) > kill_after)
     resumed = subprocess.run(_train_cmd(run, steps), env=ENV, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    curve = _log(run)
+    assert sorted(curve) == list(range(1, steps + 1))
+    for step, loss in reference.items():
+        assert abs(curve[step] - loss) <= 1e-4 * max(1.0, abs(loss)), (step, curve[step], loss)
+
+
+def test_sigterm_during_training_saves_the_step_it_reached_then_resume_gives_the_same_curve(tmp_path):
+    """A scheduler's SIGTERM (the experiment engine stopping a job): the step in progress ends, a checkpoint of it
+    is saved even between periodic checkpoints, the command exits like Ctrl-C, and the resumed curve is exact."""
+    steps = 8
+    reference = _reference_curve(tmp_path / "ref", steps)
+    run = tmp_path / "run"
+    cmd = _train_cmd(run, steps)
+    cmd[cmd.index("--checkpoint-every") + 1] = "100"  # no periodic checkpoint: only SIGTERM's
+    proc = subprocess.Popen(cmd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    log = run / "log.csv"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None and not (log.is_file()
+                                                                   and len(log.read_text().splitlines()) > 3):
+        time.sleep(0.05)
+    assert proc.poll() is None, "finished before it could be stopped"
+    os.kill(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-2000:]
+    saved = sorted(int(p.stem.split("_")[1]) for p in (run / "checkpoints").glob("step_*.pt"))
+    assert len(saved) == 1 and 3 <= saved[0] < steps, saved
+    assert f"checkpoint saved at step {saved[0]}" in err
+    assert sorted(_log(run)) == list(range(1, saved[0] + 1))  # the log ends at the saved step
+    resumed = subprocess.run(cmd, env=ENV, capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     curve = _log(run)
     assert sorted(curve) == list(range(1, steps + 1))

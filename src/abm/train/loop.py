@@ -11,7 +11,7 @@
   Messages go through :mod:`logging` (logger ``abm.train.loop``; the ``abm`` command shows INFO).
 * Outputs in the run folder: ``config.json``, ``recipe.yaml`` (``abm train --config``), ``log.csv``,
   ``tb/`` (TensorBoard), ``checkpoints/step_XXXXXXXX.pt`` (every ``checkpoint_every`` steps, at the end,
-  and on Ctrl-C), ``summary.json``.
+  and on Ctrl-C or SIGTERM), ``summary.json``.
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ from abm.policy.keyframe_policy import LOSS_TERMS, KeyframePolicy
 from abm.policy.language_config import build_language_encoder
 from abm.progress import Progress
 from abm.train.config import TrainConfig
+from abm.train.stop import StopOnTerm
 from abm.types import Episode
 
 log = logging.getLogger(__name__)
@@ -332,6 +333,8 @@ class Trainer:
         self.prior_s = 0.0  # training seconds of earlier sessions of this run (resumes)
         self.changed: dict[str, tuple[Any, Any]] = {}  # settings changed on resume (--accept-changed-config)
         self._t0 = time.perf_counter()
+        self.term = StopOnTerm()  # installed while fit() runs: SIGTERM stops at a step boundary
+        self.stop_requested = False  # after a step: a SIGTERM arrived (in any rank when distributed)
 
     # ------------------------------------------------------------------ build
     def build(self) -> Trainer:
@@ -508,8 +511,14 @@ class Trainer:
         self.scheduler.step()
         vals = torch.stack([metrics[k] for k in LOSS_TERMS]).float()
         if self.dinfo.enabled:
+            # the SIGTERM flag rides along: any rank's request stops every rank after this same step (a rank that
+            # stopped alone would leave the others waiting in the next all-reduce)
+            vals = torch.cat([vals, vals.new_tensor([1.0 if self.term.flag else 0.0])])
             dist.all_reduce(vals)
-            vals /= self.dinfo.world_size
+            self.stop_requested = bool(vals[-1].item() > 0)
+            vals = vals[:-1] / self.dinfo.world_size
+        else:
+            self.stop_requested = self.term.flag
         return dict(zip(LOSS_TERMS, vals.tolist(), strict=True))
 
     def validation_loss(self) -> float | None:
@@ -557,37 +566,40 @@ class Trainer:
             log.info(self.startup_summary())
         bar = Progress(cfg.steps, f"train {cfg.method}/{cfg.preset}", "steps", initial=step, bar=cfg.progress,
                        enabled=dinfo.main)
-        try:
-            self.train_policy.train()
-            for batch in self.loader:
-                last = self.step(batch)
-                step += 1
-                checkpoint = step % cfg.checkpoint_every == 0 or step == cfg.steps
-                val = self.validation_loss() if checkpoint and dinfo.main else None
-                if val is not None:
-                    bar.postfix["val"] = round(val, 4)
-                    bar.write(f"train {cfg.method}/{cfg.preset}: step {step}, loss {last['total']:.4f}, "
-                              f"validation loss {val:.4f}")
-                bar.update(1, loss=round(last["total"], 4))
-                if step % cfg.log_every == 0 or step == cfg.steps or val is not None:
-                    now = time.perf_counter()
-                    sps = (step - tick_step) * cfg.batch * world / max(now - tick, 1e-9)
-                    tick, tick_step = now, step
-                    lr = float(self.scheduler.get_last_lr()[0])
-                    logger.log({"step": step, "lr": lr, **last, "samples_per_s": sps, "elapsed_s": self.elapsed_s(),
-                                "val_total": "" if val is None else val})
-                if on_step is not None:
-                    on_step(step, last)
-                if step % cfg.checkpoint_every == 0 and step != cfg.steps:
-                    self.save(step)
-        except KeyboardInterrupt:
-            self.save(step)
-            if dinfo.main:
-                log.warning("abm train: interrupted; checkpoint saved at step %d (continue with --resume)", step)
-            raise
-        finally:
-            bar.close()
-            logger.close()
+        with self.term:  # SIGTERM: finish the step, save, stop like Ctrl-C
+            try:
+                self.train_policy.train()
+                for batch in self.loader:
+                    last = self.step(batch)
+                    step += 1
+                    checkpoint = step % cfg.checkpoint_every == 0 or step == cfg.steps
+                    val = self.validation_loss() if checkpoint and dinfo.main else None
+                    if val is not None:
+                        bar.postfix["val"] = round(val, 4)
+                        bar.write(f"train {cfg.method}/{cfg.preset}: step {step}, loss {last['total']:.4f}, "
+                                  f"validation loss {val:.4f}")
+                    bar.update(1, loss=round(last["total"], 4))
+                    if step % cfg.log_every == 0 or step == cfg.steps or val is not None:
+                        now = time.perf_counter()
+                        sps = (step - tick_step) * cfg.batch * world / max(now - tick, 1e-9)
+                        tick, tick_step = now, step
+                        lr = float(self.scheduler.get_last_lr()[0])
+                        logger.log({"step": step, "lr": lr, **last, "samples_per_s": sps,
+                                    "elapsed_s": self.elapsed_s(), "val_total": "" if val is None else val})
+                    if on_step is not None:
+                        on_step(step, last)
+                    if step % cfg.checkpoint_every == 0 and step != cfg.steps:
+                        self.save(step)
+                    if self.stop_requested and step != cfg.steps:
+                        raise KeyboardInterrupt
+            except KeyboardInterrupt:
+                self.save(step)
+                if dinfo.main:
+                    log.warning("abm train: interrupted; checkpoint saved at step %d (continue with --resume)", step)
+                raise
+            finally:
+                bar.close()
+                logger.close()
         if step > self.start or not list_checkpoints(self.run):
             self.save(step)
         return self._summary(step, last)
