@@ -199,3 +199,24 @@ def test_kill_9_during_evaluation_then_resume_runs_each_episode_once(tiny_run, t
     assert sorted(keys) == [(0, e) for e in range(4)], keys  # each planned episode exactly once
     results = json.loads((out / "results.json").read_text())
     assert results[0]["episodes"] == 4
+
+
+def test_the_first_sigterm_raises_the_flag_and_a_second_one_acts_as_before():
+    """Inside StopOnTerm the first SIGTERM only raises the flag (the loop stops after its step); a second one goes
+    to the handler that was there before (by default: the end of the process, for a step that never ends), and
+    leaving restores that handler."""
+    from abm.train.stop import StopOnTerm
+
+    before: list[int] = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: before.append(signum))
+    try:
+        with StopOnTerm() as stop:
+            assert not stop.flag
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert stop.flag and before == []
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert before == [signal.SIGTERM]
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert before == [signal.SIGTERM] * 2
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -18,8 +18,10 @@ from typing import Any
 class StopOnTerm:
     """Context manager: while inside, SIGTERM sets :attr:`flag` instead of ending the process.
 
-    Outside the main thread (where Python cannot install handlers) it installs nothing and the flag stays down.
-    The previous handler is restored on exit. Re-entrant use is not supported (one training loop at a time).
+    The first SIGTERM puts the previous handler back, so a second one acts as it did before (by default: ends the
+    process at once, for a step that does not end). Outside the main thread (where Python cannot install
+    handlers) it installs nothing and the flag stays down. The previous handler is restored on exit; one
+    training loop at a time (not re-entrant).
     """
 
     def __init__(self) -> None:
@@ -29,6 +31,7 @@ class StopOnTerm:
 
     def _handler(self, signum: int, frame: FrameType | None) -> None:
         self.flag = True
+        signal.signal(signal.SIGTERM, self._previous)  # a second SIGTERM acts as before (by default: ends it now)
 
     def __enter__(self) -> StopOnTerm:
         if threading.current_thread() is threading.main_thread():
