@@ -33,25 +33,28 @@ def _clone(tmp_path: Path) -> Path:
     return root
 
 
-def test_the_second_edition_has_the_first_editions_runs_data_and_tasks_plus_a_second_seed() -> None:
-    assert list(V2.runs) == [*V1.runs, "abm_clip_hash_seed1"]
+def test_the_second_edition_has_the_first_editions_runs_data_and_tasks_plus_second_seeds() -> None:
+    assert list(V2.runs) == [*V1.runs, "abm_clip_hash_seed1", "concat-rerendered_seed1"]
     for name, run in V1.runs.items():
         assert (V2.runs[name].train, V2.runs[name].label, V2.runs[name].grounding) == (run.train, run.label,
                                                                                         run.grounding)
-    assert V2.runs["abm_clip_hash_seed1"].train == {**V1.runs["abm_clip_hash"].train, "seed": 1}
+    for run in ("abm_clip_hash", "concat-rerendered"):  # center-pixel and the best fusion, seed 1
+        assert V2.runs[f"{run}_seed1"].train == {**V1.runs[run].train, "seed": 1}
     assert (V2.data, V2.training.tasks, V2.split_tasks()) == (V1.data, V1.training.tasks, V1.split_tasks())
     ev = V2.evaluation
     assert (ev.episodes, ev.repeats, ev.from_zoo, ev.zoo_eval) == (25, 3, True, ("abm_clip", "rvt_clip"))
     assert next(s for s in ev.splits if s.split == "compositional").runs == next(
         s for s in V1.evaluation.splits if s.split == "compositional").runs
     assert V2.training_order() == ["abm_clip", "rvt_clip", "abm_oracle", "ifd_clip", "abm_clip_hash", "stack",
-                                   "concat-rerendered", "concat-full", "abm_clip_hash_seed1"]
+                                   "concat-rerendered", "concat-full", "abm_clip_hash_seed1",
+                                   "concat-rerendered_seed1"]
     assert (V2.out, V2.kept, V2.zoo, V2.zoo_suffix, V2.edition) == ("runs/paper_v2", "docs/results/paper_tables_v2",
                                                                      "models", "_v2", 2)
     assert (V2.report.readme, V2.report.block, V1.report.readme) == ("README.md", "paper-tables", "")  # the block
     probe = V2.diagnose.skill_text
     assert (probe.tasks, probe.kind, probe.within_cm) == (("place_wine", "pick_block"), "move", 5.0)
-    assert "rvt_clip" not in probe.runs and "ifd_clip" not in probe.runs and "abm_clip_hash_seed1" in probe.runs
+    assert "rvt_clip" not in probe.runs and "ifd_clip" not in probe.runs
+    assert {"abm_clip_hash_seed1", "concat-rerendered_seed1"} <= set(probe.runs)
 
 
 def test_the_recipe_is_the_first_editions_plus_the_zoom_and_the_rotation_crop(tmp_path: Path) -> None:
@@ -95,7 +98,7 @@ def test_the_diagnosis_probes_the_skill_text_of_the_exported_models(tmp_path: Pa
     root = _clone(tmp_path)
     engine = Engine(V2, root=root)
     probes = {j.id: j for j in engine.plan("diagnose") if "/skill_text/" in j.id}
-    assert len(probes) == 2 * 7 and all(j.state == BLOCKED and j.note == "not exported yet" for j in probes.values())
+    assert len(probes) == 2 * 8 and all(j.state == BLOCKED and j.note == "not exported yet" for j in probes.values())
     (root / "models/abm_oracle_v2.pt").write_bytes(b"w")  # exported under its second-edition name
     assert {j.id: j.state for j in engine.plan("export")}["export/abm_oracle"] == DONE
     job = {j.id: j for j in engine.plan("diagnose")}["diagnose/skill_text/abm_oracle/pick_block"]
