@@ -107,12 +107,17 @@ def _log(run: Path) -> dict[int, float]:
     return {int(r["step"]): float(r["total"]) for r in rows}
 
 
-def _kill_when(proc: subprocess.Popen, ready, timeout: float = 120) -> None:
+def _signal_when(proc: subprocess.Popen, ready, sig: signal.Signals, timeout: float = 120) -> None:
+    """Send ``sig`` to ``proc`` once ``ready()`` holds (it must still run then)."""
     deadline = time.time() + timeout
     while time.time() < deadline and proc.poll() is None and not ready():
         time.sleep(0.05)
-    assert proc.poll() is None, "finished before it could be killed"
-    os.kill(proc.pid, signal.SIGKILL)
+    assert proc.poll() is None, "finished before it could be signalled"
+    os.kill(proc.pid, sig)
+
+
+def _kill_when(proc: subprocess.Popen, ready, timeout: float = 120) -> None:
+    _signal_when(proc, ready, signal.SIGKILL, timeout)
     proc.wait()
 
 
@@ -157,12 +162,7 @@ def test_sigterm_during_training_saves_the_step_it_reached_then_resume_gives_the
     cmd[cmd.index("--checkpoint-every") + 1] = "100"  # no periodic checkpoint: only SIGTERM's
     proc = subprocess.Popen(cmd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     log = run / "log.csv"
-    deadline = time.time() + 120
-    while time.time() < deadline and proc.poll() is None and not (log.is_file()
-                                                                   and len(log.read_text().splitlines()) > 3):
-        time.sleep(0.05)
-    assert proc.poll() is None, "finished before it could be stopped"
-    os.kill(proc.pid, signal.SIGTERM)
+    _signal_when(proc, lambda: log.is_file() and len(log.read_text().splitlines()) > 3, signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err[-2000:]
     saved = sorted(int(p.stem.split("_")[1]) for p in (run / "checkpoints").glob("step_*.pt"))
