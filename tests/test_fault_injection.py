@@ -137,9 +137,9 @@ def _reference_curve(run: Path, steps: int) -> dict[int, float]:
 
 
 def test_kill_9_during_training_then_resume_gives_the_same_curve(tmp_path):
-    steps = 8
+    steps = 60  # long enough (~15 ms a step) that the kill always lands before the last step
     reference = _reference_curve(tmp_path / "ref", steps)
-    kill_after = random.Random(0).randint(3, steps - 2)  # a seeded random moment, between checkpoints or not
+    kill_after = random.Random(0).randint(3, 6)  # a seeded random moment, between checkpoints or not
     run = tmp_path / "run"
     proc = subprocess.Popen(_train_cmd(run, steps), env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     log = run / "log.csv"
@@ -154,12 +154,15 @@ def test_kill_9_during_training_then_resume_gives_the_same_curve(tmp_path):
 
 def test_sigterm_during_training_saves_the_step_it_reached_then_resume_gives_the_same_curve(tmp_path):
     """A scheduler's SIGTERM (the experiment engine stopping a job): the step in progress ends, a checkpoint of it
-    is saved even between periodic checkpoints, the command exits like Ctrl-C, and the resumed curve is exact."""
-    steps = 8
+    is saved even between periodic checkpoints, the command exits like Ctrl-C, and the resumed curve is exact.
+
+    The run is long (200 steps of ~10 ms) so that the signal, sent once step 3 is logged, always lands before the
+    last step: with 8 steps a fast machine finished training between the poll and the signal."""
+    steps = 200
     reference = _reference_curve(tmp_path / "ref", steps)
     run = tmp_path / "run"
     cmd = _train_cmd(run, steps)
-    cmd[cmd.index("--checkpoint-every") + 1] = "100"  # no periodic checkpoint: only SIGTERM's
+    cmd[cmd.index("--checkpoint-every") + 1] = str(10 * steps)  # no periodic checkpoint: only SIGTERM's
     proc = subprocess.Popen(cmd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     log = run / "log.csv"
     _signal_when(proc, lambda: log.is_file() and len(log.read_text().splitlines()) > 3, signal.SIGTERM)
