@@ -184,6 +184,25 @@ def test_a_missed_target_says_what_the_diagnosis_shows(tmp_path: Path) -> None:
     assert len(rep._targets(_ctx(V1, cells, tmp_path, summaries=SUMMARIES), _section(V1, "targets"))) == 1
 
 
+def test_a_target_missed_by_less_than_the_seed_spread_says_so(tmp_path: Path) -> None:
+    cells = _cells("abm_clip", "seen", [58.0] * 3) | _cells("abm_oracle", "seen", [61.0] * 3)
+    cells |= _cells("rvt_clip", "unseen", [40.0] * 3) | _cells("abm_clip", "unseen", [55.0] * 3)
+    section = _section(V2, "targets")
+    goals, _ = rep._targets(_ctx(V2, cells, tmp_path), section)
+    assert "seen ≥ 60 %: not met (58.0);" in goals and "seed spread" not in goals  # no seed pair evaluated yet
+    # center-pixel's two seeds 7 points apart on seen objects, 3 on unseen: the seed spread
+    cells |= _cells("abm_clip_hash", "seen", [50.0] * 3) | _cells("abm_clip_hash_seed1", "seen", [57.0] * 3)
+    cells |= _cells("abm_clip_hash", "unseen", [40.0] * 3) | _cells("abm_clip_hash_seed1", "unseen", [43.0] * 3)
+    ctx = _ctx(V2, cells, tmp_path)
+    assert rep.seed_spread(ctx) == {"seen": 7.0, "unseen": 3.0}
+    goals, _ = rep._targets(ctx, section)
+    assert "abm_clip: seen ≥ 60 %: not met (58.0; 2.0 short, within the seed spread of 7.0 points);" in goals
+    # unseen 55 against rvt's 40 + 20: 5 short, more than the unseen spread of 3: a measured miss
+    assert "unseen ≥ rvt_clip unseen + 20: not met (55.0 vs 40.0);" in goals
+    (oracle, _) = rep._targets(ctx, _section(V2, "targets", nth=1))
+    assert "seen ≥ 70 %: not met (61.0; 9.0 short" not in oracle and "not met (61.0)." in oracle  # 9 > 7
+
+
 def test_records_carry_the_failure_reasons_of_newer_evaluations(tmp_path: Path) -> None:
     cells = _cells("abm_clip", "seen", [20.0] * 3, failures=FAILED) | _cells("rvt_clip", "seen", [10.0] * 3)
     records = rep.records(V2, cells)
