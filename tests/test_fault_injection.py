@@ -90,10 +90,10 @@ def test_kill_9_of_data_generate_leaves_no_workers(tmp_path):
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 
 
-def _train_cmd(out: Path, steps: int) -> list[str]:
+def _train_cmd(out: Path, steps: int, checkpoint_every: int = 2) -> list[str]:
     cmd = [sys.executable, "-m", "abm.cli", "train", "--method", "abm", "--synthetic", "2", "--camera-resolution",
-           "32", "--steps", str(steps), "--batch", "2", "--checkpoint-every", "2", "--log-every", "1", "--lr", "3e-3",
-           "--warmup", "2", "--out", str(out), "--no-progress", "--resume"]
+           "32", "--steps", str(steps), "--batch", "2", "--checkpoint-every", str(checkpoint_every), "--log-every",
+           "1", "--lr", "3e-3", "--warmup", "2", "--out", str(out), "--no-progress", "--resume"]
     for key, value in TINY_POLICY.items():
         cmd += ["--set", f"{key}={value}"]
     return cmd
@@ -121,7 +121,7 @@ def _kill_when(proc: subprocess.Popen, ready, timeout: float = 120) -> None:
     proc.wait()
 
 
-def _reference_curve(run: Path, steps: int) -> dict[int, float]:
+def _reference_curve(run: Path, steps: int, checkpoint_every: int = 2) -> dict[int, float]:
     """The loss curve of an uninterrupted :func:`_train_cmd` run (in this process: one interpreter start-up less)."""
     import torch
 
@@ -130,7 +130,7 @@ def _reference_curve(run: Path, steps: int) -> dict[int, float]:
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # like OMP_NUM_THREADS=1 of the commands
     try:
-        assert main(_train_cmd(run, steps)[3:]) == 0
+        assert main(_train_cmd(run, steps, checkpoint_every)[3:]) == 0
     finally:
         torch.set_num_threads(threads)
     return _log(run)
@@ -159,10 +159,10 @@ def test_sigterm_during_training_saves_the_step_it_reached_then_resume_gives_the
     The run is long (200 steps of ~10 ms) so that the signal, sent once step 3 is logged, always lands before the
     last step: with 8 steps a fast machine finished training between the poll and the signal."""
     steps = 200
-    reference = _reference_curve(tmp_path / "ref", steps)
+    only_sigterms = 10 * steps  # no periodic checkpoint: only SIGTERM's
+    reference = _reference_curve(tmp_path / "ref", steps, only_sigterms)
     run = tmp_path / "run"
-    cmd = _train_cmd(run, steps)
-    cmd[cmd.index("--checkpoint-every") + 1] = str(10 * steps)  # no periodic checkpoint: only SIGTERM's
+    cmd = _train_cmd(run, steps, only_sigterms)
     proc = subprocess.Popen(cmd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     log = run / "log.csv"
     _signal_when(proc, lambda: log.is_file() and len(log.read_text().splitlines()) > 3, signal.SIGTERM)

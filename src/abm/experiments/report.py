@@ -524,7 +524,7 @@ def seed_spread(ctx: Context) -> dict[str, float]:
     spread: dict[str, float] = {}
     for section in (*ctx.spec.report.summary, *ctx.spec.report.details):
         if section.kind == "seeds":
-            for split, points in _section_spread(ctx, section).items():
+            for split, points in _section_spread(_seed_differences(ctx, section)).items():
                 spread[split] = max(spread.get(split, 0.0), points)
     return spread
 
@@ -538,13 +538,18 @@ def _seed_difference(ctx: Context, run: str, other: str, split: str) -> float | 
     return None if a is None or b is None else abs(a - b)
 
 
-def _section_spread(ctx: Context, section: Section) -> dict[str, float]:
-    """split -> the largest difference between the averages of a ``seeds`` section's pairs (evaluated ones)."""
+def _seed_differences(ctx: Context, section: Section) -> dict[tuple[str, str], float | None]:
+    """(run, split) -> the difference between the averages of a ``seeds`` section's pair (None: not evaluated)."""
+    return {(run, split): _seed_difference(ctx, run, other, split)
+            for run, other in section.seeds.items() for split in _seed_splits(ctx, section)}
+
+
+def _section_spread(differences: Mapping[tuple[str, str], float | None]) -> dict[str, float]:
+    """split -> the largest of a ``seeds`` section's evaluated differences (:func:`_seed_differences`)."""
     spread: dict[str, float] = {}
-    for run, other in section.seeds.items():
-        for split in _seed_splits(ctx, section):
-            if (difference := _seed_difference(ctx, run, other, split)) is not None:
-                spread[split] = max(spread.get(split, 0.0), difference)
+    for (_, split), difference in differences.items():
+        if difference is not None:
+            spread[split] = max(spread.get(split, 0.0), difference)
     return spread
 
 
@@ -890,13 +895,14 @@ def _seeds(ctx: Context, section: Section) -> list[str]:
     digits = section.digits
     names = {**table.names, **section.names}
     lines = _head(["run", "other seed", *(f"{s} {x}" for s in splits for x in ("avg", "other seed", "difference"))])
+    differences = _seed_differences(ctx, section)
     for run, other in section.seeds.items():
         row = [names.get(run, run), other]
         for split in splits:
             row += [ctx.average_shown(run, split, True, digits), ctx.average_shown(other, split, True, digits),
-                    pct(_seed_difference(ctx, run, other, split), digits)]
+                    pct(differences[run, split], digits)]
         lines.append(_row(row))
-    spread = _section_spread(ctx, section)
+    spread = _section_spread(differences)
     sentences = []
     for split in splits:
         if split not in spread:
