@@ -15,6 +15,8 @@ A task is one small class registered with :func:`register_task`. It declares:
 * ``slots`` (optional): a second object slot listed in the split file beside the targets, YAML key ->
   catalog categories (put_in_container: ``{"containers": ("container",)}``), checked when splits load,
   and :meth:`Task.check_splits` for a task's own checks of the whole split file;
+* ``destination`` (optional): the object the task brings X to (the plate, the target pad, the rack; X itself
+  for the jar a lid closes; ``None`` for none), grounded into the policy's second mask;
 * :meth:`Task.keyframe_subgoal` (optional): which object of ``target_names`` an expert keyframe works
   on, stored per keyframe in the episode metadata as ``"subgoals"`` by :func:`abm.sim.env.run_expert`;
 
@@ -28,7 +30,7 @@ worked example.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -56,6 +58,8 @@ APPROACH_HEIGHT = 0.10      # m above the grasp / place pose
 LIFT_HEIGHT = 0.15          # m lifted after grasping
 DROP_HEIGHT = 0.01          # m above the support surface when releasing
 FINGER_REACH = 0.06         # m from the TCP to the outside of an open finger
+DESTINATION_X = "X"         # Task.destination: the instruction's X (the skill text's placeholder)
+DESTINATION_Y = "Y"         # Task.destination: Y of a two-target instruction
 
 
 def register_task(cls: type[Task]) -> type[Task]:
@@ -106,6 +110,11 @@ class Task(ABC):
     #: ``abm/grounding/templates.yaml``'s form (``skill``, ``patterns``, ``examples``, ``places``), added to the
     #: instruction parser's (abm.grounding.instruction.load_templates).
     skills: ClassVar[tuple[dict[str, Any], ...]] = ()
+    #: Where the task brings what it moves (the policy's second mask, :mod:`abm.grounding.conditioning`): a scene
+    #: object's catalog name (``"plate"``, the ``"target"`` pad, ``"wine rack"``, ``"shelf"``, ``"plant"``),
+    #: :data:`DESTINATION_X` (the instruction's X itself: the jar its lid closes, the peg the ring goes on),
+    #: :data:`DESTINATION_Y` (Y of a two-target instruction), or ``None``: no object (X goes onto the free table).
+    destination: ClassVar[str | None] = None
 
     def __init__(self, splits: ObjectSplits | None = None) -> None:
         self.splits = splits if splits is not None else read_splits(None, TASKS)
@@ -123,6 +132,16 @@ class Task(ABC):
         """A problem with this task's lists in a loaded split file (:class:`abm.sim.splits.ObjectSplits`),
         else ``None``; called once every task's lists are read. The default has nothing to check."""
         return None
+
+    @classmethod
+    def destination_name(cls, targets: Sequence[str]) -> str | None:
+        """The name of the destination object (:attr:`destination`) of an episode whose instruction names
+        ``targets`` (``(X,)`` or ``(X, Y)``; the ground-truth ``target_names`` or the parsed descriptions)."""
+        if cls.destination == DESTINATION_X:
+            return targets[0] if targets else None
+        if cls.destination == DESTINATION_Y:
+            return targets[1] if len(targets) > 1 else None
+        return cls.destination
 
     def keyframe_subgoal(self, action: KeyframeAction) -> int | None:
         """Index into ``target_names`` of the object an expert keyframe works on, or ``None`` for a

@@ -19,7 +19,7 @@ import numpy as np
 
 from abm.sim.catalog import catalog_entry, object_geometry
 from abm.sim.props import JAR_HALF_HEIGHT
-from abm.sim.tasks.base import Task, TaskInstance, pick_and_place, register_task, top_down_pose
+from abm.sim.tasks.base import DESTINATION_X, Task, TaskInstance, pick_and_place, register_task, top_down_pose
 from abm.types import KeyframeAction
 
 if TYPE_CHECKING:
@@ -52,6 +52,7 @@ class CloseJar(Task):
     name = "close_jar"
     templates = ("close the {target}", "put the lid on the {target}")
     categories = ("jar",)
+    destination = DESTINATION_X  # the jar X: the lid goes onto it
     seed_salt = 6
     fixtures = (("lid", LID),)
     distractors = NUM_DISTRACTORS

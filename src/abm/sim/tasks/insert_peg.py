@@ -16,6 +16,7 @@ import numpy as np
 from abm.sim.catalog import object_geometry
 from abm.sim.props import PEG_HALF, RING_BAR_HALF_WIDTH, RING_HALF_HEIGHT, RING_OUTER_HALF
 from abm.sim.tasks.base import (
+    DESTINATION_X,
     FINGER_REACH,
     Task,
     TaskInstance,
@@ -66,6 +67,7 @@ class InsertPeg(Task):
     name = "insert_peg"
     templates = ("put the ring on the {target}", "slide the ring onto the {target}")
     categories = ("peg",)
+    destination = DESTINATION_X  # the peg X: the ring goes around it
     seed_salt = 7
     fixtures = (("ring", RING),)
     distractors = NUM_DISTRACTORS

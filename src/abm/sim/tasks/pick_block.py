@@ -22,6 +22,7 @@ class PickBlock(Task):
     name = "pick_block"
     templates = ("put the {target} on the target", "stack the {target} on the target")
     categories = ("block",)
+    destination = "target"  # the target pad
     seed_salt = 2
     fixtures = (("goal", "target"),)  # the flat target pad the block goes on
     distractors = NUM_DISTRACTORS

@@ -23,6 +23,7 @@ class PlaceFood(Task):
     name = "place_food"
     templates = ("put the {target} in the plate", "place the {target} on the plate")
     categories = ("grocery",)
+    destination = "plate"
     seed_salt = 1
     fixtures = (("plate", "plate"),)
     distractors = NUM_DISTRACTORS

@@ -27,6 +27,7 @@ class PlaceWine(Task):
     name = "place_wine"
     templates = ("put the {target} in the wine rack", "place the {target} in the wine rack")
     categories = ("bottle",)
+    destination = "wine rack"  # any of its slots
     seed_salt = 3
     fixtures = (("rack", "wine rack"),)
     distractors = 0

@@ -43,6 +43,7 @@ import numpy as np
 from abm.sim.catalog import object_geometry
 from abm.sim.scene import PlacedObject, SceneSpec
 from abm.sim.tasks.base import (
+    DESTINATION_Y,
     TASKS,
     Task,
     TaskInstance,
@@ -122,6 +123,7 @@ class PutInContainer(Task):
         "drop the {target} in the {container}",
     )
     categories = ("grocery", "block")
+    destination = DESTINATION_Y  # the container Y
     slots = {SLOT: ("container",)}
     seed_salt = 11
     distractors = NUM_DISTRACTORS

@@ -34,6 +34,7 @@ class PutInShelf(Task):
     name = "put_in_shelf"
     templates = ("put the {target} on the top shelf", "put the {target} on the bottom shelf")
     categories = ("grocery",)
+    destination = "shelf"  # the named tier is one part of it
     seed_salt = 4
     distractors = NUM_DISTRACTORS
 

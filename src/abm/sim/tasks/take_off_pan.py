@@ -45,6 +45,7 @@ class TakeOffPan(Task):
     name = "take_off_pan"
     templates = ("take the {target} off the frypan", "remove the {target} from the frypan")
     categories = ("grocery",)
+    destination = None  # X goes onto the free table beside the pan
     seed_salt = 8
     distractors = NUM_DISTRACTORS
 

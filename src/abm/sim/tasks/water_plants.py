@@ -96,6 +96,7 @@ class WaterPlants(Task):
     name = "water_plants"
     templates = ("water the plant with the {target}", "use the {target} to water the plant")
     categories = ("mug",)
+    destination = "plant"
     seed_salt = 5
     fixtures = (("plant", "plant"),)
     distractors = NUM_DISTRACTORS
