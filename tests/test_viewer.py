@@ -177,3 +177,42 @@ def test_clip_grounder_scene_has_soft_scores(episode) -> None:
     step = scene.steps[0]
     assert step.scores is not None and step.scores.shape == (len(step.points),)
     assert 0.0 <= step.scores.min() < step.scores.max() <= 1.0  # a soft field, unlike the oracle's 0/1
+
+
+def test_the_step_caption_counts_from_one_and_names_the_start() -> None:
+    from abm.viewer.server import step_caption
+
+    assert step_caption(0, 0, 3) == "keyframe 0 (start) — step 1 of 3"
+    assert step_caption(1, 0, 1) == "keyframe 1 — step 1 of 1"  # `abm view --steps 1`: one step, keyframe 1
+    assert step_caption(7, 2, 3) == "keyframe 7 — step 3 of 3"
+
+
+@pytest.mark.skipif(find_chromium() is None, reason="needs Chromium (apt-get install chromium)")
+def test_a_screenshot_waits_until_the_page_stops_changing(tmp_path) -> None:
+    """A page that is still drawing (its colour changes every 0.3 s for 4 s, then stays blue) is captured only
+    once it has settled, although the caller asks for no wait at all."""
+    import http.server
+    import threading
+    from functools import partial
+
+    from PIL import Image
+
+    from abm.viewer.browser import screenshot
+
+    (tmp_path / "site").mkdir()
+    (tmp_path / "site" / "index.html").write_text(
+        "<html><body style='margin:0;background:rgb(255,0,0)'><script>"
+        "const start = Date.now(); const tick = setInterval(() => {"
+        " const t = Date.now() - start;"
+        " document.body.style.background = t > 4000 ? 'rgb(0,0,255)' : `rgb(255,${Math.floor(t / 300) * 15},0)`;"
+        " if (t > 4000) clearInterval(tick); }, 50);</script></body></html>")
+    handler = partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path / "site"))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", free_port()), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        picture = screenshot(f"http://127.0.0.1:{server.server_address[1]}/index.html", tmp_path / "page.png",
+                             320, 240, wait_ms=0, timeout_s=120, settle_s=0.5)
+    finally:
+        server.shutdown()
+    pixel = np.asarray(Image.open(picture).convert("RGB"))[120, 160]
+    assert tuple(int(v) for v in pixel) == (0, 0, 255), f"captured while still drawing: {pixel}"

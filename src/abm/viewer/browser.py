@@ -71,13 +71,24 @@ def _devtools_port(process: subprocess.Popen[bytes], profile: Path, log: Path, t
     raise ExternalError(f"Chromium did not open its DevTools endpoint (exit {process.poll()}): {said}")
 
 
+# Viser tells a page drawn by a software renderer so in a notification that never closes; a screenshot is drawn
+# by SwiftShader on purpose, so the notice is hidden there (a person's browser still shows it).
+_HIDE_SOFTWARE_NOTICE = """
+for (const note of document.querySelectorAll('.mantine-Notification-root')) {
+  if (note.textContent.includes('Software WebGL')) { note.style.display = 'none'; }
+}
+"""
+
+
 def screenshot(url: str, path: str | Path, width: int = 1400, height: int = 900, wait_ms: int = 8000,
-               timeout_s: float = 90.0, ready: Callable[[Path], bool] | None = None) -> Path:
+               timeout_s: float = 90.0, ready: Callable[[Path], bool] | None = None,
+               settle_s: float = 1.5) -> Path:
     """Open ``url`` in headless Chromium, let it run ``wait_ms`` (real time), and save a PNG at ``path``.
 
-    With ``ready``, the picture is retaken (every ~2 s after ``wait_ms``) until ``ready(path)`` is true or
-    ``timeout_s`` has passed, and the last picture is kept either way: a caller that waits for something to be
-    drawn checks the file it gets. WebGL runs in software (SwiftShader), so no GPU or display is needed.
+    The picture is retaken until the page has finished drawing: ``ready(path)`` is true (when given) and two
+    pictures taken ``settle_s`` apart are identical (a scene still arriving or fading in changes between them),
+    or ``timeout_s`` has passed; the last picture is kept either way, so a caller that waits for something to
+    be drawn checks the file it gets. WebGL runs in software (SwiftShader), so no GPU or display is needed.
     Raises :class:`~abm.errors.ExternalError` when no Chromium is installed (``apt-get install chromium``) or it
     cannot be driven.
     """
@@ -106,12 +117,16 @@ def screenshot(url: str, path: str | Path, width: int = 1400, height: int = 900,
                           mobile=False)
                 page.call("Page.navigate", url=url)
                 time.sleep(wait_ms / 1000)
+                previous = b""
                 while True:
-                    picture = page.call("Page.captureScreenshot", format="png")
-                    path.write_bytes(base64.b64decode(picture["data"]))
-                    if ready is None or ready(path) or time.monotonic() + 2.0 > deadline:
+                    page.call("Runtime.evaluate", expression=_HIDE_SOFTWARE_NOTICE)
+                    picture = base64.b64decode(page.call("Page.captureScreenshot", format="png")["data"])
+                    path.write_bytes(picture)
+                    settled = picture == previous and (ready is None or ready(path))
+                    if settled or time.monotonic() + settle_s > deadline:
                         return path
-                    time.sleep(2.0)
+                    previous = picture
+                    time.sleep(settle_s)
             finally:
                 page.close()
         finally:

@@ -16,6 +16,11 @@ from abm.errors import ConfigError, ExternalError
 from abm.grounding.visualize import colormap, upscale
 from abm.viewer.record import EXPERT_COLOR, PREDICTED_COLOR, ViewerRecord, ViewerStep, view_camera_pose
 
+# Where each keyframe's label hangs from its frame's origin (m, world frame): the expert's above, the
+# prediction's below, so the two never overlap when the prediction lands on or near the expert.
+LABEL_OFFSETS: dict[str, np.ndarray] = {"expert": np.array([0.0, 0.0, 0.05]),
+                                        "predicted": np.array([0.0, 0.0, -0.05])}
+
 COLOR_MODES = ("rgb", "mask score")
 VIEW_PIXELS = 200  # views are enlarged (nearest neighbour) to at least this side for display
 
@@ -74,7 +79,10 @@ class ViewerServer:
         gui = server.gui
         gui.add_markdown(f"**{record.instruction}**  \n{record.title}"
                          + (f"  \ntarget: *{record.target_name}*" if record.target_name else ""))
-        self.step_slider = gui.add_slider("step", 0, len(record.steps) - 1, 1, 0, disabled=len(record.steps) == 1)
+        # Positions count from 1; the episode's own keyframe index (0 = the start) is shown beside the slider.
+        self.step_slider = gui.add_slider("step", 1, max(len(record.steps), 2), 1, 1,
+                                          disabled=len(record.steps) == 1)
+        self.step_text = gui.add_markdown("")
         self.color_mode = gui.add_dropdown("colour", COLOR_MODES, initial_value="rgb")
         self.threshold = gui.add_slider("score threshold", 0.0, 1.0, 0.01, 0.5)
         self.point_size = gui.add_slider("point size (mm)", 1.0, 12.0, 0.5, 4.0)
@@ -94,12 +102,13 @@ class ViewerServer:
                 thickness=2.0, thickness_units="screen", image=_enlarge(image), wxyz=wxyz, position=position,
                 color=(90, 90, 210)))
         for handle in (self.step_slider, self.color_mode, self.threshold, self.point_size, self.show_target):
-            handle.on_update(lambda _event: self.show(int(self.step_slider.value)))
+            handle.on_update(lambda _event: self.show(int(self.step_slider.value) - 1))
         self.show(0)
 
     def show(self, index: int) -> None:
-        """Draw step ``index`` (an index into ``record.steps``)."""
+        """Draw step ``index`` (an index into ``record.steps``, from 0)."""
         step = self.record.steps[index]
+        self.step_text.content = step_caption(step.index, index, len(self.record.steps))
         scene = self.server.scene
         size = float(self.point_size.value) / 1000.0
         scene.add_point_cloud("/cloud", points=step.points,
@@ -119,13 +128,25 @@ class ViewerServer:
                 continue
             scene.add_frame(f"/{key}", axes_length=0.07, axes_radius=0.004, origin_radius=0.012,
                             origin_color=color, position=action.position, wxyz=_wxyz(action.matrix))
-            scene.add_label(f"/{key}/label", f"{key} {'open' if action.gripper_open else 'closed'}")
+            # The two labels hang from their frames on opposite sides, so they never cover each other when the
+            # predicted keyframe lands on (or near) the expert's.
+            scene.add_label(f"/labels/{key}", f"{key} {'open' if action.gripper_open else 'closed'}",
+                            position=tuple(np.asarray(action.position, np.float64) + LABEL_OFFSETS[key]))
         for image_handle, frustum, image in zip(self.view_images, self.frustums, step.views, strict=True):
             image_handle.image = frustum.image = _enlarge(image)
 
     def close(self) -> None:
         """Stop the server."""
         self.server.stop()
+
+
+def step_caption(keyframe: int, position: int, count: int) -> str:
+    """The text beside the step slider: the episode's keyframe index (0 is the start) and the position shown.
+
+    ``position`` counts from 0 in the record's steps, ``count`` is their number.
+    """
+    start = " (start)" if keyframe == 0 else ""
+    return f"keyframe {keyframe}{start} — step {position + 1} of {count}"
 
 
 def check_port(host: str, port: int) -> None:
