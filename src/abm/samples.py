@@ -5,8 +5,12 @@ A sample is a dict. Scene entries (training and inference):
 * ``points`` ``(N, 3)`` float32, world metres (after augmentation in training);
 * ``colors`` ``(N, 3)`` float32 in ``[0, 1]``;
 * ``point_mask`` / ``point_heatmap`` ``(N,)`` float32: the mask field of the target X (only when asked for);
+* ``destination_mask`` / ``destination_heatmap`` ``(N,)`` float32: the mask field of the destination (the plate, the
+  target pad, ...; all zeros for a task without one; only when asked for);
 * ``point_features`` ``(N, F)`` float16: per-point CLIP features (only when asked for);
 * ``gripper_open`` ``()`` float32 (1 = open) and ``gripper_position`` ``(3,)`` float32, world metres;
+* ``keyframe_index`` ``()`` int64: the observation's keyframe index in its episode (``Observation.step``: 0 at the
+  start, one more per executed keyframe, in demonstrations and rollouts alike);
 * ``instruction`` and ``skill`` (``str``; ``skill`` is the instruction with X replaced by ``"X"``, or ``""``
   when the instruction was not split).
 
@@ -30,7 +34,8 @@ import torch
 from abm.grounding.conditioning import ConditionedCloud
 from abm.types import KeyframeAction
 
-POINT_KEYS = ("points", "colors", "point_mask", "point_heatmap", "point_features")
+POINT_KEYS = ("points", "colors", "point_mask", "point_heatmap", "point_features", "destination_mask",
+              "destination_heatmap")
 TEXT_KEYS = ("instruction", "skill")
 
 
@@ -55,6 +60,9 @@ class Sample(TypedDict):
     point_mask: NotRequired[torch.Tensor]
     point_heatmap: NotRequired[torch.Tensor]
     point_features: NotRequired[torch.Tensor]
+    destination_mask: NotRequired[torch.Tensor]
+    destination_heatmap: NotRequired[torch.Tensor]
+    keyframe_index: NotRequired[torch.Tensor]
     action_position: NotRequired[torch.Tensor]
     action_quaternion: NotRequired[torch.Tensor]
     action_gripper: NotRequired[torch.Tensor]
@@ -74,6 +82,9 @@ class Batch(TypedDict):
     point_mask: NotRequired[torch.Tensor]
     point_heatmap: NotRequired[torch.Tensor]
     point_features: NotRequired[torch.Tensor]
+    destination_mask: NotRequired[torch.Tensor]
+    destination_heatmap: NotRequired[torch.Tensor]
+    keyframe_index: NotRequired[torch.Tensor]
     action_position: NotRequired[torch.Tensor]
     action_quaternion: NotRequired[torch.Tensor]
     action_gripper: NotRequired[torch.Tensor]
@@ -81,7 +92,7 @@ class Batch(TypedDict):
 
 
 def cloud_sample(conditioned: ConditionedCloud, gripper_open: float, gripper_position: np.ndarray,
-                 points: np.ndarray | None = None) -> Sample:
+                 points: np.ndarray | None = None, keyframe_index: int = 0) -> Sample:
     """The point-cloud entries of a sample.
 
     Args:
@@ -89,6 +100,7 @@ def cloud_sample(conditioned: ConditionedCloud, gripper_open: float, gripper_pos
         gripper_open: gripper opening in ``[0, 1]``.
         gripper_position: ``(3,)`` world metres (after augmentation in training).
         points: ``(N, 3)`` replacement point positions (the augmented cloud); default the conditioned cloud's.
+        keyframe_index: the observation's keyframe index in its episode (``Observation.step``).
     """
     xyz = conditioned.cloud.xyz if points is None else points
     sample: Sample = {
@@ -98,10 +110,14 @@ def cloud_sample(conditioned: ConditionedCloud, gripper_open: float, gripper_pos
         "gripper_position": torch.from_numpy(np.asarray(gripper_position, np.float32).reshape(3)),
         "instruction": conditioned.instruction,
         "skill": conditioned.skill or "",
+        "keyframe_index": torch.tensor(int(keyframe_index), dtype=torch.int64),
     }
     if conditioned.point_mask is not None:
         sample["point_mask"] = torch.from_numpy(np.asarray(conditioned.point_mask.mask, np.float32))
         sample["point_heatmap"] = torch.from_numpy(np.asarray(conditioned.point_mask.heatmap, np.float32))
+    if conditioned.destination_mask is not None:
+        sample["destination_mask"] = torch.from_numpy(np.asarray(conditioned.destination_mask.mask, np.float32))
+        sample["destination_heatmap"] = torch.from_numpy(np.asarray(conditioned.destination_mask.heatmap, np.float32))
     if conditioned.features is not None:
         sample["point_features"] = torch.from_numpy(np.asarray(conditioned.features, np.float16))
     return sample

@@ -8,7 +8,9 @@ Per sample (episode ``e``, keyframe ``k``):
    (:func:`abm.grounding.conditioning.condition_cloud`): the target X and skill text (split once per
    episode), the per-point mask field of X (oracle: computed here; other grounders: read from the cache
    that the explicit grounding step :func:`ground_keyframes` / ``abm data ground`` fills) and per-point
-   CLIP features (cached the same way);
+   CLIP features (cached the same way); with ``destination``, the destination's mask field too (the
+   task's declared destination, ``Task.destination``: ground truth for the oracle, the instruction's words for
+   the other grounders, cached like the target's under the destination's name);
 2. SE(3) augmentation of the points, the action and the gripper position together;
 3. the sample: points, colours, per-point mask / features, gripper state, texts and the action targets.
 
@@ -48,12 +50,14 @@ from abm.grounding.conditioning import (
     ConditionedCloud,
     PointMask,
     condition_cloud,
+    instruction_destination,
     split_roles,
 )
 from abm.grounding.config import GROUNDERS, GrounderConfig, OracleGrounderConfig, as_grounder_config, build_grounder
 from abm.grounding.grounders import Grounder, resolved_spec
 from abm.progress import Progress
 from abm.samples import Sample, action_targets, cloud_sample, collate
+from abm.sim.tasks import TASKS
 from abm.types import Episode, KeyframeAction, Observation
 
 __all__ = ["EpisodeMeta", "EpisodeSource", "KeyframeDataset", "StepSampler", "augmentation_margin_cube",
@@ -229,6 +233,7 @@ class KeyframeDataset(Dataset[Sample]):
         split: split each instruction into the target X and the skill text.
         mask: compute the per-point mask field of X (implies ``split``).
         features: compute per-point CLIP features (needs a CLIP grounder and ``cache_dir``).
+        destination: also compute the destination's mask field (the policy's second mask; implies ``split``).
         augment: apply SE(3) augmentation (translation ``max_translation`` m, yaw ``max_yaw_deg``).
         cache_dir: folder for cached grounding results / CLIP point features (needed for non-oracle
             grounders and ``features``).
@@ -261,6 +266,7 @@ class KeyframeDataset(Dataset[Sample]):
         max_yaw_deg: float = 45.0,
         require_cache: bool = True,
         memory_mb: float = 2048.0,
+        destination: bool = False,
     ) -> None:
         if memory_mb < 0:
             raise ConfigError(f"memory_mb must be >= 0 (0 turns the keyframe memory off), got {memory_mb}")
@@ -269,7 +275,8 @@ class KeyframeDataset(Dataset[Sample]):
         self._memory_used = 0
         self.source = source if isinstance(source, EpisodeSource) else EpisodeSource(source)
         self.grounder_config: GrounderConfig = as_grounder_config(grounder)
-        self.split, self.mask, self.features = split or mask, mask, features
+        self.split, self.mask, self.features = split or mask or destination, mask, features
+        self.destination = destination
         self.augment = augment
         self.seed = seed
         self.camera_names = list(camera_names) if camera_names is not None else None
@@ -289,19 +296,26 @@ class KeyframeDataset(Dataset[Sample]):
         # each keyframe grounds the active one (abm.grounding.conditioning.active_role)
         self.targets: list[str | tuple[str, ...] | None] = []
         self.skills: list[str | None] = []
+        #: per episode, the destination's name (ground truth for the oracle, the instruction's words otherwise)
+        self.destinations: list[str | None] = []
         for m in self.source.meta:
-            target, skill = None, None
+            target, skill, place = None, None, None
             if self.split:
                 hint = m.target_names[0] if m.target_names else None
                 roles, skill = split_roles(m.instruction, m.object_names, hint)
                 if self.oracle and len(m.target_names) >= len(roles):
                     roles = tuple(m.target_names[: len(roles)])  # ground truth for the oracle; text for CLIP
                 target = roles[0] if len(roles) == 1 else roles
+                if destination:
+                    known = self.oracle and m.task in TASKS and m.target_names
+                    place = (TASKS[m.task].destination_name(m.target_names) if known
+                             else instruction_destination(m.instruction, roles))
             self.targets.append(target)
             self.skills.append(skill)
+            self.destinations.append(place)
         self._live_grounder: Grounder | None = None
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
-        if (self.mask and not self.live) or self.features:
+        if ((self.mask or self.destination) and not self.live) or self.features:
             if self.cache_dir is None:
                 raise ValueError(
                     f"grounder {self.grounder_config.kind!r} (mask field or CLIP features) needs a cache_dir "
@@ -324,7 +338,7 @@ class KeyframeDataset(Dataset[Sample]):
     @property
     def cached(self) -> bool:
         """Whether conditioning is read from the on-disk cache (cached grounders, CLIP features)."""
-        return self.cache_dir is not None and ((self.mask and not self.live) or self.features)
+        return self.cache_dir is not None and (((self.mask or self.destination) and not self.live) or self.features)
 
     @functools.cached_property
     def _cache_grounder(self) -> dict[str, Any]:
@@ -333,28 +347,42 @@ class KeyframeDataset(Dataset[Sample]):
         spec = resolved_spec(self.grounder_config.to_dict())
         return {k: v for k, v in spec.items() if k not in ("device", "cache")}  # not results
 
-    def _cache_file(self, j: int, k: int) -> Path:
+    def _cache_file(self, j: int, k: int, destination: bool = False) -> Path:
+        """The cache entry of keyframe ``k`` of episode ``j``: its target's mask field and CLIP features, or with
+        ``destination`` its destination's mask field (keyed like a target of the destination's name: the same
+        grounding of the same name shares one entry)."""
         assert self.cache_dir is not None
         meta = self.source.meta[j]
-        target = self.targets[j] if self.mask else None  # CLIP point features do not depend on the target
+        target = self.destinations[j] if destination else self.targets[j] if self.mask else None  # features: none
         target_key = list(target) if isinstance(target, tuple) else target  # sub-goal objects: one entry per step
         what = {"grounder": self._cache_grounder, "target": target_key, "key": meta.key,
                 "cameras": self.camera_names, "ws": [self.fuse_workspace.center, self.fuse_workspace.size]}
         digest = hashlib.sha1(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16]
         return self.cache_dir / f"{digest}_k{k:03d}.npz"
 
-    def _scene(self, j: int, obs: Observation, grounder: Grounder | None, mask: bool, features: bool
-               ) -> ConditionedCloud:
+    def _scene(self, j: int, obs: Observation, grounder: Grounder | None, mask: bool, features: bool,
+               destination: bool = False) -> ConditionedCloud:
         meta = self.source.meta[j]
         return condition_cloud(obs, meta.instruction, self.fuse_workspace, grounder=grounder,
                                object_names=meta.object_names, split=False, target=self.targets[j],
-                               skill=self.skills[j], mask=mask, features=features, camera_names=self.camera_names)
+                               skill=self.skills[j], mask=mask, features=features, camera_names=self.camera_names,
+                               destination=destination, destination_name=self.destinations[j])
+
+    def _cache_files(self, j: int, k: int) -> dict[str, Path]:
+        """The cache entries keyframe ``k`` of episode ``j`` needs: ``"target"`` (mask field and / or CLIP
+        features) and ``"destination"`` (a cached grounder's destination mask field, when it has a destination)."""
+        files = {}
+        if (self.mask and not self.live) or self.features:
+            files["target"] = self._cache_file(j, k)
+        if self.destination and not self.live and self.destinations[j] is not None:
+            files["destination"] = self._cache_file(j, k, destination=True)
+        return files
 
     def missing_cache_entries(self) -> list[tuple[int, int]]:
         """``(episode, keyframe)`` pairs whose grounding results are not in the cache yet."""
         if not self.cached:
             return []
-        return [(j, k) for j, k in self.items if not self._cache_file(j, k).exists()]
+        return [(j, k) for j, k in self.items if not all(p.exists() for p in self._cache_files(j, k).values())]
 
     def precompute(self, show_progress: bool = True) -> int:
         """Compute (in this process) and cache the missing grounding results and CLIP point features;
@@ -368,16 +396,21 @@ class KeyframeDataset(Dataset[Sample]):
         bar = Progress(len(todo), "grounding keyframes", "keyframes", bar=show_progress)
         for j, k in todo:
             obs, _ = self.source.load_step(j, k)
-            scene = self._scene(j, obs, grounder, self.mask, self.features)
-            arrays: dict[str, np.ndarray] = {}
-            if scene.point_mask is not None:
-                arrays.update(mask=scene.point_mask.mask.astype(np.float16),
-                              heatmap=scene.point_mask.heatmap.astype(np.float16))
-            if scene.features is not None:
-                arrays["features"] = scene.features.astype(np.float16)
-            path = self._cache_file(j, k)
-            with atomic_path(path) as tmp, tmp.open("wb") as fh:
-                np.savez(fh, **arrays)  # type: ignore[arg-type]  # numpy's stub confuses **arrays with allow_pickle
+            files = self._cache_files(j, k)
+            if "target" in files and not files["target"].exists():
+                scene = self._scene(j, obs, grounder, self.mask, self.features)
+                arrays: dict[str, np.ndarray] = {}
+                if scene.point_mask is not None:
+                    arrays.update(mask=scene.point_mask.mask.astype(np.float16),
+                                  heatmap=scene.point_mask.heatmap.astype(np.float16))
+                if scene.features is not None:
+                    arrays["features"] = scene.features.astype(np.float16)
+                _save_entry(files["target"], arrays)
+            if "destination" in files and not files["destination"].exists():
+                found = self._scene(j, obs, grounder, False, False, destination=True).destination_mask
+                assert found is not None  # asked for
+                _save_entry(files["destination"], {"mask": found.mask.astype(np.float16),
+                                                   "heatmap": found.heatmap.astype(np.float16)})
             bar.update(1)
         bar.close()
         return len(todo)
@@ -388,20 +421,28 @@ class KeyframeDataset(Dataset[Sample]):
 
     def _conditioned(self, j: int, k: int, obs: Observation) -> ConditionedCloud:
         if not self.cached:
-            if self.mask and self._live_grounder is None:
+            if (self.mask or self.destination) and self._live_grounder is None:
                 self._live_grounder = build_grounder(self.grounder_config)  # a live one (checked when built)
-            return self._scene(j, obs, self._live_grounder, self.mask, False)
-        path = self._cache_file(j, k)
-        if not path.exists():
-            raise DataError(f"grounding cache entry {path} is missing; fill the cache with abm data ground")
+            return self._scene(j, obs, self._live_grounder, self.mask, False, self.destination)
+        files = self._cache_files(j, k)
+        for path in files.values():
+            if not path.exists():
+                raise DataError(f"grounding cache entry {path} is missing; fill the cache with abm data ground")
         scene = self._scene(j, obs, None, False, False)
-        with np.load(path, allow_pickle=False) as data:
-            pm = None
-            if self.mask:
-                mask, heat = data["mask"].astype(np.float32), data["heatmap"].astype(np.float32)
-                pm = PointMask(mask, heat, bool(mask.any()))
-            feats = data["features"] if self.features else None
-        return dataclasses.replace(scene, point_mask=pm, features=feats)
+        pm, feats = None, None
+        if "target" in files:
+            with np.load(files["target"], allow_pickle=False) as data:
+                pm = _point_mask(data) if self.mask else None
+                feats = data["features"] if self.features else None
+        dest = None
+        if self.destination:  # none declared: an empty mask, as condition_cloud gives
+            empty = np.zeros(len(scene.cloud), np.float32)
+            dest = PointMask(empty, empty.copy(), False)
+            if "destination" in files:
+                with np.load(files["destination"], allow_pickle=False) as data:
+                    dest = _point_mask(data)
+        return dataclasses.replace(scene, point_mask=pm, features=feats, destination=self.destinations[j],
+                                   destination_mask=dest)
 
     def __getitem__(self, key: int | tuple[int, int]) -> Sample:
         index, sample_seed = (key, index_seed(key)) if isinstance(key, int) else key
@@ -425,7 +466,8 @@ class KeyframeDataset(Dataset[Sample]):
         scene = self._conditioned(j, k, obs)
         grip_pos = np.asarray(obs.gripper_pose[:3, 3], np.float64)
         # the parts of a sample that augmentation does not change (collate copies them into each batch)
-        fixed = {key: value for key, value in cloud_sample(scene, obs.gripper_open, grip_pos).items()
+        fixed = {key: value for key, value in cloud_sample(scene, obs.gripper_open, grip_pos,
+                                                           keyframe_index=obs.step).items()
                  if key not in ("points", "gripper_position")}
         kept = _Remembered(fixed, np.ascontiguousarray(scene.cloud.xyz, np.float32), action, grip_pos)
         size = kept.points.nbytes + sum(v.untyped_storage().nbytes() for v in fixed.values()
@@ -434,6 +476,18 @@ class KeyframeDataset(Dataset[Sample]):
             self._memory[index] = kept
             self._memory_used += size
         return kept
+
+
+def _save_entry(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write one grounding cache entry (named arrays) atomically."""
+    with atomic_path(path) as tmp, tmp.open("wb") as fh:
+        np.savez(fh, **arrays)  # type: ignore[arg-type]  # numpy's stub confuses **arrays with allow_pickle
+
+
+def _point_mask(data: Mapping[str, np.ndarray]) -> PointMask:
+    """A cached mask field (``mask``, ``heatmap`` as float16) as a :class:`PointMask`."""
+    mask, heat = np.asarray(data["mask"], np.float32), np.asarray(data["heatmap"], np.float32)
+    return PointMask(mask, heat, bool(mask.any()))
 
 
 @dataclass(frozen=True)
@@ -476,14 +530,17 @@ def ground_keyframes(
     augment: bool = True,
     camera_names: Sequence[str] | None = None,
     show_progress: bool = True,
+    destination: bool = False,
 ) -> int:
     """The explicit grounding step: run a cached grounder (its kind ``cached`` in
     :data:`abm.grounding.config.GROUNDERS`: CLIP) once over every keyframe and cache the
-    per-point mask fields (``mask``) and CLIP features (``features``) that a :class:`KeyframeDataset`
+    per-point mask fields (``mask``; with ``destination`` the destination's too) and CLIP features (``features``)
+    that a :class:`KeyframeDataset`
     with the same arguments reads. Resumable (existing entries are kept); returns how many keyframes
     were computed. A live grounder (the oracle) needs no cache (it returns 0)."""
-    ds = KeyframeDataset(source, workspace, grounder, split=mask, mask=mask, features=features, augment=augment,
-                         cache_dir=cache_dir, camera_names=camera_names, require_cache=False)
+    ds = KeyframeDataset(source, workspace, grounder, split=mask or destination, mask=mask, features=features,
+                         augment=augment, cache_dir=cache_dir, camera_names=camera_names, require_cache=False,
+                         destination=destination)
     return ds.precompute(show_progress)
 
 

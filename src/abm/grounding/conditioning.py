@@ -10,6 +10,13 @@ active sub-goal's: X while the gripper is open, Y once it has closed (:func:`act
 needs no extra label, so demonstrations and rollouts pick the same target at the same moments, and
 one-target policies and checkpoints are unchanged.
 
+**Destination.** Where the task brings X (the plate, the target pad, the wine rack; X itself for the jar a lid
+closes; Y of a two-target instruction) is declared by each task (``Task.destination``); :func:`destination_for`
+reads it for the tasks of an instruction's skill. With ``destination=True`` :func:`condition_cloud` grounds it
+with the same grounder into a second mask field (:attr:`ConditionedCloud.destination_mask`; a grounder with a
+``ground_destination`` method, the tracking one, keeps a track of its own for it). An instruction whose tasks
+declare no destination (take_off_pan) gets an empty second mask.
+
 Grounders are configured by the typed configurations of :mod:`abm.grounding.config` (stored in checkpoints
 as their dict form ``{"kind": "oracle"}``, ``{"kind": "clip", ...}`` or ``{"kind": "tracking", "inner": {...}}``).
 """
@@ -17,7 +24,7 @@ as their dict form ``{"kind": "oracle"}``, ``{"kind": "clip", ...}`` or ``{"kind
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, cast
 
@@ -26,10 +33,12 @@ import numpy as np
 from abm.errors import ConfigError
 from abm.geometry import PointCloud, Workspace, fuse_cameras
 from abm.grounding.instruction import PLACEHOLDER, MultiStepInstructionError, default_parser
+from abm.sim.tasks import TASKS
 from abm.types import Observation
 
 if TYPE_CHECKING:
     from abm.grounding.grounders import Grounder  # types only: grounders.py loads torch
+    from abm.grounding.mask_field import MaskField
 
 
 class PointFeatureGrounder(Protocol):
@@ -102,10 +111,48 @@ def active_role(gripper_open: float, roles: int) -> int:
     return 0 if roles < 2 or float(gripper_open) >= 0.5 else 1
 
 
+def destination_for(tasks: Sequence[str], targets: Sequence[str]) -> str | None:
+    """The destination object of an instruction whose skill the benchmark ``tasks`` use and whose sub-goals name
+    ``targets`` (``(X,)`` or ``(X, Y)``): what the tasks declare (``Task.destination``, X / Y filled in), ``None``
+    when they declare none or disagree. A two-target skill no benchmark task uses (a user's) brings X to Y."""
+    known = [TASKS[t] for t in tasks if t in TASKS]
+    if not known:
+        return targets[1] if len(targets) > 1 else None
+    names = {task.destination_name(tuple(targets)) for task in known}
+    return names.pop() if len(names) == 1 else None
+
+
+def instruction_destination(instruction: str, targets: Sequence[str] | None = None) -> str | None:
+    """The destination object of ``instruction`` (:func:`destination_for` of its parse by the templates), with
+    ``targets`` in place of the parsed X (and Y) when given (the oracle's ground-truth names); ``None`` when no
+    template matches."""
+    try:
+        parsed = default_parser().parse(instruction)
+    except ValueError:  # no template (the scene-name fallback of split_roles): no known task, no destination
+        return None
+    return destination_for(parsed.tasks, tuple(targets) if targets else parsed.targets)
+
+
 def ground_points(grounder: Grounder, observation: Observation, cloud: PointCloud, target: str,
                   object_names: Mapping[int, str]) -> PointMask:
     """Run a grounder and normalise its result to :class:`PointMask` (float32 arrays of length N)."""
-    field = grounder.ground(observation, cloud, target, dict(object_names))
+    return _point_mask(grounder.ground(observation, cloud, target, dict(object_names)), cloud)
+
+
+def ground_destination(grounder: Grounder, observation: Observation, cloud: PointCloud, destination: str | None,
+                       object_names: Mapping[int, str]) -> PointMask:
+    """The destination's mask field (:func:`ground_points` for the destination's name). A grounder with a
+    ``ground_destination`` method (:class:`~abm.grounding.tracking.TrackingGrounder`: its own track, so the target's
+    is kept) is asked through it; no destination gives an empty mask (``found`` False)."""
+    if destination is None:
+        empty = np.zeros(len(cloud), np.float32)
+        return PointMask(empty, empty.copy(), False)
+    ground = getattr(grounder, "ground_destination", grounder.ground)
+    return _point_mask(ground(observation, cloud, destination, dict(object_names)), cloud)
+
+
+def _point_mask(field: MaskField, cloud: PointCloud) -> PointMask:
+    """A grounder's mask field (``mask``, optional ``heatmap`` and ``found``) as a :class:`PointMask`."""
     mask = np.asarray(field.mask, np.float32).reshape(-1)
     heat = getattr(field, "heatmap", None)
     heat = mask.copy() if heat is None else np.asarray(heat, np.float32).reshape(-1)
@@ -128,6 +175,8 @@ class ConditionedCloud:
         point_mask: the mask field over the cloud's points (``None`` unless asked for).
         features: ``(N, F)`` float32 per-point CLIP features (``None`` unless asked for).
         role: index of the active sub-goal (:func:`active_role`).
+        destination: the destination object's name (:func:`destination_for`; ``None``: none, or not asked for).
+        destination_mask: the destination's mask field over the cloud's points (``None`` unless asked for).
     """
 
     cloud: PointCloud
@@ -137,6 +186,8 @@ class ConditionedCloud:
     point_mask: PointMask | None
     features: np.ndarray | None
     role: int = 0
+    destination: str | None = None
+    destination_mask: PointMask | None = None
 
 
 def condition_cloud(
@@ -152,6 +203,8 @@ def condition_cloud(
     mask: bool = False,
     features: bool = False,
     camera_names: list[str] | None = None,
+    destination: bool = False,
+    destination_name: str | None = None,
 ) -> ConditionedCloud:
     """Fuse the cameras inside ``workspace`` and condition the cloud on ``instruction``.
 
@@ -168,6 +221,9 @@ def condition_cloud(
         mask: compute the mask field of X over the cloud.
         features: compute per-point CLIP features (the grounder must have ``point_features``: CLIP, tracking).
         camera_names: cameras to fuse (default all).
+        destination: also ground the destination into a second mask field (:attr:`ConditionedCloud.destination_mask`).
+        destination_name: the destination's name when known (a dataset's ground truth); default the instruction's
+            (:func:`instruction_destination`).
 
     Raises:
         ValueError: no target in the instruction (when splitting), or no grounder for ``mask`` /
@@ -177,10 +233,13 @@ def condition_cloud(
     if (split or mask) and (target is None or skill is None):
         target, skill = split_roles(instruction, object_names)
     role = 0
+    roles = target if isinstance(target, tuple) else (target,) if target is not None else ()
     if isinstance(target, tuple):
         role = active_role(observation.gripper_open, len(target))
         target = target[role]
-    if (mask or features) and grounder is None:
+    if destination and destination_name is None:
+        destination_name = instruction_destination(instruction, roles or None)
+    if (mask or features or destination) and grounder is None:
         raise ValueError("a grounder is needed for the mask field and CLIP point features")
     point_mask = None
     if mask:
@@ -190,4 +249,9 @@ def condition_cloud(
     if features:
         # features=True needs a grounder with point features (documented above); mypy cannot know which one
         feats = np.asarray(cast("PointFeatureGrounder", grounder).point_features(observation, cloud), np.float32)
-    return ConditionedCloud(cloud, instruction, target, skill, point_mask, feats, role)
+    destination_mask = None
+    if destination:
+        assert grounder is not None  # checked above
+        destination_mask = ground_destination(grounder, observation, cloud, destination_name, object_names or {})
+    return ConditionedCloud(cloud, instruction, target, skill, point_mask, feats, role,
+                            destination_name if destination else None, destination_mask)

@@ -55,6 +55,7 @@ from functools import cache
 from typing import Any
 
 from abm.errors import ConfigError
+from abm.grounding.conditioning import destination_for
 from abm.grounding.instruction import (
     PLACEHOLDER,
     SECOND_PLACEHOLDER,
@@ -501,6 +502,14 @@ class Resolution:
         return (self.target,) if self.second is None else (self.target, self.second)
 
     @property
+    def destination(self) -> str | None:
+        """Where the skill brings X: the object its task declares (``Task.destination``: the target pad, the plate,
+        the wine rack, the shelf, the plant; X itself for close X and the ring's peg; :attr:`second` for a
+        two-target skill, the one concept of a place object beside X), ``None`` when it has none (take X off the
+        frypan) (:func:`abm.grounding.conditioning.destination_for`)."""
+        return destination_for((self.task,) if self.task else self.tasks, self.targets)
+
+    @property
     def canonical(self) -> str:
         """The instruction in the templates' words with the scene's names: ``"put the yellow block on the
         target"`` (the template parser reads it back as :attr:`target`, :attr:`second` and :attr:`skill`)."""
@@ -511,7 +520,7 @@ class Resolution:
         """JSON-ready form (logs, ``summary.json``)."""
         return {"instruction": self.instruction, "target": self.target, "second": self.second, "skill": self.skill,
                 "task": self.task, "confidence": round(float(self.confidence), 4), "method": self.method,
-                "phrase": self.phrase, "canonical": self.canonical}
+                "phrase": self.phrase, "canonical": self.canonical, "destination": self.destination}
 
 
 class UnresolvedInstructionError(InstructionError):

@@ -26,6 +26,10 @@ afterwards carries the target's points forward:
    hysteresis against answers that jump from step to step. This costs one inner call per step.
 
 Call :meth:`TrackingGrounder.reset` between episodes (``KeyframePolicy.reset`` does).
+
+The destination (the policy's second mask, :func:`abm.grounding.conditioning.ground_destination`) is tracked
+the same way in a track of its own (:meth:`TrackingGrounder.ground_destination`), so grounding it at every step
+does not make the target's track start over.
 """
 
 from __future__ import annotations
@@ -93,7 +97,7 @@ class TrackingGrounder:
         self.reacquired = 0  # times a fresh answer replaced the track
         self.radius, self.min_kept, self.closed_below, self.color_tol = radius, min_kept, closed_below, color_tol
         self.inner_calls = 0
-        self._track: _Track | None = None
+        self._tracks: dict[str, _Track] = {}  # "target" and "destination": one track each
 
     @classmethod
     def from_config(cls, config: TrackingGrounderConfig, **runtime: Any) -> TrackingGrounder:
@@ -104,8 +108,8 @@ class TrackingGrounder:
                    reacquire_ratio=config.reacquire_ratio)
 
     def reset(self) -> None:
-        """Forget the tracked target (call at the start of every episode)."""
-        self._track = None
+        """Forget the tracked target and destination (call at the start of every episode)."""
+        self._tracks.clear()
 
     def __getattr__(self, name: str) -> Any:  # point_features, skill_embeddings, ... of the inner grounder
         if name.startswith("_") or name == "inner":
@@ -138,9 +142,19 @@ class TrackingGrounder:
         target: str,
         object_names: Mapping[int, str] | None = None,
     ) -> MaskField:
+        """The target's mask field: tracked from the last step, or the inner grounder's (module docstring)."""
+        return self._ground("target", observation, cloud, target, object_names)
+
+    def ground_destination(self, observation: Observation, cloud: PointCloud, destination: str,
+                           object_names: Mapping[int, str] | None = None) -> MaskField:
+        """The destination's mask field, tracked like the target's in a track of its own."""
+        return self._ground("destination", observation, cloud, destination, object_names)
+
+    def _ground(self, slot: str, observation: Observation, cloud: PointCloud, target: str,
+                object_names: Mapping[int, str] | None) -> MaskField:
         closed = float(observation.gripper_open) < self.closed_below
         pose = np.asarray(observation.gripper_pose, np.float64)
-        track = self._track
+        track = self._tracks.get(slot)
         if track is not None and track.target == target and len(track.points) and len(cloud):
             tree = cKDTree(cloud.xyz)
             hypotheses = [track.points]  # the target stayed where it was
@@ -153,15 +167,15 @@ class TrackingGrounder:
                 mask = np.isfinite(near).astype(np.float32)
                 fresh = self._rescore(observation, cloud, target, object_names, mask) if self.reacquire else None
                 if fresh is None:
-                    self._track = _Track(target, predicted, track.colors, pose, closed, track.confidence)
+                    self._tracks[slot] = _Track(target, predicted, track.colors, pose, closed, track.confidence)
                     # as sure as the first answer, scaled by the share of its points still found
                     return MaskField(mask, mask.copy(), bool(mask.any()), target, "",
                                      confidence=track.confidence * share)
                 self.reacquired += 1
-                return self._start(fresh, cloud, target, pose, closed)
+                return self._start(slot, fresh, cloud, target, pose, closed)
         field = self.inner.ground(observation, cloud, target, object_names)
         self.inner_calls += 1
-        return self._start(field, cloud, target, pose, closed)
+        return self._start(slot, field, cloud, target, pose, closed)
 
     def _rescore(self, observation: Observation, cloud: PointCloud, target: str,
                  object_names: Mapping[int, str] | None, tracked: np.ndarray) -> MaskField | None:
@@ -175,9 +189,13 @@ class TrackingGrounder:
             return None
         return fresh if heat[keep].mean() < self.reacquire_ratio * heat[own].mean() else None
 
-    def _start(self, field: MaskField, cloud: PointCloud, target: str, pose: np.ndarray, closed: bool) -> MaskField:
-        """Start a track from a grounder's answer and return it."""
+    def _start(self, slot: str, field: MaskField, cloud: PointCloud, target: str, pose: np.ndarray,
+               closed: bool) -> MaskField:
+        """Start the track of ``slot`` from a grounder's answer and return it."""
         keep = np.asarray(field.mask) > 0.5
-        self._track = (_Track(target, cloud.xyz[keep], cloud.rgb[keep], pose, closed, float(field.confidence or 0.0))
-                       if keep.any() else None)
+        if keep.any():
+            self._tracks[slot] = _Track(target, cloud.xyz[keep], cloud.rgb[keep], pose, closed,
+                                        float(field.confidence or 0.0))
+        else:
+            self._tracks.pop(slot, None)
         return field

@@ -23,6 +23,7 @@ import json
 from dataclasses import dataclass, field
 from typing import Any, cast
 
+from abm.configuration import MAX_KEYFRAMES
 from abm.policy.variants import VARIANTS, VariantSpec, get_variant
 
 PRESETS: dict[str, dict[str, float]] = {
@@ -57,7 +58,8 @@ class PolicyConfig:
         lang_tokens: language tokens ``L`` (77 for CLIP).
         lang_dim: dimension of the language token embeddings.
         ifd_feature_dim: dimension of the per-point CLIP features (``ifd`` only).
-        proprio_dim: proprioception size (gripper open, gripper position in cube coordinates).
+        proprio_dim: proprioception size (gripper open, gripper position in cube coordinates); the network's
+            input is :attr:`proprio_size` (with the progress input).
         rotation_bins: bins per Euler axis.
         local_rotation_features: also feed the rotation/gripper head the full-resolution decoder features
             (``decoder_channels`` per view) pooled with the heatmap at the pixel level, not only the
@@ -78,6 +80,16 @@ class PolicyConfig:
         zoom_patch_size: token patch side (pixels) of the zoomed stage; must divide ``zoom_resolution``.
         zoom_noise: training only: the zoom centre is the label plus uniform noise in ``[-zoom_noise,
             zoom_noise]`` m per axis, so the fine stage learns to correct a coarse point that is off by as much.
+        destination_mask: mask variants (abm and the ablations): a second mask channel beside the target's, the
+            destination's mask field (the plate, the target pad, the wine rack; ``Task.destination``) in the
+            variant's mask form, grounded by the same grounder (:func:`abm.grounding.conditioning.condition_cloud`).
+            Off: the paper's one mask; checkpoints without the field read as off.
+        progress_input: every variant: the proprioception also holds the task's progress, the keyframe index
+            (``Observation.step``) divided by ``progress_budget`` and clipped to 1, as RVT feeds its time step. (The
+            finger state is fed already: ``gripper_open``, the proprioception's first entry, is the measured finger
+            opening normalised to ``[0, 1]``.) Off: checkpoints without the field read as off.
+        progress_budget: keyframes the progress input is normalised by (the evaluation's keyframe budget, the
+            same number in training and at inference).
         dropout: dropout in attention / MLP.
         workspace_center: workspace cube centre (m), used for action decoding.
         workspace_size: workspace cube edge (m).
@@ -108,6 +120,9 @@ class PolicyConfig:
     zoom_resolution: int = 32
     zoom_patch_size: int = 4
     zoom_noise: float = 0.03
+    destination_mask: bool = False
+    progress_input: bool = False
+    progress_budget: int = MAX_KEYFRAMES
     dropout: float = 0.0
     workspace_center: tuple[float, float, float] = (0.5, 0.0, 0.35)
     workspace_size: float = 1.0
@@ -138,6 +153,11 @@ class PolicyConfig:
                              f"got {self.rotation_crop}")
         if 360 % self.rotation_bins:
             raise ValueError(f"rotation_bins must divide 360, got {self.rotation_bins}")
+        if self.destination_mask and not self.spec.uses_mask:
+            raise ValueError(f"destination_mask is a second mask channel: variant {self.variant!r} takes no mask "
+                             f"(mask variants: {sorted(n for n, v in VARIANTS.items() if v.uses_mask)})")
+        if self.progress_budget < 1:
+            raise ValueError(f"progress_budget must be at least 1 keyframe, got {self.progress_budget}")
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -148,6 +168,16 @@ class PolicyConfig:
     @property
     def num_views(self) -> int:
         return len(self.views)
+
+    @property
+    def mask_channels(self) -> int:
+        """Mask channels of every view: 0 (rvt, ifd), 1 (the target's) or 2 (and the destination's)."""
+        return 0 if not self.spec.uses_mask else 2 if self.destination_mask else 1
+
+    @property
+    def proprio_size(self) -> int:
+        """Width of the network's proprioception input: ``proprio_dim`` plus the progress input's one entry."""
+        return self.proprio_dim + (1 if self.progress_input else 0)
 
     @property
     def grid(self) -> int:

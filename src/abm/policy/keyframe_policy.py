@@ -104,6 +104,8 @@ class PolicyExplanation(GroundingExplanation):
         zoom_images: two-stage policies: ``(V, 10, h, w)`` float32, the zoomed views the second stage saw (xyz
             relative to ``zoom_center``).
         zoom_heatmaps: two-stage policies: ``(V, h, w)`` float32, the zoomed stage's translation distributions.
+        view_destination_mask: ``(V, H, W)`` float32, the destination's mask channel the network saw (policies with
+            ``destination_mask``; else ``None``).
     """
 
     action: KeyframeAction
@@ -113,6 +115,25 @@ class PolicyExplanation(GroundingExplanation):
     zoom_center: NDArray[np.float32] | None = None
     zoom_images: NDArray[np.float32] | None = None
     zoom_heatmaps: NDArray[np.float32] | None = None
+    view_destination_mask: NDArray[np.float32] | None = None
+
+
+def proprioception(batch: Batch, config: PolicyConfig, workspace: Workspace, device: torch.device) -> torch.Tensor:
+    """The network's proprioception input ``(B, config.proprio_size)`` float32 of a batch, in training and at
+    inference alike (both build their samples with :func:`abm.samples.cloud_sample` from an observation):
+    ``gripper_open`` (the measured finger opening in ``[0, 1]``), the gripper position in cube coordinates
+    (``[-1, 1]`` inside the workspace), and with ``progress_input`` the keyframe index divided by
+    ``progress_budget``, clipped to 1."""
+    b = batch["gripper_position"].shape[0]
+    grip_pos = batch["gripper_position"].to(device, torch.float32)
+    center = torch.tensor(workspace.center, device=device, dtype=torch.float32)
+    parts = [batch["gripper_open"].to(device, torch.float32).reshape(b, 1), (grip_pos - center) / float(workspace.half)]
+    if config.progress_input:
+        if "keyframe_index" not in batch:
+            raise ValueError("progress_input needs each sample's keyframe_index (abm.samples.cloud_sample)")
+        index = batch["keyframe_index"].to(device, torch.float32).reshape(b, 1)
+        parts.append((index / float(config.progress_budget)).clamp(0.0, 1.0))
+    return torch.cat(parts, -1)
 
 
 def _occupied(images: torch.Tensor, renderer: OrthographicRenderer) -> NDArray[np.bool_]:
@@ -140,7 +161,8 @@ def explain_grounding(observation: Observation, instruction: str, renderer: Orth
     grounding-only scenes). :meth:`KeyframePolicy.explain` is the same with a policy."""
     scene = condition_cloud(observation, instruction, renderer.workspace, grounder=grounder, object_names=object_names,
                             mask=True, camera_names=list(camera_names) if camera_names else None)
-    sample = cloud_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
+    sample = cloud_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3],
+                          keyframe_index=observation.step)
     images, target = _target_views(renderer, sample)
     return GroundingExplanation(sample=sample, target=scene.target, view_names=list(renderer.views),
                             view_rgb=images[:, :3].permute(0, 2, 3, 1).clamp(0, 1).numpy(),
@@ -244,7 +266,7 @@ class KeyframePolicy(nn.Module):
     def sample_options(self) -> dict[str, bool]:
         """What the data pipeline must compute for this variant (``KeyframeDataset(**options)``)."""
         return {"split": self.spec.uses_mask or self.spec.language == "skill", "mask": self.spec.uses_mask,
-                "features": self.spec.clip_features}
+                "features": self.spec.clip_features, "destination": self.config.destination_mask}
 
     def language_goal(self, instruction: str, skill: str) -> str:
         """The text the variant reads: the skill text (mask variants) or the whole instruction."""
@@ -271,8 +293,9 @@ class KeyframePolicy(nn.Module):
             zoom_center: ``(B, 3)`` world metres: render the zoomed stage's views of the cube of edge
                 ``zoom_size`` around each centre instead of the workspace views (two-stage policies only).
 
-        Returns ``images`` ``(B, V, 10, H, W)``, ``proprio`` ``(B, 4)``, ``lang`` ``(B, L, D)``, and
-        ``mask`` ``(B, V, 1, H, W)`` (mask variants) or ``ifd_features`` ``(B, M, F)`` + ``ifd_index``
+        Returns ``images`` ``(B, V, 10, H, W)``, ``proprio`` ``(B, proprio_size)`` (:func:`proprioception`),
+        ``lang`` ``(B, L, D)``, and ``mask`` ``(B, V, M, H, W)`` (mask variants; ``M`` = 2 with ``destination_mask``:
+        the target's channel, then the destination's) or ``ifd_features`` ``(B, M, F)`` + ``ifd_index``
         ``(B, V, H, W)`` (``ifd``); ``H = W`` is ``zoom_resolution`` for the zoomed views, whose xyz channels are
         relative to the zoom centre.
         """
@@ -291,6 +314,11 @@ class KeyframePolicy(nn.Module):
             if "point_mask" not in batch:
                 raise ValueError(f"variant {self.spec.name!r} needs a per-point mask field (point_mask)")
             extra += [batch["point_mask"].to(dev, torch.float32), batch["point_heatmap"].to(dev, torch.float32)]
+            if self.config.destination_mask:
+                if "destination_mask" not in batch:
+                    raise ValueError("destination_mask needs the destination's per-point mask field (destination_mask)")
+                extra += [batch["destination_mask"].to(dev, torch.float32),
+                          batch["destination_heatmap"].to(dev, torch.float32)]
         if self.spec.clip_features:
             if "point_features" not in batch:
                 raise ValueError(f"variant {self.spec.name!r} needs per-point CLIP features (point_features)")
@@ -300,14 +328,13 @@ class KeyframePolicy(nn.Module):
                                     extra=torch.stack(extra, -1) if extra else None, valid=valid)
         inputs = {"images": views.rvt_channels().contiguous()}
         if self.spec.uses_mask:
-            inputs["mask"] = mask_channel(self.spec, views.extra[:, :, :2]).contiguous()
+            channels = [mask_channel(self.spec, views.extra[:, :, 2 * i:2 * i + 2])
+                        for i in range(self.config.mask_channels)]
+            inputs["mask"] = (torch.cat(channels, 2) if len(channels) > 1 else channels[0]).contiguous()
         if self.spec.clip_features:
             inputs["ifd_features"], inputs["ifd_index"] = self._visible_features(
                 batch["point_features"].to(dev), views.extra[:, :, -1], views.occupied)
-        grip_pos = batch["gripper_position"].to(dev, torch.float32)
-        center = torch.tensor(self.workspace.center, device=dev, dtype=torch.float32)
-        inputs["proprio"] = torch.cat([batch["gripper_open"].to(dev, torch.float32).reshape(b, 1),
-                                       (grip_pos - center) / float(self.workspace.half)], -1)
+        inputs["proprio"] = proprioception(batch, self.config, self.workspace, dev)
         inputs["lang"] = self.encode_language(
             [self.language_goal(i, s) for i, s in zip(batch["instruction"], batch["skill"], strict=True)])
         return inputs
@@ -458,9 +485,10 @@ class KeyframePolicy(nn.Module):
         scene = condition_cloud(observation, instruction, self.workspace,
                                 grounder=self.grounder if needs_grounder else None, object_names=object_names,
                                 split=opts["split"], mask=opts["mask"], features=opts["features"],
-                                camera_names=self.camera_names)
+                                camera_names=self.camera_names, destination=opts["destination"])
         self._last_target = scene.target  # for explain()
-        return cloud_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3])
+        return cloud_sample(scene, observation.gripper_open, observation.gripper_pose[:3, 3],
+                            keyframe_index=observation.step)
 
     def act(self, observation: Observation, instruction: str,
             object_names: Mapping[int, str] | None = None) -> KeyframeAction:
@@ -506,6 +534,8 @@ class KeyframePolicy(nn.Module):
             view_target=target,
             view_images=images.numpy(),
             view_mask=None if mask is None else mask[0, :, 0].float().cpu().numpy(),
+            view_destination_mask=(mask[0, :, 1].float().cpu().numpy()
+                                   if mask is not None and self.config.destination_mask else None),
             heatmaps=heat,
             **zoom,
         )

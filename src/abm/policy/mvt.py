@@ -140,16 +140,17 @@ class MultiViewTransformer(nn.Module):
         self.config = config
         spec = config.spec
         c, d, p, v = config.stem_channels, config.width, config.patch_size, config.num_views
-        in_ch = config.image_channels + (1 if spec.uses_mask and spec.mask_stage == "input" else 0)
+        masks = config.mask_channels  # the target's, and with destination_mask the destination's
+        in_ch = config.image_channels + (masks if spec.mask_stage == "input" else 0)
         self.stem = nn.Sequential(nn.Conv2d(in_ch, c, 3, padding=1), nn.GELU())
-        extra = (1 if spec.uses_mask and spec.mask_stage == "stem" else 0) + (c if spec.clip_features else 0)
+        extra = (masks if spec.mask_stage == "stem" else 0) + (c if spec.clip_features else 0)
         self.ifd_proj = nn.Linear(config.ifd_feature_dim, c) if spec.clip_features else None
         self.fuse = nn.Sequential(nn.Conv2d(c + extra, c, 1), nn.GELU()) if extra else nn.Identity()
         self.patchify = nn.Conv2d(c, c, p, stride=p)
         self.embed = nn.Linear(c, d)
         tokens = config.grid**2
         self.view_pos = nn.Parameter(torch.randn(v, tokens, d) * 0.02)
-        self.proprio = nn.Linear(config.proprio_dim, d)
+        self.proprio = nn.Linear(config.proprio_size, d)
         self.lang_proj = nn.Linear(config.lang_dim, d)
         self.lang_pos = nn.Parameter(torch.randn(config.lang_tokens, d) * 0.02)
         self.within = nn.ModuleList(
@@ -192,15 +193,17 @@ class MultiViewTransformer(nn.Module):
             raise ValueError(f"images must be (B, {', '.join(map(str, want))}), got {tuple(images.shape)}")
         b = images.shape[0]
         if spec.uses_mask:
+            m = cfg.mask_channels
             if mask is None:
                 raise ValueError(
-                    f"variant {spec.name!r} needs a mask input of shape (B, {cfg.num_views}, 1, "
+                    f"variant {spec.name!r} needs a mask input of shape (B, {cfg.num_views}, {m}, "
                     f"{cfg.resolution}, {cfg.resolution}) ({spec.mask} mask from the grounder); got none"
                 )
-            if tuple(mask.shape) != (b, cfg.num_views, 1, cfg.resolution, cfg.resolution):
+            if tuple(mask.shape) != (b, cfg.num_views, m, cfg.resolution, cfg.resolution):
                 raise ValueError(
-                    f"mask must be ({b}, {cfg.num_views}, 1, {cfg.resolution}, {cfg.resolution}) for variant "
-                    f"{spec.name!r}, got {tuple(mask.shape)}"
+                    f"mask must be ({b}, {cfg.num_views}, {m}, {cfg.resolution}, {cfg.resolution}) for variant "
+                    f"{spec.name!r}{' with destination_mask' if cfg.destination_mask else ''}, "
+                    f"got {tuple(mask.shape)}"
                 )
         elif mask is not None:
             raise ValueError(f"variant {spec.name!r} takes no mask input, but one was given")
@@ -218,8 +221,8 @@ class MultiViewTransformer(nn.Module):
                 raise ValueError(f"ifd_index must be ({b}, {cfg.num_views}, H, W), got {tuple(ifd_index.shape)}")
         elif ifd_features is not None:
             raise ValueError(f"variant {spec.name!r} takes no CLIP features, but ifd_features were given")
-        if tuple(proprio.shape) != (b, cfg.proprio_dim):
-            raise ValueError(f"proprio must be ({b}, {cfg.proprio_dim}), got {tuple(proprio.shape)}")
+        if tuple(proprio.shape) != (b, cfg.proprio_size):
+            raise ValueError(f"proprio must be ({b}, {cfg.proprio_size}), got {tuple(proprio.shape)}")
         if tuple(lang.shape) != (b, cfg.lang_tokens, cfg.lang_dim):
             raise ValueError(
                 f"lang must be ({b}, {cfg.lang_tokens}, {cfg.lang_dim}) language token embeddings, "
@@ -241,9 +244,11 @@ class MultiViewTransformer(nn.Module):
 
         Args:
             images: ``(B, V, 10, H, W)`` rendered RVT channels (rgb, depth, xyz, pixel location).
-            proprio: ``(B, proprio_dim)`` gripper open state and position (cube coordinates).
+            proprio: ``(B, proprio_size)`` gripper open state and position (cube coordinates), and with
+                ``progress_input`` the progress (:func:`abm.policy.keyframe_policy.proprioception`).
             lang: ``(B, L, lang_dim)`` language token embeddings.
-            mask: ``(B, V, 1, H, W)`` the variant's mask channel (mask variants only).
+            mask: ``(B, V, M, H, W)`` the variant's mask channels (mask variants only): the target's, and with
+                ``destination_mask`` the destination's (``M = config.mask_channels``).
             ifd_features: ``(B, N, ifd_feature_dim)`` per-point CLIP features (``ifd`` only).
             ifd_index: ``(B, V, H, W)`` int64 index of the point visible in each pixel, -1 where empty
                 (``ifd`` only).

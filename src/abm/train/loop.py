@@ -461,7 +461,7 @@ class Trainer:
             # the explicit grounding step (what `abm data ground` does ahead of time); resumable
             made = ground_keyframes(source, self.policy.workspace, self.grounder_config, cache, mask=opts["mask"],
                                     features=opts["features"], augment=augment, camera_names=cfg.camera_names,
-                                    show_progress=cfg.progress)
+                                    show_progress=cfg.progress, destination=opts["destination"])
             log.info("abm train: grounded %d keyframes with %s into %s", made, self.grounder_config.kind, cache)
         if dinfo.enabled:
             dist.barrier()  # rank 0 has filled the grounding cache
