@@ -4,7 +4,7 @@ Writes the LeRobot **v3.0** layout (``codebase_version`` "v3.0", the layout of l
 
     DS/meta/info.json                                 features (dtype, shape, names), fps, counts, paths,
                                                       frame_sampling, abm (format, frames, cameras, sha256)
-    DS/meta/stats.json                                min / max / mean / std / count per feature
+    DS/meta/stats.json                                min / max / mean / std / count / q01 ... q99 per feature
     DS/meta/tasks.parquet                             task string (the instruction) -> task_index
     DS/meta/episodes/chunk-000/file-000.parquet       one row per episode: length, frame range, data and video
                                                       file and range, stats/<feature>/<stat>, and
@@ -44,7 +44,6 @@ from __future__ import annotations
 import io
 import json
 import logging
-import math
 import os
 import shlex
 import shutil
@@ -104,6 +103,7 @@ from abm.data.lerobot_schema import (
     intrinsics_key,
     segmentation_key,
 )
+from abm.data.lerobot_stats import aggregate_stats, feature_stats
 from abm.errors import ConfigError, DataError, OutputError
 from abm.files import is_inside, sha256_file, write_text_atomic
 from abm.geometry.rotations import matrix_to_quat
@@ -118,7 +118,6 @@ __all__ = ["DATA_FILE", "EPISODES_FILE", "EXPORT_MARKER", "ExportReport", "LeRob
 
 _EXPORT_ENTRIES = ("data", "meta", "videos")  # what an export creates in its --out folder (besides the marker)
 _MB = 1024 * 1024  # LeRobot's megabyte (get_file_size_in_mb)
-_PER_ELEMENT_STATS = 16  # features of at most this many elements get stats per element, larger maps one value
 
 
 @dataclass
@@ -250,47 +249,6 @@ def _png(rgb: np.ndarray) -> bytes:
     buffer = io.BytesIO()
     Image.fromarray(rgb).save(buffer, format="PNG")
     return buffer.getvalue()
-
-
-# --- statistics ------------------------------------------------------------------------------------------
-
-
-def _feature_stats(feature: dict[str, Any], values: Any) -> dict[str, np.ndarray] | None:
-    """One episode's min / max / mean / std / count of a feature, shaped as LeRobot shapes them: ``(3, 1, 1)``
-    per channel (in [0, 1]) for cameras, per element for vectors and small arrays, and (abm's choice, to keep
-    the episode table small) one value over all pixels for depth and segmentation maps. NaN values (unknown
-    timestamps) are left out; ``None`` when nothing is left (or the feature is text)."""
-    if feature["dtype"] == "string":
-        return None
-    v = np.asarray(values, np.float64)
-    n = len(v)
-    axes: tuple[int, ...] = (0,)
-    if feature["dtype"] in ("video", "image"):
-        v, axes, shape = v / 255.0, (0, 1, 2), [3, 1, 1]
-    elif len(feature["shape"]) > 1 and math.prod(feature["shape"]) > _PER_ELEMENT_STATS:
-        v, shape = v.reshape(-1), [1]
-    else:
-        v, shape = v.reshape(n, -1), list(feature["shape"])
-    if np.isnan(v).all():
-        return None
-    with np.errstate(invalid="ignore"):
-        result = {"min": np.nanmin(v, axis=axes), "max": np.nanmax(v, axis=axes), "mean": np.nanmean(v, axis=axes),
-                  "std": np.nanstd(v, axis=axes)}
-    return {k: x.reshape(shape) for k, x in result.items()} | {"count": np.array([n], np.int64)}
-
-
-def _aggregate_stats(parts: list[dict[str, np.ndarray]]) -> dict[str, list[Any]]:
-    """The dataset's stats of a feature from its episodes' (pooled mean and variance, as LeRobot's
-    ``aggregate_stats``)."""
-    counts = np.array([float(p["count"][0]) for p in parts])
-    total = counts.sum()
-    weights = counts.reshape(-1, *([1] * parts[0]["mean"].ndim))
-    means = np.stack([p["mean"] for p in parts])
-    mean = (means * weights).sum(0) / total
-    var = ((np.stack([p["std"] for p in parts]) ** 2 + (means - mean) ** 2) * weights).sum(0) / total
-    return {"min": np.min([p["min"] for p in parts], axis=0).tolist(),
-            "max": np.max([p["max"] for p in parts], axis=0).tolist(), "mean": mean.tolist(),
-            "std": np.sqrt(var).tolist(), "count": [int(total)]}
 
 
 # --- file writers ----------------------------------------------------------------------------------------
@@ -648,7 +606,7 @@ def _write_export(store: EpisodeStore, first: Episode, out: Path, cameras: list[
             for key, feature in features.items():
                 values = rgb[key.removeprefix("observation.images.")] if feature["dtype"] in ("video", "image") \
                     else cols[key]
-                if (st := _feature_stats(feature, values)) is not None:
+                if (st := feature_stats(feature, values)) is not None:
                     stats[key] = st
                     row |= {f"stats/{key}/{name}": value.tolist() for name, value in st.items()}
             meta = {"task": episode.task, "split": episode.split, "variation": episode.variation,
@@ -670,7 +628,7 @@ def _write_export(store: EpisodeStore, first: Episode, out: Path, cameras: list[
     _write_tasks(out / TASKS_FILE, tasks)
     keys = [k for k in features if any(k in s for s in episode_stats)]
     (out / "meta" / "stats.json").write_text(json.dumps(
-        {k: _aggregate_stats([s[k] for s in episode_stats if k in s]) for k in keys}, indent=1))
+        {k: aggregate_stats([s[k] for s in episode_stats if k in s]) for k in keys}, indent=1))
     files = [*data_files.paths, *(p for writer in videos.values() for p in writer.paths)]
     info_json = {
         "codebase_version": CODEBASE_VERSION, "robot_type": robot_type, "total_episodes": len(rows),
