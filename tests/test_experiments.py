@@ -77,7 +77,23 @@ def test_every_builtin_spec_loads() -> None:
 
 
 @pytest.mark.parametrize("changes, message", [
-    ({"data__episodes": "many"}, r"data\.episodes: expected a whole number >= 1, got 'many'"),
+    ({"data__episodes": "many"}, r"data\.episodes: expected a whole number from 1 to 1000000, got 'many' \(the "
+                                 r"same check as abm data generate --episodes\)"),
+    ({"data__episodes": 10**30}, r"data\.episodes: expected a whole number from 1 to 1000000, got "),
+    ({"data__seed": 2**70}, r"data\.seed: expected a whole number from 0 to 4294967295, got "),
+    ({"data__tasks": ["pick_block", "juggle"]}, r"data\.tasks: 'juggle' is no task of the benchmark \(known: "),
+    ({"evaluation__splits": {"seen": {"tasks": ["juggle"]}}}, r"evaluation\.splits\.seen\.tasks: 'juggle' is no task"),
+    ({"evaluation__repeats": 5000}, r"evaluation\.repeats: expected a whole number from 1 to 1000, got '5000' \(the "
+                                    r"same check as abm eval --repeats\)"),
+    ({"out": ""}, r"out: '' is the root itself \(the checkout\): give a folder inside it"),
+    ({"out": "."}, r"out: '\.' is the root itself"),
+    ({"out": "../elsewhere"}, r"out: '\.\./elsewhere' leaves the root: give a path relative to the root"),
+    ({"kept": "/tmp/kept"}, r"kept: '/tmp/kept' leaves the root"),
+    ({"carry": "models/../../carry"}, r"carry: 'models/\.\./\.\./carry' leaves the root"),
+    ({"data__folder": "/data"}, r"data\.folder: '/data' leaves the root"),
+    ({"report__document": "../README.md"}, r"report\.document: '\.\./README\.md' leaves the root"),
+    ({"report__figures": [{"kind": "success", "file": "docs/x.md", "alt": "x"}]},
+     r"report\.figures\[0\]\.file: expected a PNG file"),
     ({"data__tasks": "three"}, r"data\.tasks: 'three' is no task list of this spec"),
     ({"evaluation__repeat": 2}, r"evaluation: unknown key\(s\) 'repeat'"),
     ({"runs__abm_oracle__train": {"method": "abm", "stepz": 3}}, r"runs\.abm_oracle\.train: stepz=\.\.\.: TrainConfig "
@@ -198,6 +214,10 @@ class FakeRunner:
                     "method": "abm", "task": task, "split": "seen", "per_repeat": [100.0], "episodes": 1,
                     "errors": 0, "mean": 100.0, "std": 0.0}]))
             codes[cmd.job] = 1 if cmd.job == self.fail else 0
+            if cmd.job == self.fail:  # what a failing command writes last: its one error line, then a blank
+                cmd.log.parent.mkdir(parents=True, exist_ok=True)
+                cmd.log.write_text("step 1/3\n  0%|          | 0/3\r 33%|███       | 1/3\n"
+                                   "abm: error: --data runs/x/data: no episodes\n\n")
             if cmd.after:
                 cmd.after(codes[cmd.job])
         return codes
@@ -325,12 +345,16 @@ def test_a_finished_training_not_exported_yet_is_carried_and_exported_on_a_fresh
     assert not (tmp_path / "models/carry/abm_oracle").exists()  # exported: its carry is dropped
 
 
-def test_a_failed_training_stops_before_the_next_stage_and_carries_its_state(tmp_path: Path) -> None:
+def test_a_failed_training_stops_before_the_next_stage_and_carries_its_state(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     spec, _ = _spec(tmp_path, _one_run())
     runner = FakeRunner(tmp_path, fail="train/abm_oracle")
     engine = Engine(spec, root=tmp_path, runner=runner)
     _touch_checkpoint(engine.layout, "abm_oracle", 1)
     assert engine.run(["train", "export"]) == 1
+    # the terminal says why, from the last line of the job's log that says something (not the progress bar)
+    assert ("train/abm_oracle failed (exit code 1): abm: error: --data runs/x/data: no episodes (log: "
+            "runs/tiny/logs/train_abm_oracle.log)") in caplog.text
     assert runner.ran == ["train/abm_oracle"]  # export never planned: the stage after a failure does not run
     status = {j.id: j for j in engine.status()}
     failed = status["train/abm_oracle"]
@@ -380,8 +404,8 @@ def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Pat
     (done / "outcomes.jsonl").write_text("{}\n")
     (done / "results.json").write_text("[]")
     assert carry_unfinished(spec, layout) == ["eval/abm_oracle/seen", "abm_oracle"]
-    assert sorted(p.name for p in (tmp_path / "models/carry/abm_oracle").iterdir()) == ["log.csv",
-                                                                                       "step_00000002.pt"]
+    assert sorted(p.name for p in (tmp_path / "models/carry/abm_oracle").iterdir()) == [
+        "carried.json", "log.csv", "step_00000002.pt"]  # with the manifest of what the carry wrote
     fresh = Layout.of(spec, tmp_path, tmp_path / "fresh")
     assert restore_training(fresh, "abm_oracle") and restore_evaluation(fresh, "abm_oracle", "seen")
     assert (fresh.run_dir("abm_oracle") / "checkpoints/step_00000002.pt").is_file()

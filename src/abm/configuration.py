@@ -431,11 +431,27 @@ def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
         return
     try:
         values = load_recipe(given[-1])
-    except ConfigError as err:  # not found, not YAML, not a mapping: the message names the file
+        checked = check_recipe(sub, values, f"recipe {given[-1]}")
+    except ConfigError as err:  # not found, not YAML, not a mapping, a bad value: the message names the file
         sub.error(str(err))
-    sections = sub.get_default("config_sections") or {}
-    actions = {a.dest: a for a in sub._actions if a.dest not in ("help", "config")}
-    unknown = []
+    for action, v in checked:
+        action.default = v
+        action.required = False
+
+
+def check_recipe(parser: argparse.ArgumentParser, values: dict[str, Any], source: str
+                 ) -> list[tuple[argparse.Action, Any]]:
+    """Every value of a recipe for the command ``parser`` (``abm train``), checked as its flag checks it
+    (:func:`recipe_value`), with the option it sets; what ``abm train --config`` and an experiment spec's runs
+    (:mod:`abm.experiments.spec`) both check before anything runs.
+
+    Raises:
+        ConfigError: ``SOURCE: KEY: what is expected (the same check as --FLAG)``; an unknown option, a key of
+            :data:`RECIPE_REFUSED`, an empty path.
+    """
+    sections = parser.get_default("config_sections") or {}
+    actions = {a.dest: a for a in parser._actions if a.dest not in ("help", "config")}
+    unknown, checked = [], []
     for key, value in values.items():
         items = ([(sections[key] + k, v) for k, v in value.items()] if key in sections and isinstance(value, dict)
                  else [(key, value)])
@@ -445,16 +461,16 @@ def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
                 unknown.append(dest.removeprefix(sections.get(key, "")))
                 continue
             if action.dest in RECIPE_REFUSED:
-                sub.error(f"recipe {given[-1]}: {key!r} cannot be set in a recipe: {RECIPE_REFUSED[action.dest]}")
+                raise ConfigError(f"{source}: {key!r} cannot be set in a recipe: {RECIPE_REFUSED[action.dest]}")
             if action.type is Path and isinstance(v, str) and not v.strip():
-                sub.error(f"recipe {given[-1]}: {key} is an empty path; give a path, or leave the key out")
+                raise ConfigError(f"{source}: {key} is an empty path; give a path, or leave the key out")
             try:
-                v = recipe_value(action, v)
+                checked.append((action, recipe_value(action, v)))
             except argparse.ArgumentTypeError as err:
                 name = key if dest == key else f"{key}.{dest.removeprefix(sections.get(key, ''))}"
                 flag = action.option_strings[0] if action.option_strings else name
-                sub.error(f"recipe {given[-1]}: {name}: {err} (the same check as {flag}); fix the value in the recipe")
-            action.default = v
-            action.required = False
+                raise ConfigError(f"{source}: {name}: {err} (the same check as {flag}); fix the value in the "
+                                  "recipe") from None
     if unknown:
-        sub.error(f"recipe {given[-1]}: unknown option(s) {', '.join(unknown)}")
+        raise ConfigError(f"{source}: unknown option(s) {', '.join(unknown)}")
+    return checked

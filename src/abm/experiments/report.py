@@ -36,10 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from abm.errors import ConfigError, DataError
+from abm.errors import ConfigError, DataError, OutputError
 from abm.experiments.spec import SPECS, ExperimentSpec, GrounderVariant, Section
 from abm.experiments.state import Layout, machines, stage_minutes
-from abm.files import sha256_file
+from abm.files import is_inside, sha256_file
 from abm.zoo import edition
 
 Rate = Mapping[str, Any]  #: one evaluation cell (a record of ``abm eval``'s results.json)
@@ -1199,6 +1199,78 @@ def block_of(text: str, name: str) -> str:
     return text.split(start, 1)[1].split(end, 1)[0]
 
 
+class NotOwnedError(OutputError):
+    """The report would write a file it does not own (outside the root, the spec itself, a file it did not
+    write): it writes nothing there."""
+
+
+def _records_file(text: str) -> bool:
+    """Whether ``text`` is a report's records (a JSON list of cells, each naming its table and run)."""
+    try:
+        data = json.loads(text)
+    except ValueError:
+        return False
+    return isinstance(data, list) and all(isinstance(r, dict) and {"table", "run"} <= set(r) for r in data)
+
+
+def _zoo_index_file(text: str) -> bool:
+    """Whether ``text`` is a zoo index (a JSON list of entries, each with a name)."""
+    try:
+        data = json.loads(text)
+    except ValueError:
+        return False
+    return isinstance(data, list) and all(isinstance(e, dict) and "name" in e for e in data)
+
+
+#: what marks a file as the report's own, per kind of file it writes (``spec.name`` filled in): the provenance
+#: line of a document (:func:`provenance`), the shape of the records and of the zoo index, the zoo README's head
+OWNED: dict[str, Callable[[str, str], bool]] = {
+    "document": lambda text, name: text.startswith("# ") and text.split("\n", 3)[2:3] != [] and text.split(
+        "\n", 3)[2].startswith(f"Written by `abm experiment run {name}` ("),
+    "records": lambda text, name: _records_file(text),
+    "zoo index": lambda text, name: _zoo_index_file(text),
+    "zoo README": lambda text, name: text.startswith("# Model zoo\n\nWritten by `abm experiment run "),
+}
+
+
+def report_files(spec: ExperimentSpec, layout: Layout) -> list[tuple[Path, str]]:
+    """``(file, what it is)`` of every file the report writes outside KEPT (:data:`OWNED` names the kinds)."""
+    report, root = spec.report, layout.root
+    files = [(root / name, what) for name, what in ((report.records, "records"), (report.document, "document"),
+                                                     (report.readme, "README block")) if name]
+    if layout.zoo is not None:
+        files.append((layout.zoo / "index.json", "zoo index"))
+        if report.zoo_readme:
+            files.append((layout.zoo / "README.md", "zoo README"))
+    return files + [(root / figure.file, "figure") for figure in report.figures]
+
+
+def check_owned(path: Path, spec: ExperimentSpec, layout: Layout, what: str) -> None:
+    """Refuse (:class:`NotOwnedError`) to write ``path`` unless the report owns it: inside the root once links
+    are followed, not the spec, and either new or holding the mark of what it writes (:data:`OWNED`; a README
+    block is replaced between its markers only, :func:`replace_block`)."""
+    fix = "name another file in the spec's report section, or remove that file if it may be replaced"
+    if not is_inside(path, layout.root):
+        raise NotOwnedError(f"the report's {what} {layout.show(path)} is outside the root {layout.root}: {fix}")
+    if path.resolve() == spec.path.resolve():
+        raise NotOwnedError(f"the report's {what} {layout.show(path)} is the spec itself: {fix}")
+    if not (path.exists() or path.is_symlink()) or what == "README block":
+        return
+    if path.is_symlink() or not path.is_file():
+        owned = False
+    elif what == "figure":  # a PNG replaced by a PNG
+        with path.open("rb") as f:
+            owned = f.read(8) == b"\x89PNG\r\n\x1a\n"
+    else:
+        try:
+            owned = OWNED[what](path.read_text(encoding="utf-8"), spec.name)
+        except (OSError, UnicodeDecodeError):
+            owned = False
+    if not owned:
+        raise NotOwnedError(f"the report's {what} {layout.show(path)} exists and was not written by abm experiment "
+                            f"run {spec.name} (the report replaces only files it wrote): {fix}")
+
+
 def _write(path: Path, text: str) -> bool:
     """Write ``text`` when it differs from the file's; returns whether it did."""
     if path.is_file() and path.read_text() == text:
@@ -1265,6 +1337,8 @@ def draw_figures(spec: ExperimentSpec, layout: Layout, cells: Cells) -> list[Pat
 
 def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> Written:
     """Write every generated file of the report (see the module docstring); returns their texts."""
+    for path, what in report_files(spec, layout):  # before anything is written: a refusal leaves every file as is
+        check_owned(path, spec, layout, what)
     if layout.zoo is None:  # an experiment without a zoo keeps its runs' summaries itself
         entries = kept_run_summaries(spec, layout)
         if entries:

@@ -12,13 +12,24 @@ key (``configs/experiments/x.yaml: runs.abm.train.steps: expected a whole number
 
 from __future__ import annotations
 
+import argparse
+import functools
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
-from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES, SPLITS, WORKERS, builtin_or_file, check_overrides
+from abm.configuration import (
+    CAMERA_RESOLUTION,
+    INT_MAX,
+    MAX_KEYFRAMES,
+    SPLITS,
+    WORKERS,
+    builtin_or_file,
+    check_overrides,
+    recipe_value,
+)
 from abm.errors import ConfigError
 from abm.files import load_yaml
 from abm.grounding.config import GROUNDERS, grounder_config_from_dict
@@ -536,12 +547,38 @@ class _Reader:
             raise self.error(f"expected a text, got {_shown(value)}", key)
         return " ".join(value.split()) if "\n" in value else value
 
-    def integer(self, key: str, default: int | None = None, low: int = 1) -> int:
+    def integer(self, key: str, default: int | None = None, low: int = 1, high: int = INT_MAX) -> int:
         value = self.raw(key, default)
         if value is None:
             raise self.error(f"is required (a whole number >= {low})", key)
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise self.error(f"expected a whole number >= {low}, got {_shown(value)}", key)
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise self.error(f"expected a whole number from {low} to {high}, got {_shown(value)}", key)
+        return value
+
+    def flag_value(self, key: str, default: Any, command: str, dest: str) -> Any:
+        """``key``, checked as the option ``dest`` of ``abm COMMAND`` checks its value on the command line (its
+        own type, range and choices: :func:`abm.configuration.recipe_value`), so a spec cannot hand a job a value
+        its flag refuses."""
+        action = next(a for a in command_parser(command)._actions if a.dest == dest)
+        value = self.raw(key, default)
+        try:
+            return recipe_value(action, value)
+        except argparse.ArgumentTypeError as err:
+            raise self.error(f"{err} (the same check as abm {command} {action.option_strings[0]})", key) from None
+
+    def path(self, key: str, default: str | None = "", folder: bool = False) -> str:
+        """A path of the spec: relative to the root and inside it (no ``..``, not absolute); a ``folder`` the
+        engine writes in is not the root itself (``''`` or ``.``). ``''`` stays "none" where that is the default."""
+        value = self.text(key, default)
+        if value == "" and default == "":
+            return value
+        pure = PurePosixPath(value)
+        if "\0" in value or pure.is_absolute() or ".." in pure.parts or "\\" in value:
+            raise self.error(f"{value!r} leaves the root: give a path relative to the root (--root), without '..'",
+                             key)
+        if (folder or not value) and str(pure) == ".":
+            raise self.error(f"{value!r} is the root itself (the checkout): give a folder inside it, e.g. "
+                             f"{default or 'runs/NAME'!r}", key)
         return value
 
     def optional_integer(self, key: str, low: int = 1) -> int | None:
@@ -720,7 +757,7 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
                       of_table=reader.optional_integer("of_table"), checks=checks, task=reader.text("task", ""),
                       note=reader.text("note", ""), digits=reader.integer("digits", 1, low=0),
                       column=reader.text("column", ""), show=show, describe=reader.flag("describe"),
-                      kinds=reader.names("kinds", ()), sentences=tuple(sentences), source=reader.text("source", ""),
+                      kinds=reader.names("kinds", ()), sentences=tuple(sentences), source=reader.path("source", ""),
                       config=reader.text("config", ""), spread=reader.flag("spread"), seeds=seeds,
                       explain=reader.flag("explain"))
     if kind == "seeds" and (not seeds or section.of_table is None):
@@ -777,15 +814,18 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         lists[key] = task_lists.names(key)
 
     d = top.sub("data")
-    data_spec = DataSpec(tasks=d.names("tasks", lists=lists), split=d.choice("split", SPLITS, "seen"),
-                         episodes=d.integer("episodes", 20), workers=d.integer("workers", WORKERS),
-                         seed=d.integer("seed", 0, low=0), resolution=d.integer("resolution", CAMERA_RESOLUTION),
-                         folder=d.text("folder", "") or None)
+    generate = "data generate"
+    data_spec = DataSpec(tasks=_tasks(d, "tasks", lists, trainable=True), split=d.choice("split", SPLITS, "seen"),
+                         episodes=d.flag_value("episodes", 20, generate, "episodes"),
+                         workers=d.flag_value("workers", WORKERS, generate, "workers"),
+                         seed=d.flag_value("seed", 0, generate, "seed"),
+                         resolution=d.flag_value("resolution", CAMERA_RESOLUTION, generate, "resolution"),
+                         folder=d.path("folder", "", folder=True) or None)
     d.done()
 
     t = top.sub("training")
-    training = TrainingSpec(recipe=t.text("recipe"),
-                            tasks=t.names("tasks", lists=lists) if t.has("tasks") else None,
+    training = TrainingSpec(recipe=t.path("recipe", None),
+                            tasks=_tasks(t, "tasks", lists, trainable=True) if t.has("tasks") else None,
                             steps=t.optional_integer("steps"),
                             train=_checked(t, "train", TrainConfig, ENGINE_TRAIN_FIELDS + ("tasks", "steps")),
                             policy=_checked(t, "policy", PolicyConfig, POLICY_FIXED))
@@ -820,7 +860,7 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
             raise s.error(f"{split!r} is no object split ({', '.join(SPLITS)})")
         one = s.sub(split)
         split_runs = one.names("runs") if one.has("runs") else None
-        splits.append(EvalSplit(split=split, tasks=one.names("tasks", lists=lists), runs=split_runs))
+        splits.append(EvalSplit(split=split, tasks=_tasks(one, "tasks", lists), runs=split_runs))
         one.done()
     variants = []
     v = e.sub("variants")
@@ -835,11 +875,13 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         variants.append(GrounderVariant(name=variant, run=base, grounder=grounder, label=one.text("label", variant),
                                     description=one.text("description", "")))
         one.done()
-    evaluation = EvaluationSpec(episodes=e.integer("episodes", 25), repeats=e.integer("repeats", 1),
-                                workers=e.integer("workers", WORKERS), max_steps=e.integer("max_steps", MAX_KEYFRAMES),
-                                gifs=e.integer("gifs", 0, low=0), from_zoo=e.flag("from_zoo"), splits=tuple(splits),
-                                variants=tuple(variants), zoo_eval=e.names("zoo_eval", ()),
-                                device=e.text("device", "cpu"))
+    evaluation = EvaluationSpec(episodes=e.flag_value("episodes", 25, "eval", "episodes"),
+                                repeats=e.flag_value("repeats", 1, "eval", "repeats"),
+                                workers=e.flag_value("workers", WORKERS, "eval", "workers"),
+                                max_steps=e.flag_value("max_steps", MAX_KEYFRAMES, "eval", "max_steps"),
+                                gifs=e.flag_value("gifs", 0, "eval", "gifs"), from_zoo=e.flag("from_zoo"),
+                                splits=tuple(splits), variants=tuple(variants), zoo_eval=e.names("zoo_eval", ()),
+                                device=e.flag_value("device", "cpu", "eval", "device"))
     e.done()
     evaluated = set(names) | {v.name for v in variants}
     for one_split in evaluation.splits:
@@ -875,12 +917,15 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         raise rep.error(f"expected a list of figures, got {_shown(raw_figures)}", "figures")
     for i, item in enumerate(raw_figures):
         f = _Reader(item, path, f"report.figures[{i}]")
-        figures.append(FigureSpec(kind=f.choice("kind", FIGURE_KINDS), file=f.text("file"), alt=f.text("alt"),
+        file = f.path("file", None)
+        if not file.endswith(".png"):
+            raise f.error(f"expected a PNG file (NAME.png), got {file!r}", "file")
+        figures.append(FigureSpec(kind=f.choice("kind", FIGURE_KINDS), file=file, alt=f.text("alt"),
                                   runs=f.names("runs", ())))
         f.done()
     rows = [*names, *(v.name for v in variants)]
-    report = ReportSpec(title=rep.text("title", ""), document=rep.text("document", ""),
-                        records=rep.text("records", ""), readme=rep.text("readme", ""), block=rep.text("block", ""),
+    report = ReportSpec(title=rep.text("title", ""), document=rep.path("document", ""),
+                        records=rep.path("records", ""), readme=rep.path("readme", ""), block=rep.text("block", ""),
                         summary=_sections(rep, "summary", rows), details=_sections(rep, "details", rows),
                         figures=tuple(figures), zoo_readme=rep.flag("zoo_readme"), zoo_note=rep.text("zoo_note", ""))
     if report.readme and not _MARKER.match(report.block):
@@ -892,10 +937,11 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
     rep.done()
 
     spec = ExperimentSpec(
-        name=name, path=path, about=top.text("about", ""), out=top.text("out", f"runs/{name}"),
-        kept=top.text("kept", f"docs/results/{name}"), data=data_spec, training=training, runs=runs,
-        evaluation=evaluation, report=report, zoo=top.text("zoo", ""), carry=top.text("carry", ""),
-        clip=top.text("clip", ""), clip_command=top.text("clip_command", ""), diagnose=diagnose,
+        name=name, path=path, about=top.text("about", ""), out=top.path("out", f"runs/{name}", folder=True),
+        kept=top.path("kept", f"docs/results/{name}", folder=True), data=data_spec, training=training, runs=runs,
+        evaluation=evaluation, report=report, zoo=top.path("zoo", "", folder=True),
+        carry=top.path("carry", "", folder=True), clip=top.path("clip", "", folder=True),
+        clip_command=top.text("clip_command", ""), diagnose=diagnose,
         resources=resources, zoo_suffix=top.text("zoo_suffix", ""), edition=top.integer("edition", 1))
     top.done()
     if spec.zoo_suffix and not _NAME.match("x" + spec.zoo_suffix):
@@ -912,6 +958,36 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
     if report.zoo_readme and not spec.zoo:
         raise top.error("report.zoo_readme needs a zoo folder", "zoo")
     return spec
+
+
+@functools.cache
+def command_parser(command: str) -> argparse.ArgumentParser:
+    """The parser of ``abm COMMAND`` (``data generate``, ``eval``, ``train``): a spec's values pass the checks
+    of the flags the engine hands them to."""
+    import importlib
+
+    parser = argparse.ArgumentParser(prog="abm")
+    module = {"data": "abm.cli.data", "eval": "abm.cli.evaluate", "train": "abm.cli.train"}[command.split()[0]]
+    importlib.import_module(module).register(parser.add_subparsers())  # only this command's options
+    for word in command.split():
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = sub.choices[word]
+    return parser
+
+
+def _tasks(reader: _Reader, key: str, lists: Mapping[str, tuple[str, ...]], trainable: bool = False
+           ) -> tuple[str, ...]:
+    """A list of task names (or a task list's name), each a task of the benchmark (``trainable``: one
+    demonstrations can be generated for, as ``abm data generate --task`` checks)."""
+    from abm.sim.tasks import TASKS  # the task registry (no simulator is built)
+
+    names = reader.names(key, lists=lists)
+    for task in names:
+        if task not in TASKS:
+            raise reader.error(f"{task!r} is no task of the benchmark (known: {', '.join(sorted(TASKS))})", key)
+        if trainable and TASKS[task].evaluation_only:
+            raise reader.error(f"{task!r} is an evaluation-only task: no demonstrations exist for it", key)
+    return names
 
 
 def _skill_text(reader: _Reader, runs: Mapping[str, RunSpec]) -> SkillTextSpec | None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import socket
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -27,12 +28,13 @@ from typing import Any
 
 import yaml
 
-from abm.configuration import load_recipe
+from abm.configuration import check_recipe, load_recipe
 from abm.errors import ConfigError
 from abm.experiments.report import keep_training_log, write_report, zoo_index
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Runner, Source
-from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, ExperimentSpec
+from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, ExperimentSpec, SpecError, command_parser
 from abm.experiments.state import (
+    CarryError,
     Layout,
     carry_unfinished,
     checkpoints,
@@ -52,6 +54,7 @@ from abm.experiments.state import (
     stamp,
 )
 from abm.grounding.config import GROUNDERS
+from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
 
 LOG = logging.getLogger("abm")
@@ -95,6 +98,23 @@ def training_steps(spec: ExperimentSpec) -> int:
     return int(steps) if steps is not None else TrainConfig().steps
 
 
+_PROGRESS = re.compile(r"^\s*(\d+%\||[\w/ .-]*:\s*\d+%)|[█▏▎▍▌▋▊▉]")  # a progress bar's line
+
+
+def last_line(log: Path, tail_bytes: int = 65536) -> str:
+    """The last line of a job's log that says something (not blank, not a progress bar): why it failed, as
+    ``abm: error: ...`` or an exception's last line; ``""`` when it has none."""
+    try:
+        with log.open("rb") as f:
+            f.seek(max(0, f.seek(0, 2) - tail_bytes))
+            text = f.read().decode("utf-8", "replace")
+    except OSError:
+        return ""
+    lines = [" ".join(line.split()) for line in re.split(r"[\r\n]+", text)]
+    said = [line for line in lines if line and not _PROGRESS.search(line)]
+    return said[-1][:300] if said else ""
+
+
 class Engine:
     """Plans and runs the stages of one experiment.
 
@@ -136,6 +156,24 @@ class Engine:
         self._open: set[str] = set()  # jobs started and not ended yet
         self._export_with_training = False  # export each training as it ends (run() with train and export)
         self._kept = dict(kept_pairs(spec, self.layout))
+        for run in spec.runs:
+            self.check_recipe(run)
+
+    def check_recipe(self, run: str) -> None:
+        """Refuse (:class:`SpecError`, naming the key) a run whose recipe ``abm train --config`` would refuse: every
+        value passes its flag's check (:func:`abm.configuration.check_recipe`), and the policy configuration its
+        own (a patch size that divides the views' resolution, ...), before any job runs."""
+        recipe = self.recipe(run)
+        where = f"{self.spec.path}: runs.{run} (the recipe {self.spec.training.recipe} with the spec's overrides)"
+        try:
+            check_recipe(command_parser("train"), recipe, where)
+        except ConfigError as err:
+            raise SpecError(str(err).removesuffix("; fix the value in the recipe")) from None
+        preset = str(recipe.get("preset", TrainConfig().preset))
+        try:
+            PolicyConfig.from_preset(preset, str(recipe["method"]), **(recipe.get("policy") or {}))
+        except (TypeError, ValueError) as err:
+            raise SpecError(f"{where}: policy: {err}") from None
 
     # ------------------------------------------------------------------------------------------- helpers
     def rel(self, path: Path) -> str:
@@ -512,6 +550,9 @@ class Engine:
         if unknown:
             raise ConfigError(f"--stages {' '.join(unknown)}: unknown (stages: {', '.join(STAGES + EXTRA_STAGES)})")
         order = [s for s in (*STAGES, *EXTRA_STAGES) if s in stages]
+        if "carry" in order and self.layout.carry is None:
+            raise ConfigError(f"--stages carry: {self.spec.name} keeps no carry (its spec has no carry: folder), so "
+                              "there is nothing to carry into; add carry: FOLDER to the spec, or leave carry out")
         self._export_with_training = not dry_run and "train" in order and "export" in order
         if not dry_run:
             copied = restore(self.spec, self.layout)
@@ -544,12 +585,22 @@ class Engine:
             return max(1, cpus), 1
         return 1, 1
 
-    def carry(self) -> list[str]:
-        """Carry the unfinished trainings and evaluations (see :func:`carry_unfinished`)."""
-        copied = carry_unfinished(self.spec, self.layout)
+    def carry(self, strict: bool = False) -> list[str]:
+        """Carry the unfinished trainings and evaluations (see :func:`carry_unfinished`); a carry folder holding
+        files the carry did not write raises :class:`CarryError` (``strict``: ``--stages carry``) or is said in
+        one line (the carry after a failed or stopped stage, which must not hide why it stopped)."""
+        try:
+            copied = carry_unfinished(self.spec, self.layout)
+        except CarryError as err:
+            if strict:
+                raise
+            LOG.error("carry: %s", err)
+            return []
         if copied:
             LOG.info("carried %s into %s (commit it to continue elsewhere)", ", ".join(copied),
                      self.rel(self.layout.carry or self.root))
+        elif strict:
+            LOG.info("carry: nothing unfinished to carry into %s", self.rel(self.layout.carry or self.root))
         return copied
 
     def _run_stage(self, stage: str, dry_run: bool) -> bool:
@@ -567,7 +618,7 @@ class Engine:
             return True
         if stage == "carry":
             if not dry_run:
-                self.carry()
+                self.carry(strict=True)
             return True
         todo = [j for j in jobs if j.state == LEFT]
         for job in jobs:
@@ -597,7 +648,9 @@ class Engine:
             stamp(self.layout, f"{stage}_end")
         failed = [job for job in todo if codes.get(job.id, 1) != 0]
         for job in failed:
-            LOG.error("%s failed (exit code %s): see %s", job.id, codes.get(job.id), self.rel(self.layout.log(job.id)))
+            log = self.layout.log(job.id)
+            LOG.error("%s failed (exit code %s): %s (log: %s)", job.id, codes.get(job.id),
+                      last_line(log) or "it wrote nothing", self.rel(log))
         return not failed
 
     # -------------------------------------------------------------------------------------------- status
@@ -622,7 +675,8 @@ class Engine:
                 elif job.state == DONE:
                     job.minutes = span_minutes(events)
                 elif job.state != DONE and ends and ends[-1].get("rc") not in (0, None) and job.state == LEFT:
-                    job.state, job.note = FAILED, f"exit code {ends[-1]['rc']}: see {self.rel(self.layout.log(job.id))}"
+                    log = self.layout.log(job.id)
+                    job.state, job.note = FAILED, f"exit code {ends[-1]['rc']}: {last_line(log)} (log: {self.rel(log)})"
                 jobs.append(job)
         return jobs
 

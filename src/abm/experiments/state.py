@@ -25,8 +25,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from abm.errors import OutputError
 from abm.evaluation.results import OutcomeLog
-from abm.experiments.spec import ExperimentSpec
+from abm.experiments.spec import ExperimentSpec, SpecError
+from abm.files import is_inside, sha256_file, write_text_atomic
 from abm.machine import describe_machine
 
 _STEP_FILE = re.compile(r"^step_(\d+)\.pt$")
@@ -58,7 +60,20 @@ class Layout:
 
     @classmethod
     def of(cls, spec: ExperimentSpec, root: Path, out: Path | None = None) -> Layout:
-        """The layout of ``spec`` under ``root`` (``out`` replaces the spec's working folder)."""
+        """The layout of ``spec`` under ``root`` (``out`` replaces the spec's working folder).
+
+        Raises:
+            SpecError: a folder the engine writes in (out, kept, zoo, carry, data.folder) leads outside the root
+                once symbolic links are followed, or ``--out`` is the root itself.
+        """
+        if out is not None and (str(out) == "" or out.resolve() == root.resolve()):
+            raise SpecError(f"--out {str(out)!r} is the root itself ({root}): give a working folder inside it, "
+                            f"e.g. {spec.out}")
+        for key, value in (("out", spec.out if out is None else ""), ("kept", spec.kept), ("zoo", spec.zoo),
+                           ("carry", spec.carry), ("data.folder", spec.data.folder or "")):
+            if value and not is_inside(root / value, root):
+                raise SpecError(f"{spec.path}: {key}: {value!r} leads outside the root {root} (through a symbolic "
+                                "link): give a folder inside the root")
         work = out if out is not None else root / spec.out
         return cls(root=root, out=work, kept=root / spec.kept, zoo=root / spec.zoo if spec.zoo else None,
                    carry=root / spec.carry if spec.carry else None, clip=root / spec.clip if spec.clip else None,
@@ -108,11 +123,14 @@ class Layout:
         return self.out / "zoo_eval"
 
     def show(self, path: Path) -> str:
-        """``path`` relative to the root when it is inside (as commands and reports name it)."""
-        try:
-            return path.relative_to(self.root).as_posix()
-        except ValueError:
-            return str(path)
+        """``path`` relative to the root when it is inside (as commands and reports name it; also an absolute
+        path under a relative root), else as given."""
+        for base, shown in ((self.root, path), (self.root.resolve(), path.resolve())):
+            try:
+                return shown.relative_to(base).as_posix()
+            except ValueError:
+                continue
+        return str(path)
 
 
 # ------------------------------------------------------------------------------------------ kept outcomes
@@ -312,6 +330,57 @@ def _eval_folders(layout: Layout) -> Iterator[tuple[str, Path]]:
             yield folder.relative_to(root).as_posix(), folder
 
 
+CARRIED = "carried.json"  #: the manifest of a carried folder: the files the carry wrote there, with their sha256
+
+
+class CarryError(OutputError):
+    """A carry folder holds files the carry did not write, or a carried file does not match its manifest."""
+
+
+def carried_files(folder: Path) -> dict[str, str]:
+    """The files the carry wrote into ``folder`` (name -> sha256), from its manifest (``{}`` without one)."""
+    manifest = folder / CARRIED
+    try:
+        data = json.loads(manifest.read_text(encoding="utf-8")) if manifest.is_file() else {}
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise CarryError(f"{manifest} cannot be read ({err}): restore it with git checkout") from None
+    files = data.get("files", {}) if isinstance(data, dict) else None
+    if not isinstance(files, dict) or not all(isinstance(k, str) and "/" not in k and k not in ("", ".", "..")
+                                               and isinstance(v, str) for k, v in files.items()):
+        raise CarryError(f"{manifest} is not a carry manifest (files: name -> sha256): restore it with git checkout")
+    return files
+
+
+def clear_carried(folder: Path) -> None:
+    """Remove what the carry wrote into ``folder`` (the files its manifest lists, then the manifest) and the
+    folder once empty; any other file stays."""
+    for name in carried_files(folder):
+        (folder / name).unlink(missing_ok=True)
+    (folder / CARRIED).unlink(missing_ok=True)
+    try:
+        folder.rmdir()
+    except OSError:  # missing, or holding files the carry did not write
+        pass
+
+
+def _fresh_carry_folder(folder: Path) -> None:
+    """Empty ``folder`` of what the carry wrote before, and refuse to write into it while it holds anything else."""
+    if folder.is_symlink():
+        raise CarryError(f"{folder} is a symbolic link; the carry writes only into its own folders: remove the link")
+    clear_carried(folder)
+    if folder.exists():
+        others = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else [folder.name]
+        raise CarryError(f"{folder} holds files the carry did not write ({', '.join(others[:5])}); it removes only "
+                         "what it wrote: move them away, then carry again")
+    folder.mkdir(parents=True)
+
+
+def _seal_carry_folder(folder: Path, **about: Any) -> None:
+    """Write ``folder``'s manifest: every file in it with its sha256 (and ``about``: what it carries)."""
+    files = {p.name: sha256_file(p) for p in sorted(folder.iterdir()) if p.is_file() and p.name != CARRIED}
+    write_text_atomic(folder / CARRIED, json.dumps({**about, "files": files}, indent=1) + "\n")
+
+
 def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
     """Copy what a continuation on another machine needs into CARRY (then commit it); returns what was copied.
 
@@ -326,11 +395,11 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
         if not (folder / "outcomes.jsonl").is_file() or (folder / "results.json").is_file():
             continue
         target = layout.carry / "eval" / name
-        shutil.rmtree(target, ignore_errors=True)
-        target.mkdir(parents=True)
+        _fresh_carry_folder(target)
         OutcomeLog(folder / "outcomes.jsonl").copy_portable(target / "outcomes.jsonl")
         if (folder / "evaluation.json").is_file():
             shutil.copyfile(folder / "evaluation.json", target / "evaluation.json")
+        _seal_carry_folder(target, carried_by=f"abm experiment run {spec.name}")
         copied.append(f"eval/{name}")
     for run in spec.runs:
         if layout.zoo is not None and layout.zoo_file(run).is_file():
@@ -339,11 +408,11 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
         if not found:
             continue
         target = layout.carry / run
-        shutil.rmtree(target, ignore_errors=True)
-        target.mkdir(parents=True)
+        _fresh_carry_folder(target)
         shutil.copyfile(found[-1][1], target / found[-1][1].name)
         if (layout.run_dir(run) / "log.csv").is_file():
             shutil.copyfile(layout.run_dir(run) / "log.csv", target / "log.csv")
+        _seal_carry_folder(target, carried_by=f"abm experiment run {spec.name}")
         copied.append(run)
     return copied
 
@@ -375,11 +444,24 @@ def restore_evaluation(layout: Layout, name: str, split: str) -> bool:
         return False
     folder.mkdir(parents=True, exist_ok=True)
     for file in carried.iterdir():
-        shutil.copyfile(file, folder / file.name)
+        if file.name != CARRIED:
+            shutil.copyfile(file, folder / file.name)
     return True
 
 
 def drop_carry(layout: Layout, *parts: str) -> None:
-    """Remove a carried state that is no longer needed (``run`` or ``eval, run``)."""
-    if layout.carry is not None:
-        shutil.rmtree(layout.carry.joinpath(*parts), ignore_errors=True)
+    """Remove a carried state that is no longer needed (``run`` or ``eval, run``): only what the carry wrote
+    (:func:`clear_carried`), so a file someone else put there stays."""
+    if layout.carry is None:
+        return
+    folder = layout.carry.joinpath(*parts)
+    if parts[:1] == ("eval",) and folder.is_dir() and not folder.is_symlink():
+        for split in sorted(folder.iterdir()):  # CARRY/eval/RUN/SPLIT
+            if split.is_dir() and not split.is_symlink():
+                clear_carried(split)
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
+    elif folder.is_dir() and not folder.is_symlink():
+        clear_carried(folder)
