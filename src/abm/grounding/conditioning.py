@@ -83,8 +83,8 @@ def split_roles(instruction: str, object_names: Mapping[int, str] | None = None,
         ValueError: no target can be identified, or the instruction asks for several skills
             (:class:`abm.grounding.instruction.MultiStepInstructionError`).
     """
-    try:
-        parsed = default_parser().parse(instruction)
+    try:  # the scene's names never read as a negation, condition or choice (an object called "either box")
+        parsed = default_parser().parse(instruction, names=tuple((object_names or {}).values()))
         return parsed.targets, parsed.skill
     except MultiStepInstructionError:
         raise  # several skills in one instruction: never run just one of them silently

@@ -16,9 +16,12 @@ Parsing is deterministic and explainable, in three steps, all driven by ``templa
    for "it" ("pick up the red block and put it on the target" -> "put red block on target");
 3. *match* the skill patterns, whose verbs, prepositions and place names are synonym groups.
 
-What cannot be one skill on one named object is refused with an :class:`InstructionError` naming the
-reason and listing accepted phrasings: several steps or objects (:class:`MultiStepInstructionError`),
-a pronoun instead of an object, a grasp without a goal, or text no pattern matches. Compositional
+What is not one positive command (a negation, condition, alternative or exclusion: :mod:`abm.grounding.one_command`;
+or a skill's place as X, "put the plate in the ketchup") is refused first, in one line, by
+:class:`NotOneCommandError`. What cannot be one skill on one named object is refused with an
+:class:`InstructionError` naming the reason and listing accepted phrasings: several steps or objects
+(:class:`MultiStepInstructionError`), a pronoun instead of an object, a grasp without a goal, or text no pattern
+matches. Compositional
 instructions reuse trained skills because colour words and nouns such as "block" all stay inside X:
 "put the red block in the plate" -> ("red block", "put X in the plate").
 """
@@ -34,8 +37,9 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, NamedTuple, NoReturn, Protocol, runtime_checkable
 
-from abm.errors import ConfigError
+from abm.errors import ConfigError, RefusedError
 from abm.files import load_yaml, parse_yaml
+from abm.grounding.one_command import Trigger, find_trigger, refusal_message, swapped
 
 PLACEHOLDER = "X"
 SECOND_PLACEHOLDER = "Y"  # the second object of a two-target skill ("put X in Y": X is grasped, then placed in Y)
@@ -50,6 +54,40 @@ class InstructionError(ConfigError):
 class MultiStepInstructionError(InstructionError):
     """An instruction that asks for several skills in a row, or for one skill on several objects ("all
     blocks", "the red block and the blue block"); abm runs one skill on one object per instruction."""
+
+
+class NotOneCommandError(MultiStepInstructionError, RefusedError):
+    """An instruction that is not one positive command about one object: a negation ("do not put ..."), a
+    condition ("if ..."), an alternative ("the yellow or the green block"), an exclusion ("anything but ...") or
+    swapped roles (the place named as the thing to carry: "put the target on the yellow block"). Its message is one
+    line quoting the words that triggered it (:mod:`abm.grounding.one_command`). A :class:`MultiStepInstructionError`
+    so every reader that never rewrites or re-reads such a refusal (the resolver's later stages, a
+    :class:`RewritingParser`, :func:`abm.grounding.conditioning.split_roles`' scene-name fallback) passes it on.
+
+    Attributes:
+        trigger: the :class:`~abm.grounding.one_command.Trigger`: kind, the words, the reason.
+    """
+
+    def __init__(self, instruction: str, trigger: Trigger) -> None:
+        super().__init__(refusal_message(instruction, trigger))
+        self.trigger = trigger
+
+
+def check_one_command(instruction: str, names: Collection[str] = ()) -> None:
+    """Refuse ``instruction`` unless it is one positive command (no negation, condition, alternative or exclusion;
+    :func:`abm.grounding.one_command.find_trigger`, whose words in ``names``, the scene's objects, do not count).
+
+    Raises:
+        NotOneCommandError: one line quoting the words that triggered it.
+    """
+    trigger = find_trigger(instruction, names)
+    if trigger is not None:
+        raise NotOneCommandError(instruction, trigger)
+
+
+CARRIED_PLACES: frozenset[str] = frozenset({"ring", "hoop", "lid", "cap", "jar lid"})
+"""Places a skill carries onto its X (the ring onto a peg, the lid onto a jar): named as the thing to move, they
+are no swapped roles."""
 
 
 @dataclass(frozen=True)
@@ -488,6 +526,20 @@ def _phrase_regex(phrases: Collection[str], lookahead: str = "") -> re.Pattern[s
     return re.compile(rf" (?:{'|'.join(re.escape(o) for o in options)}) {lookahead}")
 
 
+def _destination_phrases(templates: TemplateSet) -> frozenset[str]:
+    """The phrases naming a skill's place where things go (the plate, the target pad, the frypan; not a
+    :data:`CARRIED_PLACES` part): each place of a skill, and the phrases of the synonym group named after it
+    (``<target>``, ``<top_shelf>``, ``<pan>``), without articles."""
+    places = {p for s in templates.skills for p in s.places if p not in CARRIED_PLACES}
+    heads = {p.split()[-1] for p in places if p.split()}
+    phrases = set(places)
+    for group, options in templates.synonyms.items():
+        last = group.replace("_", " ").split()[-1:]
+        if last and any(h == last[0] or h.endswith(last[0]) for h in heads):
+            phrases.update(options)
+    return frozenset(p for p in (_drop_words(p, ARTICLES) for p in phrases) if p and p not in CARRIED_PLACES)
+
+
 def _starts_with(words: list[str], phrases: Collection[str]) -> int:
     """Length (in words) of the longest phrase ``words`` starts with; 0 if none."""
     lengths = [len(p.split()) for p in phrases if p.split() and words[: len(p.split())] == p.split()]
@@ -515,6 +567,7 @@ class TemplateParser:
         self._step_split = _phrase_regex(t.step_words)
         joins = [j for j in t.clause_joins if j not in t.step_words]
         self._join_split = _phrase_regex(joins, rf"(?=(?:{lead})(?: |$))") if lead else None
+        self._destinations = _destination_phrases(t)
 
     @classmethod
     def from_files(cls, *paths: str | Path, include_builtin: bool = True) -> TemplateParser:
@@ -542,13 +595,21 @@ class TemplateParser:
         t = self.templates
         return normalize_instruction(instruction, t.polite_prefixes, t.polite_suffixes, {*t.determiners, *t.fillers})
 
-    def parse(self, instruction: str) -> ParsedInstruction:
+    def parse(self, instruction: str, *, names: Collection[str] = ()) -> ParsedInstruction:
         """Decompose ``instruction`` into X and a skill.
 
+        Args:
+            instruction: the text.
+            names: the scene's object names, if known: their words never count as a negation, condition,
+                alternative or exclusion (an object called "either box").
+
         Raises:
+            NotOneCommandError: not one positive command (:func:`check_one_command`), or a skill's place named as
+                X, the thing to carry ("put the plate in the ketchup"); one line quoting the words.
             MultiStepInstructionError: several steps, or several / unspecified objects.
             InstructionError: anything else that is not one known skill on one named object.
         """
+        check_one_command(instruction, names)
         t = self.templates
         words = _clean_words(instruction, t.polite_prefixes, t.polite_suffixes)
         dropped = {*t.determiners, *t.fillers}
@@ -592,6 +653,8 @@ class TemplateParser:
                         "object per instruction: give one instruction per object",
                         MultiStepInstructionError,
                     )
+            if target in self._destinations:  # "put the plate in the ketchup": the place as the thing to carry
+                raise NotOneCommandError(instruction, swapped(target, second or ""))
             return ParsedInstruction(instruction, target, template.skill, template.tasks, second)
         self._refuse_unmatched(instruction, normalized)
 

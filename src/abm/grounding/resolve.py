@@ -39,6 +39,14 @@ with the template parser's helpful :class:`~abm.grounding.instruction.Instructio
 :class:`UnresolvedInstructionError` naming the best guess). Several steps or several objects
 (:class:`~abm.grounding.instruction.MultiStepInstructionError`) are always refused, never merged.
 
+**One positive command.** Before any stage, an instruction that is not one positive command about one object is
+refused whole (:class:`~abm.grounding.instruction.NotOneCommandError`, one line quoting the words): a negation,
+condition, alternative or exclusion (:mod:`abm.grounding.one_command`; the scene's object names never count), and
+swapped roles, a place of the scene named as the thing to carry ("put the target on the yellow block"), which the
+template and word stages check on the description of X. No later stage reads such a text. A reading of confidence
+0 is never an answer, whatever ``min_confidence``; a refusal quotes the words it read as X and why they fit no
+object (or several equally).
+
 A :class:`Resolution` gives the ``canonical`` instruction, the skill with the scene's object names
 ("put the yellow block on the target"), which the template parser reads back as exactly that object and
 skill: pass it to a policy (``abm run`` and ``abm ground`` do). ``docs/grounding.md`` records how often it is
@@ -57,15 +65,19 @@ from typing import Any
 from abm.errors import ConfigError
 from abm.grounding.conditioning import destination_for
 from abm.grounding.instruction import (
+    CARRIED_PLACES,
     PLACEHOLDER,
     SECOND_PLACEHOLDER,
     InstructionError,
     MultiStepInstructionError,
+    NotOneCommandError,
     ParsedInstruction,
     TemplateParser,
+    check_one_command,
     default_parser,
     load_templates,
 )
+from abm.grounding.one_command import swapped
 from abm.sim.catalog import CATALOG
 from abm.sim.tasks import TASKS
 
@@ -225,6 +237,13 @@ REFUSED_WORDS: frozenset[str] = frozenset(
     "pull throw eat drink look point touch show find wipe clean wash kick squeeze crush smash "
     "under underneath beneath below next beside behind near left right front between".split())
 """Words of actions and places no skill has (opening, pushing; beside, under): the word stage never guesses."""
+
+_LEAD_INS: frozenset[str] = frozenset("a an the this that these those my your up".split())
+"""Words between a move verb and the object it moves ("pick up the ...")."""
+
+_PREPOSITIONS: frozenset[str] = frozenset("in into inside on onto to toward towards over".split())
+_SUBJECT_VERBS: frozenset[str] = frozenset("goes go belongs belong needs need should must".split())
+"""Words after a sentence's first mention that make it the thing to move ("the pink one goes on the target")."""
 
 SCENE_ONLY_CONFIDENCE = 0.8
 """Skill confidence when the text names no place and the scene allows one skill only."""
@@ -561,9 +580,47 @@ def _from_parse(text: str, parsed: ParsedInstruction, scene: _Scene, method: str
     choice = scene.choose(words, scene.x_candidates(parsed.skill, tasks, second.name if second else None))
     if choice is None:
         return None
+    _refuse_swapped(text, words, scene, parsed.second or "")
     confidence = skill_confidence * choice.confidence * (second.confidence if second else 1.0)
     return Resolution(text, choice.name, parsed.skill, _task_for(tasks, choice.name), confidence,
                       second.name if second else None, tasks, method, choice.phrase)
+
+
+def _refuse_swapped(text: str, words: Sequence[str], scene: _Scene, goal: str = "") -> None:
+    """Raise when ``words``, the thing to carry, name a place (a skill's place other than a part it carries, or a
+    scene container) better than any other object of the scene: the roles are swapped ("put the plate in the
+    ketchup"; ``goal``: what the text names as the destination, for the message)."""
+    place = _place_of(words, scene)
+    if place is None or place in CARRIED_PLACES:
+        return
+    score = match_object(words, object_words(place), scene.vocabulary)
+    movable = [n for n in scene.names if n not in PLACES and scene.words[n].category != CONTAINER_CATEGORY]
+    if score > max((match_object(words, scene.words[n], scene.vocabulary) for n in movable), default=0.0):
+        raise NotOneCommandError(text, swapped(" ".join(words), goal))
+
+
+def _direct_object(words: Sequence[str]) -> list[str]:
+    """The mention a move verb acts on ("put the target on ..." -> ``["target"]``), or the mention the text starts
+    with when a preposition or "goes" follows it ("the target goes on ..."); ``[]`` when there is none."""
+    start = 0
+    while start < len(words) and words[start] in _FUNCTION_WORDS and words[start] not in MOVE_VERBS:
+        start += 1  # polite words, "could you"
+    i = start
+    if i < len(words) and words[i] in MOVE_VERBS:
+        i += 1
+        while i < len(words) and words[i] in _LEAD_INS:
+            i += 1
+    elif i < len(words) and words[i] not in _FUNCTION_WORDS:
+        end = i
+        while end < len(words) and words[end] not in _FUNCTION_WORDS:
+            end += 1
+        if end == len(words) or words[end] in _LEAD_INS or words[end] not in _SUBJECT_VERBS | _PREPOSITIONS:
+            return []
+    mention = []
+    while i < len(words) and words[i] not in _FUNCTION_WORDS:
+        mention.append(words[i])
+        i += 1
+    return mention
 
 
 def _rewrite(text: str) -> str:
@@ -637,6 +694,9 @@ def _from_words(text: str, scene: _Scene, parser: TemplateParser) -> Resolution 
     words = scene.fix_typos(canonical_words(text))
     if REFUSED_WORDS.intersection(words):
         return None
+    carried = _direct_object(words)
+    if carried:
+        _refuse_swapped(text, carried, scene)
     templates = {t.skill: t for t in parser.templates.skills}
     skills = [s for s in SKILL_PLACES if s in templates]
     mentions = _mentions(words)
@@ -708,7 +768,9 @@ def resolve_instruction(text: str, objects: Iterable[str] | Mapping[int, str] | 
     if not 0.0 <= min_confidence <= 1.0:
         raise ConfigError(f"min_confidence must be in [0, 1], got {min_confidence}")
     parser = parser or default_parser()
-    scene = _Scene(_scene_names(objects))
+    names = _scene_names(objects)
+    check_one_command(text, names)  # before any stage reads objects out of a negation, condition or choice
+    scene = _Scene(names)
     guesses: list[Resolution] = []
     rewritten = _rewrite(text)
     readings = [(text, "templates", 1.0)]  # the templates as written, then after the synonyms
@@ -716,7 +778,7 @@ def resolve_instruction(text: str, objects: Iterable[str] | Mapping[int, str] | 
         readings.append((rewritten, "synonyms", 0.95))
     for reading, method, skill_confidence in readings:
         try:
-            parsed = parser.parse(reading)
+            parsed = parser.parse(reading, names=names)
         except MultiStepInstructionError:
             raise
         except InstructionError:
@@ -724,13 +786,13 @@ def resolve_instruction(text: str, objects: Iterable[str] | Mapping[int, str] | 
         answer = _from_parse(text, parsed, scene, method, skill_confidence)
         if answer is not None:
             guesses.append(answer)
-            if answer.confidence >= min_confidence:
+            if answer.confidence >= min_confidence and answer.confidence > 0:
                 return _named(answer, scene)
     if scene.names:
         answer = _from_words(text, scene, parser)
         if answer is not None:
             guesses.append(answer)
-            if answer.confidence >= min_confidence:
+            if answer.confidence >= min_confidence and answer.confidence > 0:
                 return _named(answer, scene)
     guess = max(guesses, key=lambda r: r.confidence, default=None)
     raise _refusal(text, parser, scene, guess, min_confidence)
@@ -749,11 +811,29 @@ def _refusal(text: str, parser: TemplateParser, scene: _Scene, guess: Resolution
              ) -> UnresolvedInstructionError:
     """The refusal: the template parser's message (known skills, phrasings) with what was understood."""
     held = f"the scene holds: {', '.join(scene.names)}" if scene.names else "the scene names no objects"
-    if guess is not None:
-        reason = (f"the best reading, {guess.canonical!r} ({guess.phrase!r} as {guess.target!r}), has confidence "
-                  f"{guess.confidence:.2f} < {min_confidence:.2f}; {held}; name the object and where it goes")
+    if guess is not None and round(guess.confidence, 2) > 0:
+        reason = (f"the best reading, {guess.canonical!r} ({guess.phrase!r} read as {guess.target!r}), has "
+                  f"confidence {guess.confidence:.2f} < {min_confidence:.2f}; {held}; name the object and where it "
+                  "goes")
+    elif guess is not None:
+        reason = f"{_no_fit(guess, scene)} ({held})"
     else:
         reason = f"no scene object and skill fit its words ({held})"
     normalized = parser.normalize(text) if text.strip() else ""
     message = str(parser._refusal(text, normalized, reason))
     return UnresolvedInstructionError(message, guess)
+
+
+def _no_fit(guess: Resolution, scene: _Scene) -> str:
+    """Why a reading has no confidence: the words read as X fit no object its skill moves, or fit several equally."""
+    candidates = scene.x_candidates(guess.skill, guess.tasks, guess.second)
+    words = guess.phrase.split()
+    scores = {n: match_object(words, scene.words[n], scene.vocabulary) for n in candidates}
+    best = max(scores.values(), default=0.0)
+    skill = guess.skill.replace(SECOND_PLACEHOLDER, f"the {guess.second}") if guess.second else guess.skill
+    if best <= 0:
+        movable = ", ".join(candidates) or "nothing"
+        return (f"it reads {guess.phrase!r} as the object to move, and that fits no object {skill!r} can move "
+                f"({movable}); name one of them")
+    tied = [n for n, v in scores.items() if v == best]
+    return f"{guess.phrase!r} fits {' and '.join(tied)} equally; name one of them"

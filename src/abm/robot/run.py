@@ -33,6 +33,7 @@ from abm.grounding.decision import GroundingRecorder, TargetDecision, decide_tar
 from abm.grounding.instruction import (
     InstructionError,
     MultiStepInstructionError,
+    NotOneCommandError,
     decompose_instruction,
     require_instruction,
 )
@@ -262,6 +263,9 @@ def run_robot(policy: KeyframePolicy, camera: Camera, arm: Arm, instruction: str
     Raises:
         InstructionError: the instruction is empty or whitespace-only, or names no object of the scene in words
             :func:`abm.grounding.resolve.resolve_instruction` can resolve (nothing is moved).
+        NotOneCommandError: the instruction is not one positive command about one object (a negation, condition,
+            alternative, exclusion or swapped roles; :mod:`abm.grounding.one_command`): one line quoting the words,
+            logged as a refused step 0; nothing is moved.
         NoTargetError: the target is not one object of the scene that the grounder found with confidence (a name
             the scene does not hold, several candidates, not found, unsure; not ``allow_no_target``); nothing is
             moved (the step is logged).
@@ -274,7 +278,12 @@ def run_robot(policy: KeyframePolicy, camera: Camera, arm: Arm, instruction: str
     records: list[dict[str, Any]] = []
     names = getattr(camera, "object_names", None) or None
     given = instruction
-    instruction, resolution = resolve_for_policy(given, names)
+    try:  # a negation, condition, choice or swapped roles: refused whole, logged, never read another way
+        instruction, resolution = resolve_for_policy(given, names)
+        targets = _named_targets(instruction, names)
+    except NotOneCommandError as err:
+        (log_dir / "steps.jsonl").write_text(json.dumps({"step": 0, "status": "refused", "reason": str(err)}) + "\n")
+        raise
     note = _target_note(instruction)
     if instruction != given and resolution is not None:
         note = (f" (target: {resolution.target}; read as {instruction!r}, confidence {resolution.confidence:.2f}, "
@@ -282,7 +291,7 @@ def run_robot(policy: KeyframePolicy, camera: Camera, arm: Arm, instruction: str
     log.info("abm run: %r%s, %d keyframe(s) at most, log in %s", given, note, steps, log_dir)
     policy.reset()
     with (log_dir / "steps.jsonl").open("w") as out:
-        for name in _named_targets(instruction, names):  # every sub-goal's object, before anything moves
+        for name in targets:  # every sub-goal's object, before anything moves
             named = decide_target(None, name, names)
             if not named.found and not allow_no_target:
                 raise _refuse(out, 0, given, named)
