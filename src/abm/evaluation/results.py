@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import lzma
 import math
 from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
@@ -62,6 +63,10 @@ class EpisodeOutcome:
         grounding: per step of a mask policy, the target decision ``abm run`` would have taken on the grounder's
             answer (:func:`abm.grounding.decision.decide_target`: ``found``, ``confidence``, ``target``,
             ``reason``); evaluation logs it and acts anyway. Empty for variants without a mask and in older logs.
+        step_records: one compact JSON record per executed keyframe (:class:`abm.evaluation.step_records.StepRecord`:
+            the keyframe predicted, the motion's status, the held state, the nearest expert keyframe, the grounding
+            decision), which :func:`abm.evaluation.step_records.episode_failure` names the failure from; empty in
+            older logs and for crashed rollouts. Extra data: the trajectory digest does not cover it.
     """
 
     method: str
@@ -83,6 +88,7 @@ class EpisodeOutcome:
     trajectory: str = ""
     code: str = ""
     grounding: list[dict[str, Any]] = field(default_factory=list)
+    step_records: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def key(self) -> RolloutKey:
@@ -126,7 +132,9 @@ FAILURES = ("crashed", "IK unreachable", "motion blocked", "collision", "grasp m
 
 
 def failure_reason(success: bool, error: str, motions: Sequence[str], held_target: bool) -> str:
-    """Why a rollout failed, in :data:`FAILURES` order of precedence (``""`` when it succeeded).
+    """Why a rollout failed, in :data:`FAILURES` order of precedence (``""`` when it succeeded), from the motion
+    statuses alone: the rule of logs written before per-step records existed. ``abm eval`` now names the first
+    stop the policy did not recover from (:func:`abm.evaluation.step_records.episode_failure`).
 
     ``crashed``: the rollout raised; ``IK unreachable``: a keyframe pose had no IK solution (the arm did not
     move); ``motion blocked``: the arm moved but stopped short of a keyframe pose (e.g. pressing into an
@@ -159,15 +167,7 @@ class OutcomeLog:
     def read(self) -> list[EpisodeOutcome]:
         if not self.path.exists():
             return []
-        names = {f.name for f in fields(EpisodeOutcome)}
-        outcomes = []
-        for line in self.path.read_text().splitlines():
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # a partial line from an interrupted write
-            outcomes.append(EpisodeOutcome(**{k: v for k, v in record.items() if k in names}))
-        return outcomes
+        return parse_outcomes(self.path.read_text())
 
     def copy_portable(self, target: str | Path) -> None:
         """Write this log's outcomes to ``target`` with every checkpoint as :func:`portable_path` names it (what an
@@ -191,6 +191,42 @@ class OutcomeLog:
 def portable_record(outcome: EpisodeOutcome) -> dict[str, Any]:
     """The JSON record of one outcome as the log writes it (its checkpoint through :func:`portable_path`)."""
     return {**asdict(outcome), "checkpoint": portable_path(outcome.checkpoint)}
+
+
+def parse_outcomes(text: str) -> list[EpisodeOutcome]:
+    """The outcomes of JSON-lines ``text``; unparsable lines (a write cut short) are skipped, and keys of newer
+    logs this version does not know are left out."""
+    names = {f.name for f in fields(EpisodeOutcome)}
+    outcomes = []
+    for line in text.splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # a partial line from an interrupted write
+        outcomes.append(EpisodeOutcome(**{k: v for k, v in record.items() if k in names}))
+    return outcomes
+
+
+OUTCOME_ARCHIVE = "outcomes.jsonl.xz"
+"""File name of the compressed per-episode outcomes an evaluation writes beside its tables
+(:func:`write_outcome_archive`)."""
+
+
+def write_outcome_archive(outcomes: Iterable[EpisodeOutcome], path: str | Path) -> Path:
+    """Write ``outcomes`` (with their per-step records) as xz-compressed JSON lines, in protocol order (method,
+    task, split, repeat, episode), each checkpoint as :func:`portable_path` names it: the file an experiment
+    commits beside its summaries so any failure can be traced without rolling it out again. The same outcomes
+    give the same bytes (the file is only rewritten in a commit when an outcome changed)."""
+    ordered = sorted(outcomes, key=lambda o: (o.method, o.task, o.split, o.repeat, o.episode))
+    text = "".join(json.dumps(portable_record(o), separators=(",", ":")) + "\n" for o in ordered)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(lzma.compress(text.encode(), preset=9))
+    return Path(path)
+
+
+def read_outcome_archive(path: str | Path) -> list[EpisodeOutcome]:
+    """The outcomes of a file :func:`write_outcome_archive` wrote."""
+    return parse_outcomes(lzma.decompress(Path(path).read_bytes()).decode())
 
 
 @dataclass

@@ -25,13 +25,13 @@ from abm.evaluation.html_report import write_html_report
 from abm.evaluation.plots import run_loss_curves, success_chart
 from abm.evaluation.policies import check_policies, code_digest, forget_policies, load_policy, rollout_state
 from abm.evaluation.results import (
+    OUTCOME_ARCHIVE,
     EpisodeOutcome,
     OutcomeLog,
     RolloutKey,
     SuccessRate,
     aggregate,
     eval_seed,
-    failure_reason,
     markdown_table,
     rollout_key,
     subgoal_rates,
@@ -39,8 +39,10 @@ from abm.evaluation.results import (
     trajectory_digest,
     write_csv,
     write_json,
+    write_outcome_archive,
 )
 from abm.evaluation.settings import EvalSettings
+from abm.evaluation.step_records import episode_failure, expert_keyframes, step_record
 from abm.files import write_text_atomic
 from abm.geometry import project_to_camera
 from abm.grounding.conditioning import split_roles
@@ -92,6 +94,7 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
     steps = 0
     instruction = target = ""
     grounding: list[dict[str, Any]] = []
+    step_grounding: list[dict[str, Any] | None] = []  # per step, None without a mask
     try:
         with rollout_state(job.seed):
             policy = _load_policy(job.checkpoint or job.run, settings)
@@ -110,16 +113,22 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                         explained.append(policy.explain(obs, env.instruction, env.object_names))
                         action = explained[-1].action
                     decision = recorder.record()
-                    if decision is not None:
-                        grounding.append({k: decision[k] for k in ("found", "confidence", "target", "reason")})
+                    step_grounding.append(None if decision is None else
+                                          {k: decision[k] for k in ("found", "confidence", "target", "reason")})
+                    if step_grounding[-1] is not None:
+                        grounding.append(step_grounding[-1])
                     return action
 
                 with recorder:
                     episode = run_policy(env, act)
+                expert = _expert_of(job, settings, env)  # after the rollout: the scene reset, the expert run
         steps = len(episode.steps)
         meta = episode.metadata
         held = bool(meta.get("held_target"))
-        failure = failure_reason(bool(episode.success), "", meta.get("motions", []), held)
+        records = [step_record(action, motion, held_after, stop, expert, decided)
+                   for (_, action), motion, held_after, stop, decided in zip(
+                       episode.steps, meta["motions"], meta["held"], meta["stop_errors"], step_grounding, strict=True)]
+        failure = episode_failure(bool(episode.success), "", records)
         if job.gif_path:
             save_rollout_gif(episode, job.gif_path, result="success" if episode.success else failure)
             save_views_figure(explained, views_path(job.gif_path))
@@ -129,7 +138,7 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                               subgoals=subgoal_results(_roles(episode), held, bool(episode.success)),
                               instruction=instruction, target=target,
                               trajectory=trajectory_digest(a for _, a in episode.steps), code=code_digest(),
-                              grounding=grounding)
+                              grounding=grounding, step_records=[r.to_json() for r in records])
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
         text = " ".join(f"{type(err).__name__}: {err}".split())
         tb = traceback.format_exc(limit=3).strip().splitlines()
@@ -137,6 +146,26 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                               steps, time.perf_counter() - start, error=f"{text} | {tb[-3] if len(tb) > 2 else ''}",
                               checkpoint=job.checkpoint, settings=job.settings, failure="crashed",
                               instruction=instruction, target=target, code=code_digest())
+
+
+_EXPERTS: dict[tuple[str, str, int, str | None], tuple[Any, ...]] = {}
+"""Expert keyframes per scene (task, split, seed, split file), kept for the process: every method of an
+evaluation faces the same scenes."""
+
+
+def _expert_of(job: EvalJob, settings: EvalSettings, env: Any) -> tuple[Any, ...]:
+    """The expert's keyframes on the job's scene (:func:`abm.evaluation.step_records.expert_keyframes`, run in
+    ``env`` once its rollout is over, or remembered from another method's rollout of the scene); ``()`` when the
+    expert cannot run there (the step records then name no expert keyframe; the outcome is unchanged)."""
+    key = (job.task, job.split, job.seed, settings.splits_path)
+    if key not in _EXPERTS:
+        try:
+            _EXPERTS[key] = expert_keyframes(env)
+        except Exception:  # noqa: BLE001 - the expert is extra data: it must never fail the episode
+            return ()
+        if len(_EXPERTS) > 512:  # a long evaluation in one process: forget the oldest scene
+            del _EXPERTS[next(iter(_EXPERTS))]
+    return _EXPERTS[key]
 
 
 def _worker_init() -> None:
@@ -229,7 +258,9 @@ def evaluate(
     ray_address: str | None = None,
     collect: list[EpisodeOutcome] | None = None,
 ) -> list[SuccessRate]:
-    """Evaluate policies on one split and write ``outcomes.jsonl``, ``results.{json,csv,md}`` to ``out_dir``.
+    """Evaluate policies on one split and write ``outcomes.jsonl``, ``results.{json,csv,md}`` and the outcomes the
+    tables count, with their per-step records, compressed (``outcomes.jsonl.xz``,
+    :func:`~abm.evaluation.results.write_outcome_archive`) to ``out_dir``.
 
     Args:
         runs: training run folders (or checkpoint files), one per method.
@@ -297,6 +328,7 @@ def evaluate(
     if collect is not None:
         collect.extend(latest.values())
     run_loss_curves({j.method: j.run for j in plan}, out / "training.png")
+    write_outcome_archive(latest.values(), out / OUTCOME_ARCHIVE)  # what the tables count, step by step
     return write_reports(list(latest.values()), out)
 
 

@@ -197,21 +197,25 @@ def run_expert(env: TaskEnv, record: bool = True, dense_fps: float | None = None
 def run_policy(env: TaskEnv, policy: Policy, max_steps: int | None = None) -> Episode:
     """Roll out ``policy`` (Observation -> KeyframeAction) until success or the step budget.
 
-    The episode's metadata records each keyframe's motion status (``motions``) and whether the gripper
-    ever held the target object (``held_target``), from which evaluation names the failure.
+    The episode's metadata records each keyframe's motion status (``motions``), how far the TCP ended from
+    the keyframe's pose (``stop_errors``, m; NaN when the arm did not move), whether the gripper held the object
+    the task must hold (:meth:`abm.sim.tasks.Task.held_object`: the ring for insert_peg, the lid for close_jar,
+    else the target) after each keyframe (``held``) and at any point (``held_target``), from which evaluation
+    names the failure.
     """
     obs = env.reset()
     steps: list[tuple[Observation, KeyframeAction]] = []
     success = False
-    motions = []
-    target = env.instance.info.get("target")
-    held = False
+    motions, stop_errors, held_after = [], [], []
+    carried = env.task.held_object(env.instance)
     for _ in range(max_steps or env.max_steps):
         action = policy(obs)
         steps.append((obs, action))
         obs, success, info = env.step(action)
         motions.append(info["motion"].status)
-        held = held or (target is not None and target in env._require_sim().held_objects())
+        stop_errors.append(float(info["motion"].position_error))
+        held_after.append(carried is not None and carried in env._require_sim().held_objects())
         if info["done"]:
             break
-    return _episode(env, steps, success, {"motions": motions, "held_target": held})
+    return _episode(env, steps, success, {"motions": motions, "stop_errors": stop_errors, "held": held_after,
+                                          "held_target": any(held_after)})

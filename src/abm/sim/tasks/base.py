@@ -17,6 +17,9 @@ A task is one small class registered with :func:`register_task`. It declares:
   and :meth:`Task.check_splits` for a task's own checks of the whole split file;
 * ``destination`` (optional): the object the task brings X to (the plate, the target pad, the rack; X itself
   for the jar a lid closes; ``None`` for none), grounded into the policy's second mask;
+* ``held_role`` (optional): the role (key of :attr:`TaskInstance.info`) of the object the gripper must hold to
+  do the task, ``"target"`` by default; insert_peg holds its ``"ring"``, close_jar its ``"lid"``
+  (:meth:`Task.held_object`; evaluation's "grasp missed" / "timeout" labels check it);
 * :meth:`Task.keyframe_subgoal` (optional): which object of ``target_names`` an expert keyframe works
   on, stored per keyframe in the episode metadata as ``"subgoals"`` by :func:`abm.sim.env.run_expert`;
 
@@ -115,6 +118,9 @@ class Task(ABC):
     #: :data:`DESTINATION_X` (the instruction's X itself: the jar its lid closes, the peg the ring goes on),
     #: :data:`DESTINATION_Y` (Y of a two-target instruction), or ``None``: no object (X goes onto the free table).
     destination: ClassVar[str | None] = None
+    #: The role (key of :attr:`TaskInstance.info`) of the object the gripper must hold: the instruction's target
+    #: by default; insert_peg's ring, close_jar's lid (:meth:`held_object`).
+    held_role: ClassVar[str] = "target"
 
     def __init__(self, splits: ObjectSplits | None = None) -> None:
         self.splits = splits if splits is not None else read_splits(None, TASKS)
@@ -142,6 +148,12 @@ class Task(ABC):
         if cls.destination == DESTINATION_Y:
             return targets[1] if len(targets) > 1 else None
         return cls.destination
+
+    def held_object(self, instance: TaskInstance) -> int | None:
+        """Scene index of the object the gripper must hold in ``instance`` (:attr:`held_role`), ``None`` when the
+        instance does not name one."""
+        index = instance.info.get(self.held_role)
+        return None if index is None else int(index)
 
     def keyframe_subgoal(self, action: KeyframeAction) -> int | None:
         """Index into ``target_names`` of the object an expert keyframe works on, or ``None`` for a

@@ -55,6 +55,7 @@ class CloseJar(Task):
     destination = DESTINATION_X  # the jar X: the lid goes onto it
     seed_salt = 6
     fixtures = (("lid", LID),)
+    held_role = "lid"  # the lid is what the gripper carries, not the instruction's X
     distractors = NUM_DISTRACTORS
 
     def success(self, sim: Simulation, instance: TaskInstance) -> bool:

@@ -70,6 +70,7 @@ class InsertPeg(Task):
     destination = DESTINATION_X  # the peg X: the ring goes around it
     seed_salt = 7
     fixtures = (("ring", RING),)
+    held_role = "ring"  # the ring is what the gripper carries, not the instruction's X
     distractors = NUM_DISTRACTORS
 
     def success(self, sim: Simulation, instance: TaskInstance) -> bool:
