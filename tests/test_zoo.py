@@ -39,6 +39,19 @@ def test_list_verifies_every_file(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert "abm: error: 1 zoo file(s) failed verification" in captured.err
 
 
+def test_list_columns_line_up_for_long_names(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    long = "concat-rerendered_seed1_v2_with_a_long_name"  # longer than any fixed column width
+    assert main(["zoo", "list", "--zoo", str(_zoo(tmp_path, ("abm_oracle", long, "rvt_clip")))]) == 0
+    header, *rows = capsys.readouterr().out.splitlines()
+    assert [r.split()[0] for r in rows] == ["abm_oracle", long, "rvt_clip"]
+    for column in ("method", "grounder", "check"):  # left-aligned: every cell starts under its heading
+        start = header.index(column)
+        assert all(r[start - 1] == " " and r[start] != " " for r in rows), (column, rows)
+    end = header.index("MB") + len("MB")  # right-aligned: every number ends under its heading
+    assert all(r[end - 1] != " " and r[end] == " " for r in rows), rows
+    assert all(r[header.index("check"):] == "ok" for r in rows)
+
+
 def test_missing_or_malformed_index_is_one_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["zoo", "list", "--zoo", str(tmp_path / "nowhere")]) == 2
     assert "no model zoo index" in capsys.readouterr().err

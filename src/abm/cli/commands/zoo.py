@@ -13,10 +13,22 @@ from abm.evaluation.runner import crash_summary, evaluate
 from abm.evaluation.settings import EvalSettings
 from abm.zoo import COMPARED_METHODS, ZooError, entry_path, pick, read_index, verify
 
+LIST_COLUMNS = ("name", "method", "grounder", "steps", "MB", "check")
+RIGHT_ALIGNED = frozenset({"steps", "MB"})
+
+
+def aligned_rows(rows: list[tuple[str, ...]]) -> list[str]:
+    """``rows`` (the header first) as text lines whose columns line up, each column as wide as its longest cell
+    (numbers right-aligned, the last column left as it is)."""
+    widths = [max(len(row[i]) for row in rows) for i in range(len(LIST_COLUMNS) - 1)]
+    return [" ".join(cell.rjust(w) if col in RIGHT_ALIGNED else cell.ljust(w)
+                     for col, cell, w in zip(LIST_COLUMNS, row, widths, strict=False)) + "  " + row[-1]
+            for row in rows]
+
 
 def list_zoo(args: argparse.Namespace) -> int:
     entries = read_index(args.zoo)
-    print(f"{'name':20s} {'method':18s} {'grounder':18s} {'steps':>6s} {'MB':>6s}  check")
+    rows: list[tuple[str, ...]] = [LIST_COLUMNS]
     bad = 0
     for e in entries:
         try:
@@ -24,8 +36,9 @@ def list_zoo(args: argparse.Namespace) -> int:
             status = "ok"
         except ZooError as err:
             status, bad = f"FAILED: {err}", bad + 1
-        print(f"{e['name']:20s} {e.get('method', '?'):18s} {str(e.get('grounder', '–')):18s} "
-              f"{str(e.get('steps', '–')):>6s} {(e.get('size_bytes') or 0) / 1e6:6.1f}  {status}")
+        rows.append((str(e["name"]), str(e.get("method", "?")), str(e.get("grounder", "–")),
+                     str(e.get("steps", "–")), f"{(e.get('size_bytes') or 0) / 1e6:.1f}", status))
+    print("\n".join(aligned_rows(rows)))
     if bad:
         raise ZooError(f"{bad} zoo file(s) failed verification")
     return 0
