@@ -66,6 +66,7 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
     from abm.grounding.instruction import (
         InstructionError,
         InstructionParser,
+        NotOneCommandError,
         ParsedInstruction,
         RewritingParser,
         TemplateParser,
@@ -99,7 +100,8 @@ __all__ = [
     "normalize_name", "target_candidates", "mask_confidence", "DEFAULT_NORMALIZATION", "DEFAULT_THRESHOLD", "GROUNDERS",
     "NORMALIZATIONS", "CLIP_PRESETS", "ClipBackbone", "ClipGrounder", "ClipWeightsNotFoundError", "FeatureCloud",
     "Grounder", "GroundingCache", "InstructionError", "InstructionParser", "MaskField", "MaskFieldConfig",
-    "MaskViews", "OracleGrounder", "ParsedInstruction", "RewritingParser", "TemplateParser", "TemplateSet",
+    "MaskViews", "NotOneCommandError", "OracleGrounder", "ParsedInstruction", "RewritingParser", "TemplateParser",
+    "TemplateSet",
     "build_feature_cloud", "clip_prompt", "cloud_key", "content_key", "decompose_instruction", "frame_key",
     "image_key", "lift_patch_features", "load_clip", "load_templates", "make_grounder", "mask_field_from_features",
     "mask_views", "match_object_ids", "model_fingerprint", "nearest_patch_index", "normalize_heatmap",
