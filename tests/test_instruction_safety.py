@@ -105,6 +105,9 @@ REFUSED = [
     ("take anything but the butter off the frypan", "pan", EXCLUSION, "anything but"),
     ("put the ring on any peg except the red peg", "peg", EXCLUSION, "except"),
     ("put something else on the top shelf", "shelf", EXCLUSION, "else"),
+    ("skip the yellow block and put the blue block on the target", "pick", EXCLUSION, "skip"),
+    ("Leave the red cube alone, move the green one onto the pad", "pick", EXCLUSION, "alone"),
+    ("the yellow block stays where it is; put the blue one on the target", "pick", EXCLUSION, "stays"),
     # swapped roles: the place named as the thing to carry
     ("put the target on the yellow block", "pick", SWAPPED, "target"),
     ("put the plate in the ketchup", "plate", SWAPPED, "plate"),

@@ -9,7 +9,8 @@ later, looser stage (:mod:`abm.grounding.resolve`). :func:`find_trigger` looks f
 * **conditions**: "if", "unless", "when", "whenever", "while", "until", "once", "in case", "as long as", ...;
 * **alternatives**: "or", "either", "whichever", "whatever", "alternatively";
 * **exclusions**: "except", "but", "anything but", "other than", "apart from", "besides", "without", "instead of",
-  "rather than", "ignore", "else", and "not" before a determiner ("not the red block").
+  "rather than", "ignore", "skip", "forget", "alone", "stays", "else", and "not" before a determiner ("not the red
+  block").
 
 Words that belong to a name of the scene's objects are skipped ("put the either box on the target" with an object
 called "either box"). Swapped roles (the place named as the thing to carry: "put the target on the yellow block")
@@ -37,7 +38,8 @@ TRIGGERS: dict[str, tuple[str, ...]] = {
         *(f"not {d}" for d in _DETERMINERS), "anything but", "everything but", "all but", "any but", "but not",
         "except", "excepting", "except for", "excluding", "exclude", "besides", "apart from", "aside from",
         "other than", "but", "instead", "instead of", "rather than", "without", "ignore", "ignoring", "else",
-        "save for", "leave out",
+        "save for", "leave out", "skip", "skipping", "forget", "forgetting", "omit", "omitting", "alone",
+        "untouched", "hands off", "stay", "stays", "remain", "remains",
     ),
     NEGATION: (
         *(f"{v} not" for v in ("do", "does", "did", "must", "should", "shall", "will", "would", "can", "need")),
