@@ -6,9 +6,10 @@ by the resolver, the template parser, every fallback after them, ``abm run`` (dr
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import pytest
-from tests.test_target_decision import OPEN_YAML, recording  # noqa: F401 (the replay folder fixture)
+from tests.test_target_decision import OPEN, OPEN_YAML, recording  # noqa: F401 (the replay folder fixture)
 
 from abm.cli import main as cli_main
 from abm.errors import RefusedError
@@ -22,6 +23,7 @@ from abm.grounding.instruction import (
 )
 from abm.grounding.one_command import ALTERNATIVE, CONDITION, EXCLUSION, NEGATION, SWAPPED, find_trigger
 from abm.grounding.resolve import UnresolvedInstructionError, resolve_instruction
+from abm.robot import run_robot
 
 SCENES = {
     "pick": ("target", "red block", "blue block", "yellow block", "green block"),
@@ -270,6 +272,18 @@ def test_abm_run_refuses_in_one_line_and_moves_nothing(recording, shared_tiny_ru
         (line,) = [json.loads(x) for x in (log_dir / "steps.jsonl").read_text().splitlines()]
         assert line["status"] == "refused" and quoted in line["reason"]
         assert not list(log_dir.glob("step_*.npz"))  # no keyframe was predicted, nothing moved
+
+
+def test_a_camera_that_names_no_objects_gets_the_same_refusal(tmp_path) -> None:
+    """Without the scene's names (a real camera) the templates refuse it: run_robot logs it, the policy never runs."""
+    camera, arm = SimpleNamespace(object_names=None), SimpleNamespace(commands=[])
+    for text, kind in (("put the yellow or the green block on the target", ALTERNATIVE),
+                       ("put the plate in the ketchup", SWAPPED)):
+        with pytest.raises(NotOneCommandError) as err:
+            run_robot(None, camera, arm, text, OPEN, 1, tmp_path / kind)  # type: ignore[arg-type]
+        assert err.value.trigger.kind == kind
+        (line,) = [json.loads(x) for x in (tmp_path / kind / "steps.jsonl").read_text().splitlines()]
+        assert line == {"step": 0, "status": "refused", "reason": str(err.value)}
 
 
 def test_abm_ground_refuses_in_one_line_strict_or_not(tmp_path, cli_errors) -> None:
