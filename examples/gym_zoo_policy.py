@@ -37,7 +37,8 @@ def main() -> int:
     args = ap.parse_args()
 
     policy = KeyframePolicy.from_checkpoint(args.checkpoint)
-    env = gymnasium.make(f"abm/{args.task}-{args.split}-v0", resolution=args.resolution, max_steps=args.max_steps)
+    env = gymnasium.make(f"abm/{args.task}-{args.split}-v0", resolution=args.resolution,
+                         max_episode_steps=args.max_steps)  # gymnasium's TimeLimit (the spec's is 25)
     obs, info = env.reset(seed=args.seed)
     print(f"{env.spec.id if env.spec else args.task} seed {args.seed}: {obs['instruction']!r}; "
           f"objects: {', '.join(info['object_names'].values())}")

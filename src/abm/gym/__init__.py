@@ -6,7 +6,7 @@ one per task and split of the built-in split file (``abm tasks`` lists them; :da
     import gymnasium
     import abm.gym  # registers the environments
 
-    env = gymnasium.make("abm/pick_block-seen-v0", resolution=128)
+    env = gymnasium.make("abm/pick_block-seen-v0", resolution=128)  # 25 keyframes an episode, render_mode None
     obs, info = env.reset(seed=0)              # the benchmark's scene of seed 0
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 
@@ -27,12 +27,14 @@ except ImportError as err:  # pragma: no cover - depends on the installed extras
 from abm.gym.env import (
     AbmTaskEnv,
     action_space,
+    check_action,
     from_action,
     from_observation,
     observation_space,
     to_action,
     to_observation,
 )
+from abm.sim.env import DEFAULT_MAX_STEPS
 from abm.sim.splits import load_splits
 
 ENTRY_POINT = "abm.gym.env:AbmTaskEnv"
@@ -45,13 +47,17 @@ def env_id(task: str, split: str) -> str:
 
 
 def register_envs() -> tuple[str, ...]:
-    """Register one environment per task and split of the built-in split file (again: nothing new); their ids."""
+    """Register one environment per task and split of the built-in split file (again: nothing new); their ids.
+
+    Each spec's ``max_episode_steps`` is :data:`~abm.sim.env.DEFAULT_MAX_STEPS` (25 keyframes, the benchmark's budget),
+    so ``gymnasium.make`` truncates there; the env itself does not truncate unless given ``max_steps``."""
     ids = []
     for task, splits in load_splits(None).tasks.items():
         for split in splits:
             name = env_id(task, split)
             if name not in gymnasium.registry:
-                gymnasium.register(id=name, entry_point=ENTRY_POINT, kwargs={"task": task, "split": split})
+                gymnasium.register(id=name, entry_point=ENTRY_POINT, kwargs={"task": task, "split": split},
+                                   max_episode_steps=DEFAULT_MAX_STEPS)
             ids.append(name)
     return tuple(ids)
 
@@ -59,5 +65,5 @@ def register_envs() -> tuple[str, ...]:
 ENV_IDS: tuple[str, ...] = register_envs()
 """Every registered id, in the split file's order."""
 
-__all__ = ["ENV_IDS", "AbmTaskEnv", "action_space", "env_id", "from_action", "from_observation",
+__all__ = ["ENV_IDS", "AbmTaskEnv", "action_space", "check_action", "env_id", "from_action", "from_observation",
            "observation_space", "register_envs", "to_action", "to_observation"]

@@ -27,12 +27,17 @@ World frame = the robot base: +x towards the table, +y left, +z up (docs/convent
      "gripper_open":     Discrete(2)  1 = open at the keyframe, 0 = closed,
      "ignore_collision": Discrete(2)  1 = move in a straight line ignoring collisions}
 
-``step`` also takes a :class:`~abm.types.KeyframeAction` itself. :func:`to_action` and :func:`from_action` convert
-between the two, :func:`to_observation` turns an observation back into :class:`~abm.types.Observation` (what
-:meth:`abm.policy.KeyframePolicy.act` takes).
+``step`` also takes a :class:`~abm.types.KeyframeAction` itself. Anything outside the space (a position outside the
+Box, NaN or inf, a wrong shape or type, ``None``, a flag other than 0 or 1, a missing or unknown key) is refused with a
+``ValueError`` naming the space and what was given, before the simulator or the arm's IK sees it
+(:func:`check_action`). :func:`to_action` and :func:`from_action` convert between the two, :func:`to_observation`
+turns an observation back into :class:`~abm.types.Observation` (what :meth:`abm.policy.KeyframePolicy.act` takes).
 
 **Reward and ends**: reward 1.0 on the step that solves the task (``terminated``), else 0.0; ``truncated`` once
-``max_steps`` keyframes are spent without success. ``info``: ``success``, ``motion`` (the keyframe's motion
+the episode's keyframes are spent without success: 25 (:data:`abm.sim.env.DEFAULT_MAX_STEPS`, the benchmark's budget,
+what ``abm eval`` gives) by the ``TimeLimit`` that ``gymnasium.make`` adds from the registered spec's
+``max_episode_steps``; ``gymnasium.make(id, max_episode_steps=N)`` changes it. An env built without ``gymnasium.make``
+truncates itself only when given ``max_steps``. ``info``: ``success``, ``motion`` (the keyframe's motion
 status: reached, unreachable, blocked, collided), ``step``, ``task``, ``split``, ``scene_seed``, ``object_names``
 (segmentation index -> object name, which the oracle grounder needs) and ``target_names``.
 
@@ -112,24 +117,105 @@ def from_action(action: KeyframeAction) -> Act:
             "gripper_open": int(action.gripper_open), "ignore_collision": int(action.ignore_collision)}
 
 
-def to_action(action: Mapping[str, Any] | KeyframeAction) -> KeyframeAction:
-    """An action of :func:`action_space` (or a :class:`KeyframeAction`, returned as is) as a :class:`KeyframeAction`.
+ACTION_KEYS = ("position", "quaternion", "gripper_open", "ignore_collision")
+"""The keys of an action of :func:`action_space`."""
+
+
+def _shown(value: object) -> str:
+    """``value`` as the error messages quote it (shortened to 80 characters)."""
+    if isinstance(value, np.ndarray):
+        text = f"array({np.array2string(value, separator=', ', threshold=8)}, {value.dtype})"
+    else:
+        text = f"{value!r} ({type(value).__name__})"
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _outside(key: str, space: spaces.Space[Any], value: object, why: str) -> ValueError:
+    return ValueError(f"abm.gym action: {key} = {_shown(value)} is outside the action space's {key} {space}: {why}")
+
+
+def _box_value(key: str, box: spaces.Box, value: object) -> NDArray[np.float64]:
+    """``value`` as a float64 array of ``box``, or the :class:`ValueError` that says why it is not one."""
+    if value is None or isinstance(value, (str, bytes, Mapping)):
+        raise _outside(key, box, value, f"expected an array of {box.shape[0]} numbers")
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError) as err:  # ragged nesting
+        raise _outside(key, box, value, f"expected an array of {box.shape[0]} numbers") from err
+    if array.dtype.kind not in "biuf":
+        raise _outside(key, box, value, f"expected numbers, got elements of type {array.dtype}")
+    if array.shape != box.shape:
+        raise _outside(key, box, value, f"shape {array.shape}, expected {box.shape}")
+    array = array.astype(np.float64)
+    for i, (v, lo, hi) in enumerate(zip(array, box.low, box.high, strict=True)):
+        if not np.isfinite(v):
+            raise _outside(key, box, value, f"element {i} is {v}, not a finite number")
+        if not lo <= v <= hi:
+            raise _outside(key, box, value, f"element {i} is {v:.6g}, outside [{lo:.6g}, {hi:.6g}]")
+    return array
+
+
+def _flag_value(key: str, discrete: spaces.Discrete, value: object) -> int:
+    """``value`` as an element of ``discrete`` (a Python int or bool, a numpy integer), or the :class:`ValueError`
+    that says why it is not one."""
+    if isinstance(value, np.ndarray) and value.shape == () and np.issubdtype(value.dtype, np.integer):
+        value = value[()]
+    if not isinstance(value, (int, np.integer)):
+        raise _outside(key, discrete, value, "expected the integer 0 or 1")
+    if value not in discrete:
+        raise _outside(key, discrete, value, "expected 0 or 1")
+    return int(value)
+
+
+def check_action(action: object, space: spaces.Dict | None = None) -> Act:
+    """``action`` as an element of ``space`` (default :func:`action_space`), checked before anything uses it.
+
+    Takes a dict of the space or a :class:`KeyframeAction` (read with :func:`from_action`). Returns the dict with
+    float64 arrays and ``int`` flags.
 
     Raises:
-        ValueError: a key is missing, or a value has the wrong shape or is not finite.
+        ValueError: naming the space and what was given, for anything not in the space: a missing or unknown key,
+            ``None``, a wrong type or shape, NaN or inf, a position outside the Box (the workspace cube), a
+            quaternion element outside [-1, 1], a gripper_open or ignore_collision other than 0 or 1.
     """
+    space = space or action_space()
+    if isinstance(action, KeyframeAction):
+        action = from_action(action)
+    if not isinstance(action, Mapping):
+        raise ValueError(f"abm.gym action: expected a dict with the keys {list(ACTION_KEYS)} (the action space "
+                         f"{space}) or a KeyframeAction, got {_shown(action)}")
+    missing = [k for k in ACTION_KEYS if k not in action]
+    unknown = sorted(str(k) for k in action if k not in ACTION_KEYS)
+    if missing or unknown:
+        wrong = " and ".join([f"lacks {missing}"] * bool(missing) + [f"has unknown keys {unknown}"] * bool(unknown))
+        raise ValueError(f"abm.gym action: the action {wrong}; give position (3,), quaternion (4,), gripper_open, "
+                         f"ignore_collision (the action space {space})")
+    checked: Act = {}
+    for key in ACTION_KEYS:
+        sub = space[key]
+        if isinstance(sub, spaces.Box):
+            checked[key] = _box_value(key, sub, action[key])
+        else:
+            assert isinstance(sub, spaces.Discrete)
+            checked[key] = _flag_value(key, sub, action[key])
+    return checked
+
+
+def to_action(action: Mapping[str, Any] | KeyframeAction, space: spaces.Dict | None = None) -> KeyframeAction:
+    """An action of ``space`` (default :func:`action_space`) as a :class:`KeyframeAction` (a KeyframeAction is
+    checked and returned as is); a zero quaternion is read as the identity.
+
+    Raises:
+        ValueError: the action is not in the space (:func:`check_action`).
+    """
+    checked = check_action(action, space)
     if isinstance(action, KeyframeAction):
         return action
-    missing = {"position", "quaternion", "gripper_open", "ignore_collision"} - set(action)
-    if missing:
-        raise ValueError(f"the action lacks {sorted(missing)}; give position (3,), quaternion (4,), gripper_open, "
-                         "ignore_collision (abm.gym action space)")
-    quaternion = np.asarray(action["quaternion"], np.float64).reshape(-1)
-    if quaternion.shape == (4,) and np.all(np.isfinite(quaternion)) and np.linalg.norm(quaternion) < 1e-6:
+    quaternion = checked["quaternion"]
+    if np.linalg.norm(quaternion) < 1e-6:
         quaternion = np.array([0.0, 0.0, 0.0, 1.0])
-    return KeyframeAction(np.asarray(action["position"], np.float64).reshape(-1), quaternion,
-                          bool(int(np.asarray(action["gripper_open"]).reshape(-1)[0])),
-                          bool(int(np.asarray(action["ignore_collision"]).reshape(-1)[0])))
+    return KeyframeAction(checked["position"], quaternion, bool(checked["gripper_open"]),
+                          bool(checked["ignore_collision"]))
 
 
 def from_observation(obs: Observation, instruction: str) -> Obs:
@@ -162,28 +248,34 @@ class AbmTaskEnv(gymnasium.Env[Obs, Act]):
         task: a task name (``abm tasks`` lists them).
         split: ``"seen"``, ``"unseen"`` or ``"compositional"`` (the splits the task has).
         resolution: camera image side in pixels (the benchmark's is 128).
-        max_steps: keyframes before an episode is truncated.
+        max_steps: keyframes after which the env truncates an episode itself; ``None`` (the default): it does not,
+            and the ``TimeLimit`` of ``gymnasium.make`` does (the spec's ``max_episode_steps``, 25, or
+            ``max_episode_steps=N`` given to ``make``: one limit, so the spec and the episodes agree). Give it for an
+            env built without ``gymnasium.make``; under ``make``, the shorter of the two ends the episode.
         camera_names: the cameras rendered (default all four).
-        render_mode: ``None`` or ``"rgb_array"`` (the front camera's image, ``(R, R, 3)`` uint8).
+        render_mode: ``None`` (the default: :meth:`render` returns ``None``) or ``"rgb_array"`` (:meth:`render`
+            returns the front camera's last image, ``(R, R, 3)`` uint8).
         splits_path: a replacement split file (default the built-in one).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
 
     def __init__(self, task: str, split: str = "seen", resolution: int = CAMERA_RESOLUTION,
-                 max_steps: int = DEFAULT_MAX_STEPS, camera_names: Sequence[str] = CAMERA_NAMES,
+                 max_steps: int | None = None, camera_names: Sequence[str] = CAMERA_NAMES,
                  render_mode: str | None = None, splits_path: str | None = None) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r} is not supported; use None or 'rgb_array'")
-        if max_steps < 1:
+        if max_steps is not None and max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {max_steps}")
         self.task, self.split = task, split
-        self.resolution, self.max_steps = int(resolution), int(max_steps)
+        self.resolution = int(resolution)
+        self.max_steps = None if max_steps is None else int(max_steps)
         self.camera_names = tuple(camera_names)
         self.render_mode = render_mode
         self.splits_path = splits_path
         self.observation_space = observation_space(self.resolution, self.camera_names)
-        self.action_space = action_space()
+        self._action_space = action_space()
+        self.action_space = self._action_space
         self.env: TaskEnv | None = None
         self._scenes: dict[int, TaskEnv] = {}
         self._last: Obs | None = None
@@ -193,7 +285,8 @@ class AbmTaskEnv(gymnasium.Env[Obs, Act]):
         """The :class:`TaskEnv` of ``scene_seed``, built or taken from the :data:`CACHED_SCENES` most recent."""
         env = self._scenes.pop(scene_seed, None)
         if env is None:
-            env = TaskEnv(self.task, self.split, scene_seed, self.resolution, max_steps=self.max_steps,
+            env = TaskEnv(self.task, self.split, scene_seed, self.resolution,
+                          max_steps=self.max_steps or DEFAULT_MAX_STEPS,  # (its "done" flag is not used here)
                           splits_path=self.splits_path, camera_names=self.camera_names)
         self._scenes[scene_seed] = env  # the most recent last
         while len(self._scenes) > CACHED_SCENES:
@@ -228,15 +321,20 @@ class AbmTaskEnv(gymnasium.Env[Obs, Act]):
         return obs, self._info(env)
 
     def step(self, action: Act | KeyframeAction) -> tuple[Obs, float, bool, bool, dict[str, Any]]:
-        """Execute one keyframe (a :func:`action_space` dict or a :class:`KeyframeAction`)."""
+        """Execute one keyframe (a :func:`action_space` dict or a :class:`KeyframeAction`).
+
+        Raises:
+            ValueError: the action is not in the action space (:func:`check_action`); nothing is executed.
+        """
         if self.env is None or self.env.sim is None:
             raise RuntimeError("call reset() before step()")
+        keyframe = to_action(action, self._action_space)  # before the simulator or the IK sees it
         env = self.env
-        observation, success, info = env.step(to_action(action))
+        observation, success, info = env.step(keyframe)
         assert observation is not None  # rendered (render=True)
         obs = from_observation(observation, env.instruction)
         self._last = obs
-        truncated = not success and env.steps >= self.max_steps
+        truncated = not success and self.max_steps is not None and env.steps >= self.max_steps
         return obs, 1.0 if success else 0.0, bool(success), truncated, self._info(env, success, info["motion"].status)
 
     def render(self) -> NDArray[np.uint8] | None:
