@@ -5,17 +5,19 @@ manifest lists, and every value passes its flag's check before any job runs."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
 import yaml
-from tests.test_experiments import _one_run, _touch_checkpoint, _with
+from tests.test_experiments import FakeRunner, _one_run, _touch_checkpoint, _with
 
 from abm.cli import main
 from abm.experiments.report import NotOwnedError, write_report
 from abm.experiments.spec import SpecError, load_spec
 from abm.experiments.stages import Engine
-from abm.experiments.state import CarryError, Layout, carry_unfinished, drop_carry
+from abm.experiments.state import CarryError, Layout, carry_unfinished, drop_carry, merge_lines, stage_minutes
+from abm.files import FolderBusyError, FolderLock
 
 
 def _write_spec(root: Path, data: dict, name: str = "tiny.yaml") -> Path:
@@ -99,3 +101,48 @@ def test_carry_on_a_spec_without_a_carry_says_so_in_one_line(tmp_path: Path,
     err = capsys.readouterr().err
     assert err == ("abm: error: --stages carry: tiny keeps no carry (its spec has no carry: folder), so there is "
                    "nothing to carry into; add carry: FOLDER to the spec, or leave carry out\n")
+
+
+# ------------------------------------------------------------------------------ one engine per working folder
+def test_a_second_engine_on_a_working_folder_says_already_running_and_starts_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _write_spec(tmp_path, _one_run())
+    spec = load_spec(path)
+    runner = FakeRunner(tmp_path)
+    engine = Engine(spec, root=tmp_path, runner=runner)
+    with FolderLock(engine.layout.out, "abm experiment run tiny"):  # the first engine, still running
+        with pytest.raises(FolderBusyError, match=rf"abm experiment run tiny: already running \(pid {os.getpid()} on "
+                                                  r"\S+\) in runs/tiny; nothing started"):
+            engine.run(["train"])
+        assert main(["experiment", "run", str(path), "--root", str(tmp_path), "--stages", "train"]) == 2
+    assert runner.ran == [] and not engine.layout.jobs.exists()
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "already running (pid" in err
+
+
+def test_a_job_left_running_by_a_killed_engine_is_not_started_twice(tmp_path: Path,
+                                                                     caplog: pytest.LogCaptureFixture) -> None:
+    spec = load_spec(_write_spec(tmp_path, _one_run()))
+    runner = FakeRunner(tmp_path)
+    engine = Engine(spec, root=tmp_path, runner=runner)
+    _touch_checkpoint(engine.layout, "abm_oracle", 1)
+    with FolderLock(engine.layout.run_dir("abm_oracle"), "abm train"):  # the orphaned training holds its folder
+        assert engine.run(["train", "export"]) == 1
+    assert runner.ran == []
+    assert f"train/abm_oracle: already running (pid {os.getpid()} on " in caplog.text
+
+
+def test_stage_minutes_pair_each_session_s_start_and_end_and_two_working_folders_keep_both(tmp_path: Path) -> None:
+    times = tmp_path / "times.txt"
+    # two engines' train stages interleave: 0-600 s and 60-1200 s, plus an older file's unpaired lines
+    times.write_text("eval_start 0\neval_end 120\ntrain_start 0 a:1\ntrain_start 60 b:2\ntrain_end 600 a:1\n"
+                     "train_end 1200 b:2\n")
+    assert stage_minutes(times) == {"eval": pytest.approx(2.0), "train": pytest.approx(10.0 + 19.0)}
+    kept, first, second = tmp_path / "kept.txt", tmp_path / "one.txt", tmp_path / "two.txt"
+    first.write_text("train_start 0 a:1\ntrain_end 600 a:1\n")
+    second.write_text("train_start 60 b:2\ntrain_end 1200 b:2\n")
+    kept.write_bytes(merge_lines(first, kept))
+    kept.write_bytes(merge_lines(second, kept))
+    kept.write_bytes(merge_lines(first, kept))  # keeping again adds nothing
+    assert stage_minutes(kept) == {"train": pytest.approx(29.0)}
+    assert len(kept.read_text().splitlines()) == 4

@@ -259,7 +259,7 @@ def test_a_run_does_what_is_left_and_a_rerun_nothing(tmp_path: Path, monkeypatch
     assert (tmp_path / "docs/results/tiny/abm_oracle_seen.json").is_file()  # kept for a fresh clone
     times = (tmp_path / "runs/tiny/times.txt").read_text().split()
     # the export ran as its training ended (inside the train stage): the export stage found nothing left
-    assert times[0::2] == ["data_start", "data_end", "train_start", "train_end", "eval_start", "eval_end"]
+    assert times[0::3] == ["data_start", "data_end", "train_start", "train_end", "eval_start", "eval_end"]
     runner.ran.clear()
     assert Engine(spec, root=tmp_path, runner=runner).run(["data", "train", "export", "eval", "report"]) == 0
     assert runner.ran == []  # everything is done: nothing runs twice
@@ -370,7 +370,7 @@ def test_a_stopped_stage_closes_its_spans_and_leaves_the_job_to_do(tmp_path: Pat
         engine.run(["train", "export"])
     last = [json.loads(line) for line in engine.layout.jobs.read_text().splitlines()][-1]
     assert last["job"] == "train/abm_oracle" and last["event"] == "end" and last["stopped"] and last["rc"] is None
-    assert engine.layout.times.read_text().split()[0::2] == ["train_start", "train_end"]  # the stage's minutes count
+    assert engine.layout.times.read_text().split()[0::3] == ["train_start", "train_end"]  # the stage's minutes count
     status = {j.id: j for j in Engine(spec, root=tmp_path).status()}
     assert status["train/abm_oracle"].state == LEFT  # neither failed nor done: the next run resumes it
     assert (tmp_path / "models/carry/abm_oracle/step_00000001.pt").is_file()

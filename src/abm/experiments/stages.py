@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import socket
 import time
@@ -40,6 +41,8 @@ from abm.experiments.state import (
     checkpoints,
     drop_carry,
     folder_busy,
+    folder_holder,
+    holder_pid,
     job_events,
     keep,
     kept_pairs,
@@ -53,6 +56,7 @@ from abm.experiments.state import (
     span_minutes,
     stamp,
 )
+from abm.files import FolderBusyError, FolderLock
 from abm.grounding.config import GROUNDERS
 from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig
@@ -554,20 +558,47 @@ class Engine:
             raise ConfigError(f"--stages carry: {self.spec.name} keeps no carry (its spec has no carry: folder), so "
                               "there is nothing to carry into; add carry: FOLDER to the spec, or leave carry out")
         self._export_with_training = not dry_run and "train" in order and "export" in order
-        if not dry_run:
-            copied = restore(self.spec, self.layout)
-            if copied:
-                LOG.info("restored %d finished result file(s) from %s", copied, self.rel(self.layout.kept))
+        if dry_run:
+            return 0 if all(self._run_stage(stage, dry_run) for stage in order) else 1
+        lock = FolderLock(self.layout.out, f"abm experiment run {self.spec.name}")
+        try:
+            lock.__enter__()
+        except FolderBusyError:
+            holder = folder_holder(self.layout.out) or "another process"
+            raise FolderBusyError(f"abm experiment run {self.spec.name}: already running ({holder_pid(holder)}) in "
+                                  f"{self.rel(self.layout.out)}; nothing started: one engine per working folder (see "
+                                  f"abm experiment status {self.spec.name}; --out DIR for a second one)") from None
+        try:
+            return self._run_locked(order)
+        finally:
+            lock.__exit__(None, None, None)
+
+    def _run_locked(self, order: Sequence[str]) -> int:
+        """:meth:`run`'s stages, this engine alone in the working folder."""
+        copied = restore(self.spec, self.layout)
+        if copied:
+            LOG.info("restored %d finished result file(s) from %s", copied, self.rel(self.layout.kept))
         try:
             for stage in order:
-                if not self._run_stage(stage, dry_run):
+                if not self._run_stage(stage, False):
                     self.carry()
                     return 1
         except BaseException:
-            if not dry_run:
-                self.carry()
+            self.carry()
             raise
         return 0
+
+    def running_elsewhere(self, job: Job) -> str | None:
+        """``pid N`` of a live process that runs ``job`` already (a job an engine stopped with ``kill -9`` left
+        running: its folder's lock, or its last start in the job log on this host), else ``None``."""
+        holder = folder_holder(job.folder) if job.folder is not None else None
+        if holder is not None:
+            return holder_pid(holder)
+        events = self._events.get(job.id, [])
+        starts = [e for e in events if e["event"] == "start"]
+        if self._live(starts, [e for e in events if e["event"] == "end"]) and starts[-1]["pid"] != os.getpid():
+            return f"pid {starts[-1]['pid']}"
+        return None
 
     def slots(self, stage: str) -> tuple[int, int]:
         """``(jobs at a time, CPUs each)`` of a stage: trainings as the resources say; evaluations (``workers``
@@ -624,8 +655,13 @@ class Engine:
         for job in jobs:
             if job.state == BLOCKED:
                 LOG.info("%s: skipped (%s)", job.id, job.note)
+        busy = {job.id: pid for job in todo if not dry_run and (pid := self.running_elsewhere(job))}
+        for job_id, pid in busy.items():
+            LOG.error("%s: already running (%s); not started again: wait for it to end (or stop it), then run "
+                      "again", job_id, pid)
+        todo = [job for job in todo if job.id not in busy]
         if not todo:
-            return True
+            return not busy
         LOG.info("%s: %d job(s)", stage, len(todo))
         if dry_run:
             for job in todo:
@@ -651,7 +687,7 @@ class Engine:
             log = self.layout.log(job.id)
             LOG.error("%s failed (exit code %s): %s (log: %s)", job.id, codes.get(job.id),
                       last_line(log) or "it wrote nothing", self.rel(log))
-        return not failed
+        return not failed and not busy  # what depends on a job running elsewhere waits for the next run
 
     # -------------------------------------------------------------------------------------------- status
     def status(self) -> list[Job]:

@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from abm.errors import OutputError
-from abm.evaluation.results import OutcomeLog
+from abm.evaluation.results import OUTCOME_ARCHIVE, OutcomeLog
 from abm.experiments.spec import ExperimentSpec, SpecError
-from abm.files import is_inside, sha256_file, write_text_atomic
+from abm.files import LOCK_NAME, is_inside, sha256_file, write_text_atomic
 from abm.machine import describe_machine
 
 _STEP_FILE = re.compile(r"^step_(\d+)\.pt$")
@@ -144,6 +144,9 @@ def kept_pairs(spec: ExperimentSpec, layout: Layout) -> list[tuple[Path, Path]]:
             if split.runs is None or name in split.runs:
                 pairs.append((layout.eval_dir(name, split.split) / "results.json",
                               kept / f"{name}_{split.split}.json"))
+                # every episode's outcome and per-step records, compressed (abm.evaluation.results.OUTCOME_ARCHIVE)
+                pairs.append((layout.eval_dir(name, split.split) / OUTCOME_ARCHIVE,
+                              kept / f"{name}_{split.split}_{OUTCOME_ARCHIVE}"))
                 if tables:  # the report prints the evaluation's own tables
                     pairs.append((layout.eval_dir(name, split.split) / "results.md",
                                   kept / f"{name}_{split.split}.md"))
@@ -173,9 +176,10 @@ def restore(spec: ExperimentSpec, layout: Layout) -> int:
 def keep(spec: ExperimentSpec, layout: Layout) -> int:
     """Copy every finished result of OUT into KEPT (the committed copy); returns how many changed."""
     changed = 0
+    merged = (layout.times, layout.machines)
     for made, copy in kept_pairs(spec, layout):
         if made.is_file():
-            data = made.read_bytes()
+            data = merge_lines(made, copy) if made in merged else made.read_bytes()
             if not copy.is_file() or copy.read_bytes() != data:
                 copy.parent.mkdir(parents=True, exist_ok=True)
                 copy.write_bytes(data)
@@ -184,33 +188,53 @@ def keep(spec: ExperimentSpec, layout: Layout) -> int:
 
 
 # ------------------------------------------------------------------------------------------ times, machines
+def session() -> str:
+    """This engine's session in OUT/times.txt (``HOST:PID``): a stage's end closes its own session's start."""
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
 def stamp(layout: Layout, event: str, when: float | None = None) -> None:
-    """Append ``EVENT SECONDS`` (``train_start 1795665961``) to OUT/times.txt."""
+    """Append ``EVENT SECONDS SESSION`` (``train_start 1795665961 host:4242``) to OUT/times.txt."""
     layout.out.mkdir(parents=True, exist_ok=True)
     with layout.times.open("a") as f:
-        f.write(f"{event} {int(time.time() if when is None else when)}\n")
+        f.write(f"{event} {int(time.time() if when is None else when)} {session()}\n")
 
 
 def stage_minutes(times: Path) -> dict[str, float]:
-    """Minutes per stage, summed over every (start, end) pair: a resumed stage counts all its sessions.
+    """Minutes per stage, summed over every (start, end) pair of one session: a resumed stage counts all its
+    sessions, and sessions whose spans interleave (two engines of one experiment, each in its own working folder,
+    their times merged into KEPT) each count their own span. Lines without a session (older files) pair as
+    they come.
 
     A line ``STAGE_minutes M`` adds ``M`` minutes measured elsewhere (the totals of earlier sessions whose
     run folders did not survive)."""
     total: dict[str, float] = {}
-    open_at: dict[str, int] = {}
+    open_at: dict[tuple[str, str], int] = {}
     if times.is_file():
         for line in times.read_text().split("\n"):
-            if not line.strip():
+            fields = line.split()
+            if len(fields) not in (2, 3):
                 continue
-            key, value = line.split()
+            key, value, who = fields[0], fields[1], fields[2] if len(fields) == 3 else ""
             stage, _, edge = key.rpartition("_")
             if edge == "start":
-                open_at[stage] = int(value)
+                open_at[(stage, who)] = int(value)
             elif edge == "minutes":
                 total[stage] = total.get(stage, 0.0) + float(value)
-            elif edge == "end" and stage in open_at:
-                total[stage] = total.get(stage, 0.0) + (int(value) - open_at.pop(stage)) / 60
+            elif edge == "end" and (stage, who) in open_at:
+                total[stage] = total.get(stage, 0.0) + (int(value) - open_at.pop((stage, who))) / 60
     return total
+
+
+def merge_lines(made: Path, copy: Path) -> bytes:
+    """KEPT's lines, then OUT's lines KEPT lacks (times and machines: every engine's, none lost when two
+    working folders keep into one KEPT)."""
+    kept = copy.read_bytes().splitlines(keepends=True) if copy.is_file() else []
+    if kept and not kept[-1].endswith(b"\n"):
+        kept[-1] += b"\n"
+    known = set(kept)
+    new = [line if line.endswith(b"\n") else line + b"\n" for line in made.read_bytes().splitlines(keepends=True)]
+    return b"".join(kept + [line for line in new if line not in known and line.strip()])
 
 
 def machine() -> str:
@@ -281,22 +305,34 @@ def pid_alive(pid: int) -> bool:
     return True
 
 
-def folder_busy(folder: Path) -> bool:
-    """Whether a live abm command holds the folder's lock (``FOLDER/.abm.lock``, :class:`abm.files.FolderLock`)."""
+def folder_holder(folder: Path) -> str | None:
+    """The live abm command that holds the folder's lock (``FOLDER/.abm.lock``, :class:`abm.files.FolderLock`)
+    as the lock names it (``abm train (pid 4242 on host)``), or ``None`` when none does."""
     import fcntl
 
-    path = folder / ".abm.lock"
+    path = folder / LOCK_NAME
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
     except OSError:
-        return False
+        return None
     try:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
     except BlockingIOError:
-        return True
+        return os.read(fd, 200).decode("utf-8", "replace").strip() or "another process"
     finally:
         os.close(fd)
-    return False
+    return None
+
+
+def folder_busy(folder: Path) -> bool:
+    """Whether a live abm command holds the folder's lock (:func:`folder_holder`)."""
+    return folder_holder(folder) is not None
+
+
+def holder_pid(holder: str) -> str:
+    """``pid N`` (and its host) out of a lock's owner text, for "already running (pid N)"."""
+    found = re.search(r"pid \d+( on \S+)?", holder)
+    return found.group(0) if found else holder
 
 
 # ---------------------------------------------------------------------------------------------- run folders
