@@ -14,6 +14,7 @@ from sim_helpers import require_simulator
 require_simulator("h5py", libero=True)
 
 from abm.cli import main  # noqa: E402
+from abm.evaluation.results import read_outcome_archive  # noqa: E402
 
 TINY_MODEL = {"resolution": 32, "patch_size": 8, "width": 32, "layers_within": 1, "layers_joint": 1, "heads": 2,
               "stem_channels": 8, "decoder_channels": 8, "rotation_bins": 36}
@@ -60,8 +61,13 @@ def test_a_tiny_experiment_runs_end_to_end_and_reports(tmp_path: Path, capsys, m
     index = json.loads((tmp_path / "models/index.json").read_text())
     assert [e["name"] for e in index] == ["abm_oracle", "rvt_hash"] and index[0]["data"] == "runs/tiny/data"
     kept = sorted(p.name for p in (tmp_path / "docs/results/tiny").iterdir())
-    assert kept == ["abm_oracle_seen.json", "machines.txt", "rvt_hash_seen.json", "times.txt",
+    assert kept == ["abm_oracle_seen.json", "abm_oracle_seen_outcomes.jsonl.xz", "machines.txt",
+                    "rvt_hash_seen.json", "rvt_hash_seen_outcomes.jsonl.xz", "times.txt",
                     "training_abm_oracle.csv", "training_rvt_hash.csv"]  # the loss curves kept at the export
+    # every episode committed beside its table, step by step, its checkpoint named inside the root
+    episodes = read_outcome_archive(tmp_path / "docs/results/tiny/abm_oracle_seen_outcomes.jsonl.xz")
+    assert sorted(o.task for o in episodes) == ["pick_block", "place_food"]
+    assert all(len(o.step_records) == o.steps == 1 and o.checkpoint == "models/abm_oracle.pt" for o in episodes)
     curve = (tmp_path / "docs/results/tiny/training_abm_oracle.csv").read_text().splitlines()
     assert curve[0].startswith("step,total,translation,rotation") and curve[-1].startswith("2,")
     # no machine's folder in what the experiment commits

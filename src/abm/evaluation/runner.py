@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -141,7 +142,9 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                               grounding=grounding, step_records=[r.to_json() for r in records])
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
         text = " ".join(f"{type(err).__name__}: {err}".split())
-        tb = traceback.format_exc(limit=3).strip().splitlines()
+        # the frame's file by name only: no folder of this machine in a log an experiment commits
+        frames = traceback.format_exc(limit=3).strip().splitlines()
+        tb = [re.sub(r'File "[^"]*[/\\]', 'File "', line) for line in frames]
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, False,
                               steps, time.perf_counter() - start, error=f"{text} | {tb[-3] if len(tb) > 2 else ''}",
                               checkpoint=job.checkpoint, settings=job.settings, failure="crashed",
