@@ -494,6 +494,50 @@ def test_a_foreign_dataset_with_depth_and_calibration_imports(tmp_path, cli_erro
     assert [a.gripper_open for _, a in ep.steps] == [True, False, False]
 
 
+def _as_text(path, column: str) -> None:
+    """Rewrite ``column`` of the parquet file ``path`` with the same nesting but text ("abc") in every cell."""
+    table = pq.read_table(path)
+
+    def text(value):
+        return [text(v) for v in value] if isinstance(value, list) else "abc"
+
+    def text_type(typ):
+        nested = pa.types.is_list(typ) or pa.types.is_fixed_size_list(typ)
+        return pa.list_(text_type(typ.value_type)) if nested else pa.string()
+
+    i = table.schema.get_field_index(column)
+    values = pa.array([text(v) for v in table.column(column).to_pylist()], text_type(table.schema.field(i).type))
+    pq.write_table(table.set_column(i, column, values), path)
+
+
+@pytest.mark.parametrize("column", ["observation.state", "geometry.depth.front", "geometry.extrinsics.front"])
+def test_a_number_column_holding_text_is_one_error_line(tmp_path, cli_errors, column):
+    ds = tmp_path / "other"
+    _write_foreign(ds, geometry=True)
+    frames = ds / "data/chunk-000/file-000.parquet"
+    _as_text(frames, column)
+    assert _import(ds, tmp_path / "o", "--task", "pick_block") == 2
+    declared = "float32" if column != "geometry.extrinsics.front" else "float64"
+    assert cli_errors() == [f"abm: error: {frames}: column {column!r} holds text (e.g. 'abc'), not numbers; "
+                            f"meta/info.json declares it {declared!r}: write the column as numbers (or import a "
+                            "dataset whose frames match its features)"]
+    assert not (tmp_path / "o").exists()  # refused before anything was written
+
+
+def test_a_number_column_of_an_abm_export_holding_text_is_one_error_line(tmp_path, cli_errors):
+    data, _ = _store(tmp_path, dense=False, seeds=(0,))
+    ds = tmp_path / "ds"
+    info = _export(data, ds)
+    frames = ds / "data/chunk-000/file-000.parquet"
+    _as_text(frames, "robot.gripper_pose")
+    info["abm"]["sha256"]["data/chunk-000/file-000.parquet"] = sha256_file(frames)  # edited with its checksum
+    (ds / "meta" / "info.json").write_text(json.dumps(info))
+    assert _import(ds, tmp_path / "o") == 2
+    assert cli_errors() == [f"abm: error: {frames}: column 'robot.gripper_pose' holds text (e.g. 'abc'), not "
+                            "numbers; meta/info.json declares it 'float64': write the column as numbers (or import "
+                            "a dataset whose frames match its features)"]
+
+
 def test_bad_inputs_give_clear_errors(tmp_path, capsys):
     ds = tmp_path / "ds"
     assert main(["data", "export", "--format", "lerobot", "--data", str(tmp_path / "nope"), "--out", str(ds)]) == 2

@@ -88,6 +88,7 @@ from abm.data.lerobot_schema import (
     JOINTS_KEY,
     KEYFRAME_INDEX_FPS,
     KEYFRAMES,
+    NOT_NUMBERS,
     STATE_KEY,
     STATE_NAMES,
     STEP_KEY,
@@ -99,8 +100,10 @@ from abm.data.lerobot_schema import (
     depth_key,
     extrinsics_key,
     format1_key,
+    holds_numbers,
     image_key,
     intrinsics_key,
+    non_numeric_column,
     segmentation_key,
 )
 from abm.data.lerobot_stats import aggregate_stats, feature_stats
@@ -829,18 +832,24 @@ class _FrameReader:
         return self.layout.ds / self.layout.data_path.format(chunk_index=chunk, file_index=file)
 
     def check_columns(self, wanted: Iterable[str]) -> None:
-        """Every frame file has the columns ``wanted`` (dataset names)."""
+        """Every frame file has the columns ``wanted`` (dataset names), holding numbers where abm reads numbers
+        (every feature whose dtype is not in :data:`NOT_NUMBERS`)."""
         import pyarrow.parquet as pq
 
         for chunk, file in self.first_row:
             path = self.data_file(chunk, file)
             try:
-                names = pq.read_schema(path).names
+                schema = pq.read_schema(path)
             except Exception as err:  # noqa: BLE001 - pyarrow raises several types for damaged files
                 raise LeRobotFormatError(f"{path}: not a readable parquet file ({err})") from None
-            missing = [k for k in wanted if k not in names]
+            missing = [k for k in wanted if k not in schema.names]
             if missing:
                 raise LeRobotFormatError(f"{path}: columns {missing} listed in meta/info.json are missing")
+            for name in wanted:
+                declared = self.layout.features.get(name, {}).get("dtype")
+                typ = schema.field(name).type
+                if declared not in NOT_NUMBERS and not holds_numbers(typ):
+                    raise non_numeric_column(path, name, typ, declared)
 
     def read(self, row: dict[str, Any]) -> tuple[dict[str, pa.ChunkedArray], dict[str, np.ndarray]]:
         """One episode's columns (by the names used here) and camera images ``(n, H, W, 3)``."""

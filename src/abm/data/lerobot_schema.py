@@ -19,6 +19,7 @@ camera calibration), ``robot.*`` (exact TCP pose, joint positions, the end-effec
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -108,16 +109,62 @@ def format1_key(key: str) -> str:
             "observation.step": STEP_KEY, "action.ee": EE_ACTION_KEY}.get(key, key)
 
 
+NOT_NUMBERS = frozenset({"string", "image", "video"})
+"""Feature dtypes of ``meta/info.json`` whose columns abm does not read as numbers (it reads every other as numbers)."""
+
+
+def innermost_type(typ: pa.DataType) -> pa.DataType:
+    """The element type of a (nested) list column's type; the type itself otherwise."""
+    import pyarrow as pa
+
+    while pa.types.is_list(typ) or pa.types.is_large_list(typ) or pa.types.is_fixed_size_list(typ):
+        typ = typ.value_type
+    return typ
+
+
+def holds_numbers(typ: pa.DataType) -> bool:
+    """Whether a column of this arrow type holds numbers (integers, floats or booleans, nested or not)."""
+    import pyarrow as pa
+
+    inner = innermost_type(typ)
+    return bool(pa.types.is_integer(inner) or pa.types.is_floating(inner) or pa.types.is_boolean(inner))
+
+
+def non_numeric_column(path: Path, name: str, typ: pa.DataType, declared: object) -> LeRobotFormatError:
+    """The error for a frame column that holds something other than numbers although abm reads it as numbers
+    (``declared``: its dtype in ``meta/info.json``), naming the file, the column and what it holds."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    inner = innermost_type(typ)
+    kind = "text" if pa.types.is_string(inner) or pa.types.is_large_string(inner) else f"{inner} values"
+    try:
+        values = pq.read_table(path, columns=[name]).column(name).combine_chunks()
+        while not pa.types.is_primitive(values.type) and hasattr(values, "flatten"):
+            values = values.flatten()
+        example = next((v for v in values.to_pylist() if v is not None), None)
+        shown = f" (e.g. {str(example)[:40]!r})" if example is not None else ""
+    except Exception:  # noqa: BLE001 - the example is a courtesy; the error stands without it
+        shown = ""
+    return LeRobotFormatError(f"{path}: column {name!r} holds {kind}{shown}, not numbers; meta/info.json declares it "
+                              f"{declared!r}: write the column as numbers (or import a dataset whose frames match "
+                              "its features)")
+
+
 def column_array(col: pa.ChunkedArray, shape: list[int], dtype: DTypeLike) -> np.ndarray:
     """A parquet column of ``n`` frames as an ``(n, *shape)`` array (``(n,)`` for ``shape == [1]``); nested
     lists of either kind (fixed-size as abm writes them, variable as Hugging Face ``datasets`` does) work."""
     n = len(col)
-    if shape == [1]:
-        return np.asarray(col.to_numpy(zero_copy_only=False), dtype)
-    flat = col.combine_chunks()
-    for _ in shape:
-        flat = flat.flatten()
-    values = np.asarray(flat.to_numpy(zero_copy_only=False), dtype)
+    try:
+        if shape == [1]:
+            return np.asarray(col.to_numpy(zero_copy_only=False), dtype)
+        flat = col.combine_chunks()
+        for _ in shape:
+            flat = flat.flatten()
+        values = np.asarray(flat.to_numpy(zero_copy_only=False), dtype)
+    except (TypeError, ValueError) as err:  # the import checks the column types first; this is the last guard
+        raise LeRobotFormatError(f"a column of {n} frames holds values that are not {np.dtype(dtype).name} ({err})"
+                                 ) from None
     if values.size != n * int(np.prod(shape)):
         raise LeRobotFormatError(f"a column of {n} frames holds {values.size} values, not {n} x {shape}")
     return values.reshape(n, *shape)
