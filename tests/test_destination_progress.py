@@ -191,7 +191,7 @@ def test_the_destination_mask_covers_the_target_pad_not_the_block(pick_block) ->
     pad, block = _pixel(policy, centres["target"], top), _pixel(policy, centres["yellow block"], top)
     assert mask[top, 1][pad] == 1 and mask[top, 0][pad] == 0  # the pad's centre: destination only
     assert mask[top, 0][block] == 1 and mask[top, 1][block] == 0  # the block's centre: target only
-    # the pad (a 12 cm square seen from above at 96 px over 1 m: ~130 pixels less the block's) is the destination
+    # the pad (a 10 cm square seen from above at 96 px over 1 m: ~92 pixels) is the destination
     assert 60 <= int(mask[top, 1].sum()) <= 200
 
 
