@@ -13,11 +13,22 @@ import yaml
 from tests.test_experiments import FakeRunner, _one_run, _touch_checkpoint, _with
 
 from abm.cli import main
+from abm.evaluation.results import EpisodeOutcome, OutcomeLog
 from abm.experiments.report import NotOwnedError, write_report
 from abm.experiments.spec import SpecError, load_spec
 from abm.experiments.stages import Engine
-from abm.experiments.state import CarryError, Layout, carry_unfinished, drop_carry, merge_lines, stage_minutes
-from abm.files import FolderBusyError, FolderLock
+from abm.experiments.state import (
+    CarryError,
+    Layout,
+    carry_unfinished,
+    drop_carry,
+    merge_lines,
+    restore_evaluation,
+    restore_training,
+    stage_minutes,
+)
+from abm.files import FolderBusyError, FolderLock, sha256_file
+from abm.policy.checkpoint import save_checkpoint
 
 
 def _write_spec(root: Path, data: dict, name: str = "tiny.yaml") -> Path:
@@ -146,3 +157,74 @@ def test_stage_minutes_pair_each_session_s_start_and_end_and_two_working_folders
     kept.write_bytes(merge_lines(first, kept))  # keeping again adds nothing
     assert stage_minutes(kept) == {"train": pytest.approx(29.0)}
     assert len(kept.read_text().splitlines()) == 4
+
+
+# ---------------------------------------------------------------------------- carried work bound to its bytes
+def test_every_outcome_row_records_its_checkpoint_s_sha256(tmp_path: Path) -> None:
+    model = tmp_path / "m.pt"
+    model.write_bytes(b"weights")
+    log = OutcomeLog(tmp_path / "outcomes.jsonl")
+    log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, True, checkpoint=str(model)))
+    assert log.read()[0].checkpoint_sha256 == sha256_file(model)
+
+
+def test_a_training_is_finished_by_the_step_its_checkpoint_holds_not_its_name(tmp_path: Path) -> None:
+    spec = load_spec(_write_spec(tmp_path, _one_run()))
+    engine = Engine(spec, root=tmp_path)
+    folder = engine.layout.run_dir("abm_oracle") / "checkpoints"
+    folder.mkdir(parents=True)
+    save_checkpoint(folder / "step_00000003.pt", {"step": 1})  # named as the last step, holding the first
+    assert not engine.trained("abm_oracle")
+    save_checkpoint(folder / "step_00000003.pt", {"step": 3})
+    assert engine.trained("abm_oracle")
+
+
+def _carried(tmp_path: Path) -> tuple[Layout, Layout, Path]:
+    """A carried training of abm_oracle at step 1, and a fresh working folder to restore it into."""
+    spec = load_spec(_write_spec(tmp_path, _one_run()))
+    layout = Layout.of(spec, tmp_path)
+    _touch_checkpoint(layout, "abm_oracle", 1)
+    assert carry_unfinished(spec, layout) == ["abm_oracle"]
+    return layout, Layout.of(spec, tmp_path, tmp_path / "fresh"), tmp_path / "models/carry/abm_oracle"
+
+
+def test_a_changed_renamed_or_unsealed_carried_checkpoint_is_refused(tmp_path: Path) -> None:
+    _, fresh, carried = _carried(tmp_path)
+    ckpt = carried / "step_00000001.pt"
+    good = ckpt.read_bytes()
+    ckpt.write_bytes(good[:-1] + bytes([good[-1] ^ 1]))  # one flipped bit
+    with pytest.raises(CarryError, match=r"step_00000001\.pt does not match the sha256 that .*carried\.json records"):
+        restore_training(fresh, "abm_oracle")
+    ckpt.unlink()  # a checkpoint of step 1 renamed as the last step, its manifest rewritten to match
+    save_checkpoint(carried / "step_00000040.pt", {"step": 1})
+    manifest = json.loads((carried / "carried.json").read_text())
+    manifest["files"] = {"step_00000040.pt": sha256_file(carried / "step_00000040.pt")}
+    (carried / "carried.json").write_text(json.dumps(manifest))
+    with pytest.raises(CarryError, match=r"step_00000040\.pt holds step 1 \(its name says 40\): a renamed or foreign"):
+        restore_training(fresh, "abm_oracle")
+    (carried / "carried.json").unlink()  # a carry folder without a manifest: nothing can be checked
+    with pytest.raises(CarryError, match=r"has no manifest \(carried\.json\) of what the carry wrote"):
+        restore_training(fresh, "abm_oracle")
+    assert not (fresh.run_dir("abm_oracle") / "checkpoints").exists()  # nothing copied
+
+
+def test_carried_outcomes_of_another_model_never_reach_the_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                   caplog: pytest.LogCaptureFixture) -> None:
+    monkeypatch.chdir(tmp_path)
+    spec = load_spec(_write_spec(tmp_path, _one_run()))
+    layout = Layout.of(spec, tmp_path)
+    (tmp_path / "models").mkdir()
+    weak, other = tmp_path / "models/abm_oracle.pt", tmp_path / "models/strong.pt"
+    weak.write_bytes(b"a model that fails")
+    other.write_bytes(b"a model that succeeds")
+    log = OutcomeLog(layout.eval_dir("abm_oracle", "seen") / "outcomes.jsonl")
+    log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, False, checkpoint="models/abm_oracle.pt"))
+    for episode in (1, 2):  # success rows claimed for the right path with another file's sha256
+        log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, episode, 1 + episode, True,
+                                  checkpoint="models/abm_oracle.pt", checkpoint_sha256=sha256_file(other)))
+    assert carry_unfinished(spec, layout) == ["eval/abm_oracle/seen"]
+    fresh = Layout.of(spec, tmp_path, tmp_path / "fresh")
+    assert restore_evaluation(fresh, "abm_oracle", "seen", weak)
+    restored = OutcomeLog(fresh.eval_dir("abm_oracle", "seen") / "outcomes.jsonl").read()
+    assert [(o.episode, o.success) for o in restored] == [(0, False)]  # 0/1 so far, never 2/3
+    assert "2 of 3 carried outcome(s) refused: not of models/abm_oracle.pt's bytes" in caplog.text

@@ -16,12 +16,21 @@ import yaml
 
 from abm.cli import main
 from abm.errors import ConfigError
-from abm.evaluation.results import EpisodeOutcome, OutcomeLog
+from abm.evaluation.results import EpisodeOutcome
 from abm.experiments import scheduler
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Source
 from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
 from abm.experiments.stages import BLOCKED, DONE, LEFT, Engine
-from abm.experiments.state import Layout, carry_unfinished, restore_evaluation, restore_training, span_minutes
+from abm.experiments.state import (
+    Layout,
+    carry_unfinished,
+    checkpoint_step,
+    restore_evaluation,
+    restore_training,
+    span_minutes,
+)
+from abm.files import sha256_file
+from abm.policy.checkpoint import save_checkpoint
 
 TINY: dict = {
     "name": "tiny",
@@ -136,7 +145,7 @@ def test_a_duplicate_key_or_a_missing_spec_is_a_clear_error(tmp_path: Path) -> N
 def _touch_checkpoint(layout: Layout, run: str, step: int) -> None:
     folder = layout.run_dir(run) / "checkpoints"
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / f"step_{step:08d}.pt").write_bytes(b"ckpt")
+    save_checkpoint(folder / f"step_{step:08d}.pt", {"step": step})  # a sealed checkpoint holding its step
 
 
 def _states(jobs) -> dict[str, str]:
@@ -205,7 +214,7 @@ class FakeRunner:
             if cmd.job.startswith("train/") and cmd.job != self.fail:
                 out = self.root / argv[argv.index("--out") + 1] / "checkpoints"
                 out.mkdir(parents=True, exist_ok=True)
-                (out / "step_00000003.pt").write_bytes(b"w")
+                save_checkpoint(out / "step_00000003.pt", {"step": 3})
             elif cmd.job.startswith("eval/"):
                 out = self.root / argv[argv.index("--out") + 1]
                 out.mkdir(parents=True, exist_ok=True)
@@ -331,7 +340,7 @@ def test_a_finished_training_not_exported_yet_is_carried_and_exported_on_a_fresh
                 def before(cmd=cmd, original=original) -> None:
                     original()
                     found = (tmp_path / cmd.argv[cmd.argv.index("--out") + 1] / "checkpoints").glob("*.pt")
-                    restored[cmd.job] = sorted((p.name, p.read_bytes()) for p in found)
+                    restored[cmd.job] = sorted((p.name, checkpoint_step(p)) for p in found)
                 cmd.before = before
             return super().run(commands, source, slots, on_start)
 
@@ -339,8 +348,8 @@ def test_a_finished_training_not_exported_yet_is_carried_and_exported_on_a_fresh
     assert {j.id: j.note for j in engine.plan("train")}["train/abm_oracle"] == "continues from the carry"
     assert engine.run(["train", "export"]) == 0
     # each training resumed from its carried checkpoint (abm train --resume at the last step trains no more)
-    assert restored == {"train/abm_oracle": [("step_00000003.pt", b"ckpt")],
-                        "train/abm_oracle_seed1": [("step_00000001.pt", b"ckpt")]}
+    assert restored == {"train/abm_oracle": [("step_00000003.pt", 3)],
+                        "train/abm_oracle_seed1": [("step_00000001.pt", 1)]}
     assert ran == ["export/abm_oracle", "export/abm_oracle_seed1"] and (tmp_path / "models/abm_oracle.pt").is_file()
     assert not (tmp_path / "models/carry/abm_oracle").exists()  # exported: its carry is dropped
 
@@ -384,7 +393,8 @@ def test_a_job_resumed_over_sessions_counts_every_session_s_minutes() -> None:
     assert span_minutes(events[:1]) is None
 
 
-def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Path, monkeypatch) -> None:
+def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Path, monkeypatch,
+                                                                   caplog: pytest.LogCaptureFixture) -> None:
     monkeypatch.chdir(tmp_path)  # the project root the engine runs from
     spec, _ = _spec(tmp_path)
     layout = Layout.of(spec, tmp_path)
@@ -394,11 +404,18 @@ def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Pat
     _touch_checkpoint(layout, "rvt_clip", 3)  # finished and exported: nothing to carry
     (tmp_path / "models").mkdir()
     (tmp_path / "models/rvt_clip.pt").write_bytes(b"model")
+    (tmp_path / "models/abm.pt").write_bytes(b"the model evaluated")
+    digest = sha256_file(tmp_path / "models/abm.pt")
     ev = layout.eval_dir("abm_oracle", "seen")
     ev.mkdir(parents=True)
-    # a log written before checkpoints were recorded relative to the root: the carry names it relative
-    OutcomeLog(ev / "outcomes.jsonl").path.write_text(json.dumps(asdict(EpisodeOutcome(
-        "abm", "pick_block", "seen", 0, 0, 1, True, checkpoint=str(tmp_path / "models/abm_oracle.pt")))) + "\n")
+    # a log written before checkpoints were recorded relative to the root: the carry names it relative; beside it
+    # a row of another file's bytes and one written before rows recorded the sha256: neither is ever counted
+    rows = [EpisodeOutcome("abm", "pick_block", "seen", 0, 0, 1, True, checkpoint=str(tmp_path / "models/abm.pt"),
+                           checkpoint_sha256=digest),
+            EpisodeOutcome("abm", "pick_block", "seen", 0, 1, 2, True, checkpoint="models/abm.pt",
+                           checkpoint_sha256="0" * 64),
+            EpisodeOutcome("abm", "pick_block", "seen", 0, 2, 3, True, checkpoint="models/abm.pt")]
+    (ev / "outcomes.jsonl").write_text("".join(json.dumps(asdict(r)) + "\n" for r in rows))
     done = layout.eval_dir("rvt_clip", "seen")
     done.mkdir(parents=True)
     (done / "outcomes.jsonl").write_text("{}\n")
@@ -407,10 +424,13 @@ def test_unfinished_work_is_carried_and_continues_on_a_fresh_clone(tmp_path: Pat
     assert sorted(p.name for p in (tmp_path / "models/carry/abm_oracle").iterdir()) == [
         "carried.json", "log.csv", "step_00000002.pt"]  # with the manifest of what the carry wrote
     fresh = Layout.of(spec, tmp_path, tmp_path / "fresh")
-    assert restore_training(fresh, "abm_oracle") and restore_evaluation(fresh, "abm_oracle", "seen")
+    assert restore_training(fresh, "abm_oracle")
+    assert restore_evaluation(fresh, "abm_oracle", "seen", tmp_path / "models/abm.pt")
+    assert "2 of 3 carried outcome(s) refused: not of models/abm.pt's bytes" in caplog.text
     assert (fresh.run_dir("abm_oracle") / "checkpoints/step_00000002.pt").is_file()
     carried = (fresh.eval_dir("abm_oracle", "seen") / "outcomes.jsonl").read_text()
-    assert str(tmp_path) not in carried and json.loads(carried)["checkpoint"] == "models/abm_oracle.pt"
+    assert str(tmp_path) not in carried and json.loads(carried)["checkpoint"] == "models/abm.pt"
+    assert len(carried.splitlines()) == 1 and json.loads(carried)["checkpoint_sha256"] == digest
     assert not restore_training(fresh, "abm_oracle")  # it has its own checkpoints now: never overwritten
     assert not restore_evaluation(fresh, "rvt_clip", "seen")
 

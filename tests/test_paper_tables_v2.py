@@ -19,6 +19,7 @@ from abm.configuration import load_recipe
 from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
 from abm.experiments.stages import BLOCKED, DONE, LEFT, Engine, training_steps
 from abm.experiments.state import Layout, carry_unfinished, restore_training
+from abm.policy.checkpoint import save_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
 V1, V2 = load_spec("paper_tables"), load_spec("paper_tables_v2")
@@ -122,7 +123,7 @@ def test_the_diagnosis_probes_the_skill_text_of_the_exported_models(tmp_path: Pa
 def _touch(layout: Layout, run: str, step: int) -> None:
     folder = layout.run_dir(run) / "checkpoints"
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / f"step_{step:08d}.pt").write_bytes(f"{layout.out.name} {step}".encode())
+    save_checkpoint(folder / f"step_{step:08d}.pt", {"step": step, "out": layout.out.name})
 
 
 def test_the_two_editions_carry_their_runs_apart(tmp_path: Path) -> None:

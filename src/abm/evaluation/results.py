@@ -15,13 +15,13 @@ import lzma
 import math
 from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from abm.files import atomic_path, write_text_atomic
+from abm.files import atomic_path, sha256_file, write_text_atomic
 
 # Evaluation seeds live far from the data-generation seeds (which start at 0), so evaluation scenes
 # are never training scenes. Episode e of repeat r uses EVAL_SEED_BASE + r * SEEDS_PER_REPEAT + e.
@@ -67,6 +67,9 @@ class EpisodeOutcome:
             the keyframe predicted, the motion's status, the held state, the nearest expert keyframe, the grounding
             decision), which :func:`abm.evaluation.step_records.episode_failure` names the failure from; empty in
             older logs and for crashed rollouts. Extra data: the trajectory digest does not cover it.
+        checkpoint_sha256: the sha256 of the checkpoint file's bytes (:func:`checkpoint_sha256`, filled in by
+            :meth:`OutcomeLog.append`), which binds the outcome to the model it measured (an experiment's carry
+            refuses rows of another file); ``""`` in older logs.
     """
 
     method: str
@@ -89,6 +92,7 @@ class EpisodeOutcome:
     code: str = ""
     grounding: list[dict[str, Any]] = field(default_factory=list)
     step_records: list[dict[str, Any]] = field(default_factory=list)
+    checkpoint_sha256: str = ""
 
     @property
     def key(self) -> RolloutKey:
@@ -179,6 +183,9 @@ class OutcomeLog:
         return {o.key for o in self.read() if not o.error}
 
     def append(self, outcome: EpisodeOutcome) -> None:
+        """Append one outcome (with its checkpoint's sha256, :func:`checkpoint_sha256`)."""
+        if outcome.checkpoint and not outcome.checkpoint_sha256:
+            outcome = replace(outcome, checkpoint_sha256=checkpoint_sha256(outcome.checkpoint))
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with self.path.open("a+b") as f:
             f.seek(0, 2)
@@ -186,6 +193,22 @@ class OutcomeLog:
             # after an interrupted write, start a new line so this record is not glued to the torn one
             f.write((b"\n" if torn else b"") + (json.dumps(portable_record(outcome)) + "\n").encode())
             f.flush()
+
+
+_DIGESTS: dict[tuple[str, int, int], str] = {}
+
+
+def checkpoint_sha256(path: str | Path) -> str:
+    """The sha256 of a checkpoint file's bytes (computed once per file version: path, size, modification time);
+    ``""`` when it is no file."""
+    try:
+        stat = Path(path).stat()
+    except OSError:
+        return ""
+    key = (str(Path(path).resolve()), stat.st_size, stat.st_mtime_ns)
+    if key not in _DIGESTS and Path(path).is_file():
+        _DIGESTS[key] = sha256_file(path)
+    return _DIGESTS.get(key, "")
 
 
 def portable_record(outcome: EpisodeOutcome) -> dict[str, Any]:

@@ -38,6 +38,7 @@ from abm.experiments.state import (
     CarryError,
     Layout,
     carry_unfinished,
+    checkpoint_step,
     checkpoints,
     drop_carry,
     folder_busy,
@@ -204,9 +205,11 @@ class Engine:
         return self.layout.zoo is not None and self.layout.zoo_file(run).is_file()
 
     def trained(self, run: str) -> bool:
-        """Finished: exported, or a checkpoint at the last step."""
+        """Finished: exported, or its latest checkpoint holds the last step (the step it records, not its name)."""
+        if self.exported(run):
+            return True
         found = checkpoints(self.layout.run_dir(run))
-        return self.exported(run) or bool(found and found[-1][0] >= self.steps)
+        return bool(found) and (checkpoint_step(found[-1][1]) or 0) >= self.steps
 
     def model(self, run: str) -> Path | None:
         """What evaluations load: the zoo file (``from_zoo``) or the run folder, once it is finished."""
@@ -421,8 +424,8 @@ class Engine:
                     if outcomes.is_file():
                         job.note = f"{len(outcomes.read_text().splitlines())} outcomes so far"
 
-                    def before(name: str = name, split: str = split.split) -> None:
-                        restore_evaluation(self.layout, name, split)
+                    def before(name: str = name, split: str = split.split, model: Path = model) -> None:
+                        restore_evaluation(self.layout, name, split, model)
 
                     def after(code: int, name: str = name) -> None:
                         if code == 0 and all((f / "results.json").is_file()

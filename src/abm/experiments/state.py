@@ -15,6 +15,7 @@ outcomes (``CARRY/eval/RUN/SPLIT/``); the next session continues from them (:fun
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import shutil
@@ -25,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from abm.errors import OutputError
+from abm.errors import AbmError, OutputError
 from abm.evaluation.results import OUTCOME_ARCHIVE, OutcomeLog
 from abm.experiments.spec import ExperimentSpec, SpecError
 from abm.files import LOCK_NAME, is_inside, sha256_file, write_text_atomic
@@ -453,35 +454,137 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
     return copied
 
 
+def verify_carried(folder: Path) -> dict[str, str]:
+    """The files of a carried folder, each checked against the sha256 its manifest records (as a zoo file against
+    its index); returns the manifest's files.
+
+    Raises:
+        CarryError: no manifest (a folder the carry did not write, or one written before carries were sealed), a
+            file missing, changed, or not listed.
+    """
+    files = carried_files(folder)
+    fix = f"restore {folder} with git checkout, or remove it to start that work again"
+    if not files:
+        raise CarryError(f"{folder} has no manifest ({CARRIED}) of what the carry wrote, so its files cannot be "
+                         f"checked: {fix}")
+    for name, digest in files.items():
+        path = folder / name
+        if path.is_symlink() or not path.is_file():
+            raise CarryError(f"{path}, listed in {folder / CARRIED}, is missing: {fix}")
+        if sha256_file(path) != digest:
+            raise CarryError(f"{path} does not match the sha256 that {folder / CARRIED} records for it (a changed "
+                             f"byte, a partial copy or another file): {fix}")
+    extra = sorted(p.name for p in folder.iterdir() if p.name != CARRIED and p.name not in files)
+    if extra:
+        raise CarryError(f"{folder} holds files its manifest does not list ({', '.join(extra[:5])}): {fix}")
+    return files
+
+
+def checkpoint_step(path: Path) -> int | None:
+    """The step a checkpoint file holds (its own record, not its file name), checked byte for byte
+    (:func:`abm.policy.checkpoint.load_checkpoint`); ``None`` when it cannot be read. Read once per file
+    version (path, size, modification time)."""
+    try:
+        stat = path.stat()
+    except OSError:
+        return None
+    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    if key not in _STEPS:
+        from abm.policy.checkpoint import load_checkpoint  # torch: only when a checkpoint is read
+
+        try:
+            step = load_checkpoint(path).get("step")
+        except (AbmError, OSError, ValueError, RuntimeError, EOFError):
+            step = None
+        _STEPS[key] = step if isinstance(step, int) and not isinstance(step, bool) else None
+    return _STEPS[key]
+
+
+_STEPS: dict[tuple[str, int, int], int | None] = {}
+
+
 def restore_training(layout: Layout, run: str) -> bool:
-    """On a fresh clone, continue a training from its carried checkpoint (when OUT has no checkpoint of it)."""
+    """On a fresh clone, continue a training from its carried checkpoint (when OUT has no checkpoint of it),
+    once every carried file matches its manifest (:func:`verify_carried`) and the checkpoint holds the step its
+    name says.
+
+    Raises:
+        CarryError: a carried file that fails those checks (nothing is copied).
+    """
     if layout.carry is None:
         return False
     carried = layout.carry / run
-    ckpts = sorted(carried.glob("step_*.pt")) if carried.is_dir() else []
-    if not ckpts or checkpoints(layout.run_dir(run)):
+    if not carried.is_dir() or checkpoints(layout.run_dir(run)):
         return False
+    files = verify_carried(carried)
+    ckpts = sorted(carried / name for name in files if _STEP_FILE.match(name))
+    if not ckpts:
+        return False
+    for ckpt in ckpts:
+        match = _STEP_FILE.match(ckpt.name)
+        step = checkpoint_step(ckpt)
+        if match is None or step != int(match.group(1)):
+            raise CarryError(f"{ckpt} holds step {step} (its name says {int(match.group(1)) if match else '?'}): "
+                             f"a renamed or foreign checkpoint; restore {carried} with git checkout, or remove it to "
+                             "train from the start")
     target = layout.run_dir(run) / "checkpoints"
     target.mkdir(parents=True, exist_ok=True)
     for ckpt in ckpts:
         shutil.copyfile(ckpt, target / ckpt.name)
-    if (carried / "log.csv").is_file():
+    if "log.csv" in files:
         shutil.copyfile(carried / "log.csv", layout.run_dir(run) / "log.csv")
     return True
 
 
-def restore_evaluation(layout: Layout, name: str, split: str) -> bool:
-    """On a fresh clone, continue an evaluation from its carried outcomes (when OUT has none)."""
+def model_file(model: Path) -> Path | None:
+    """The checkpoint file an evaluation of ``model`` (a zoo file or a run folder) loads."""
+    if model.is_file():
+        return model
+    found = checkpoints(model)
+    return found[-1][1] if found else None
+
+
+def restore_evaluation(layout: Layout, name: str, split: str, model: Path | None = None) -> bool:
+    """On a fresh clone, continue an evaluation from its carried outcomes (when OUT has none): the carried files
+    must match their manifest (:func:`verify_carried`), and only the outcomes of ``model``'s bytes are restored
+    (each row's ``checkpoint_sha256`` and checkpoint name): a row of another file, a changed one or one written
+    before rows recorded the sha256 is refused, said in one line, and never counted (its episode runs again).
+
+    Raises:
+        CarryError: a carried file that does not match its manifest (nothing is copied).
+    """
     if layout.carry is None:
         return False
     carried = layout.carry / "eval" / name / split
     folder = layout.eval_dir(name, split)
     if not carried.is_dir() or (folder / "outcomes.jsonl").exists():
         return False
+    files = verify_carried(carried)
+    checkpoint = model_file(model) if model is not None else None
+    digest = sha256_file(checkpoint) if checkpoint is not None else ""
+    shown = layout.show(checkpoint) if checkpoint is not None else "?"
+    kept, refused = [], 0
+    for line in (carried / "outcomes.jsonl").read_text().splitlines() if "outcomes.jsonl" in files else []:
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            refused += 1
+            continue
+        if isinstance(row, dict) and digest and row.get("checkpoint_sha256") == digest and \
+                row.get("checkpoint") == shown:
+            kept.append(line)
+        else:
+            refused += 1
+    if refused:
+        logging.getLogger("abm").warning(
+            "%s: %d of %d carried outcome(s) refused: not of %s's bytes (sha256 %s…), changed, or written before "
+            "outcomes recorded it; those episodes run again", layout.show(carried), refused, refused + len(kept),
+            shown, digest[:12])
     folder.mkdir(parents=True, exist_ok=True)
-    for file in carried.iterdir():
-        if file.name != CARRIED:
-            shutil.copyfile(file, folder / file.name)
+    write_text_atomic(folder / "outcomes.jsonl", "".join(line + "\n" for line in kept))
+    for file in files:
+        if file != "outcomes.jsonl":
+            shutil.copyfile(carried / file, folder / file)
     return True
 
 
