@@ -228,3 +228,19 @@ def test_carried_outcomes_of_another_model_never_reach_the_report(tmp_path: Path
     restored = OutcomeLog(fresh.eval_dir("abm_oracle", "seen") / "outcomes.jsonl").read()
     assert [(o.episode, o.success) for o in restored] == [(0, False)]  # 0/1 so far, never 2/3
     assert "2 of 3 carried outcome(s) refused: not of models/abm_oracle.pt's bytes" in caplog.text
+
+
+def test_the_report_names_the_spec_relative_to_the_root_never_by_this_machine_s_folder(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "specs").mkdir()
+    path = _write_spec(tmp_path / "specs", _with(report__records=""))
+    spec = load_spec(path.resolve())  # named by its absolute path, the root given as "."
+    write_report(spec, Layout.of(spec, Path(".")))
+    text = (tmp_path / "docs/results/tiny.md").read_text()
+    assert "Written by `abm experiment run tiny` ([specs/tiny.yaml](../../specs/tiny.yaml))" in text
+    assert str(tmp_path) not in text
+    elsewhere = tmp_path / "root"
+    elsewhere.mkdir()  # a spec outside the root: named by its file name alone
+    write_report(spec, Layout.of(spec, elsewhere))
+    assert str(tmp_path) not in (elsewhere / "docs/results/tiny.md").read_text()

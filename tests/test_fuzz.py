@@ -165,6 +165,40 @@ def _bad_inputs(tmp: Path) -> list[tuple[list[str], str]]:
         (["run", "--robot", str(tmp / "none.yaml"), "--run", str(tmp)], "is not a file"),
         (["view", "--episode", str(tmp / "none.h5")], "is not a file"),
         (["clip", "train", "--out", str(afile), "--shards", "1"], "a_file"),
+        *_bad_experiments(tmp),
+    ]
+
+
+def _bad_experiments(tmp: Path) -> list[tuple[list[str], str]]:
+    """Experiment specs a careless or hostile user writes (issue 57): each refused in one line naming the key,
+    before any job runs or any file is written."""
+    import yaml
+    from tests.test_experiments import _one_run
+
+    def spec(name: str, **changes: object) -> list[str]:
+        data = _one_run()  # one run that needs no benchmark CLIP
+        for dotted, value in changes.items():
+            node = data
+            *parents, last = dotted.split("__")
+            for key in parents:
+                node = node[key]
+            if value is None:
+                node.pop(last)
+            else:
+                node[last] = value
+        (tmp / f"{name}.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+        return ["experiment", "run", str(tmp / f"{name}.yaml"), "--root", str(tmp), "--dry-run"]
+
+    return [
+        (spec("episodes", data__episodes=10**30), "data.episodes: expected a whole number from 1 to 1000000"),
+        (spec("seed", data__seed=2**70), "data.seed: expected a whole number from 0 to 4294967295"),
+        (spec("task", data__tasks=["juggle"]), "data.tasks: 'juggle' is no task of the benchmark"),
+        (spec("out", out=""), "out: '' is the root itself"),
+        (spec("escape", report__document="../../README.md"), "report.document: '../../README.md' leaves the root"),
+        (spec("absolute", kept="/etc"), "kept: '/etc' leaves the root"),
+        (spec("patch", training__policy={"resolution": 32, "patch_size": 6}),
+         "policy: patch_size 6 must divide the view resolution 32"),
+        ([*spec("nocarry", carry=None)[:-1], "--stages", "carry"], "--stages carry: tiny keeps no carry"),
     ]
 
 

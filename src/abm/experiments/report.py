@@ -1138,7 +1138,8 @@ def spec_name(spec: ExperimentSpec, layout: Layout) -> str:
     checkout's ``configs/`` is a symlink to ``src/abm/configs``, which GitHub does not follow in links)."""
     if spec.path.resolve().parent == SPECS:
         return f"src/abm/configs/experiments/{spec.path.name}"
-    return layout.show(spec.path.resolve())
+    shown = layout.show(spec.path.resolve())  # relative to the root, also when the root is given relative
+    return spec.path.name if Path(shown).is_absolute() else shown  # outside the root: no machine's folder
 
 
 def zoo_readme(spec: ExperimentSpec, layout: Layout, entries: Sequence[Mapping[str, Any]]) -> str:
