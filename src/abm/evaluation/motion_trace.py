@@ -1,8 +1,9 @@
 """Why rollouts stop: a policy's closed-loop keyframes traced step by step against the expert's plan.
 
-``abm eval`` names one failure reason per episode (:func:`abm.evaluation.results.failure_reason`);
+``abm eval`` names one failure reason per episode (:func:`abm.evaluation.step_records.episode_failure`) and
+keeps a record per step (:mod:`abm.evaluation.step_records`: the motion's status, the nearest expert keyframe);
 "motion blocked" — the arm moved but ended more than 1 cm / 5 degrees from the predicted pose — says that
-a motion stopped short, not which keyframe or why. :func:`trace_rollout` rolls a policy out on an
+a motion stopped short, not why. :func:`trace_rollout` rolls a policy out on an
 evaluation scene (closed loop, as ``abm eval`` does) and records, per step, the motion's status and how
 far it ended from its target, next to the expert keyframe of the same index on the same scene (the
 expert is rolled out first on a copy of the scene): the predicted pose's distance and height offset from
