@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -22,6 +24,7 @@ from abm.experiments.state import (
     Layout,
     carry_unfinished,
     drop_carry,
+    log_job,
     merge_lines,
     restore_evaluation,
     restore_training,
@@ -244,3 +247,21 @@ def test_the_report_names_the_spec_relative_to_the_root_never_by_this_machine_s_
     elsewhere.mkdir()  # a spec outside the root: named by its file name alone
     write_report(spec, Layout.of(spec, elsewhere))
     assert str(tmp_path) not in (elsewhere / "docs/results/tiny.md").read_text()
+
+
+def test_a_job_s_live_pid_in_the_job_log_counts_only_if_that_process_runs_the_job(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    spec = load_spec(_write_spec(tmp_path, _one_run()))
+    sleep = [sys.executable, "-c", "import time; time.sleep(60)"]
+    for argv, started in (([*sleep, "--out", "runs/tiny/abm_oracle"], False), (sleep, True)):
+        runner = FakeRunner(tmp_path)
+        engine = Engine(spec, root=tmp_path, runner=runner)
+        with subprocess.Popen(argv) as orphan:  # the training a killed engine left, or an unrelated process
+            try:
+                engine.layout.jobs.unlink(missing_ok=True)
+                log_job(engine.layout, "train/abm_oracle", "start", pid=orphan.pid)
+                assert engine.run(["train"]) == (0 if started else 1)
+            finally:
+                orphan.kill()
+        assert runner.ran == (["train/abm_oracle"] if started else [])
+    assert "train/abm_oracle: already running (pid " in caplog.text

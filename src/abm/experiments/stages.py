@@ -120,6 +120,18 @@ def last_line(log: Path, tail_bytes: int = 65536) -> str:
     return said[-1][:300] if said else ""
 
 
+def runs_job(pid: int, job: Job) -> bool:
+    """Whether process ``pid`` runs ``job``'s command (its ``--out`` among its arguments, read from
+    ``/proc/PID/cmdline``), so a pid the system gave again to another process is not taken for the job; without
+    ``/proc``, a live pid is taken for it."""
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode("utf-8", "replace").split("\0")
+    except OSError:
+        return True
+    out = job.argv[job.argv.index("--out") + 1] if job.argv and "--out" in job.argv[:-1] else None
+    return out is None or any(arg == out for arg in argv)
+
+
 class Engine:
     """Plans and runs the stages of one experiment.
 
@@ -599,7 +611,8 @@ class Engine:
             return holder_pid(holder)
         events = self._events.get(job.id, [])
         starts = [e for e in events if e["event"] == "start"]
-        if self._live(starts, [e for e in events if e["event"] == "end"]) and starts[-1]["pid"] != os.getpid():
+        if self._live(starts, [e for e in events if e["event"] == "end"]) and starts[-1]["pid"] != os.getpid() \
+                and runs_job(starts[-1]["pid"], job):
             return f"pid {starts[-1]['pid']}"
         return None
 

@@ -65,14 +65,15 @@ class Layout:
 
         Raises:
             SpecError: a folder the engine writes in (out, kept, zoo, carry, data.folder) leads outside the root
-                once symbolic links are followed, or ``--out`` is the root itself.
+                (and outside ``out``, when given) once symbolic links are followed, or ``--out`` is the root itself.
         """
         if out is not None and (str(out) == "" or out.resolve() == root.resolve()):
             raise SpecError(f"--out {str(out)!r} is the root itself ({root}): give a working folder inside it, "
                             f"e.g. {spec.out}")
         for key, value in (("out", spec.out if out is None else ""), ("kept", spec.kept), ("zoo", spec.zoo),
                            ("carry", spec.carry), ("data.folder", spec.data.folder or "")):
-            if value and not is_inside(root / value, root):
+            # inside the root, or inside the working folder the command line named (abm quickstart --out)
+            if value and not any(is_inside(root / value, base) for base in (root, *([out] if out else []))):
                 raise SpecError(f"{spec.path}: {key}: {value!r} leads outside the root {root} (through a symbolic "
                                 "link): give a folder inside the root")
         work = out if out is not None else root / spec.out
