@@ -15,6 +15,7 @@ A :class:`abm.types.KeyframeAction` is executed in three stages:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
@@ -69,6 +70,13 @@ class MotionResult:
         return self.status == "reached"
 
 
+@functools.cache
+def ik_model() -> mujoco.MjModel:
+    """The robot-only model IK solves on, compiled once per process (every scene has the same robot; the
+    model is only read: each :class:`PandaIK` has its own ``MjData``)."""
+    return robot_spec(with_actuators=False).compile()
+
+
 class PandaIK:
     """Inverse kinematics for the Panda TCP with mink (on a robot-only model).
 
@@ -83,7 +91,7 @@ class PandaIK:
         import mink
 
         self._mink = mink
-        self.model = robot_spec(with_actuators=False).compile()
+        self.model = ik_model()
         self.configuration = mink.Configuration(self.model)
         self.frame_task = mink.FrameTask(TCP_SITE, "site", position_cost=1.0, orientation_cost=1.0,
                                          lm_damping=1e-3)
@@ -229,27 +237,31 @@ class RobotController:
         self._mujoco.mj_forward(self.model, self.data)
 
     # --- contacts ----------------------------------------------------------------------------
+    def _contact_pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every active contact both ways round: ``(2 * ncon,)`` geoms ``a``, the geoms ``b`` they touch and the
+        contact distances (m)."""
+        ncon = int(self.data.ncon)
+        contact = self.data.contact
+        geom = np.asarray(contact.geom, np.int64).reshape(-1, 2)[:ncon]
+        dist = np.asarray(contact.dist, np.float64).reshape(-1)[:ncon]
+        return (np.concatenate([geom[:, 0], geom[:, 1]]), np.concatenate([geom[:, 1], geom[:, 0]]),
+                np.concatenate([dist, dist]))
+
     def held_objects(self) -> set[int]:
         """Object ids touched by both fingers (i.e. grasped)."""
-        touched: dict[int, set[int]] = {}
-        for c in self.data.contact[: self.data.ncon]:
-            for a, b in ((c.geom1, c.geom2), (c.geom2, c.geom1)):
-                if self.finger_geoms[a] and self.geom_to_object[b] >= 0:
-                    touched.setdefault(int(self.geom_to_object[b]), set()).add(int(a))
-        return {obj for obj, fingers in touched.items() if len(fingers) >= 2}
+        a, b, _ = self._contact_pairs()
+        touching = self.finger_geoms[a] & (self.geom_to_object[b] >= 0)
+        pairs = np.unique(np.stack([self.geom_to_object[b][touching], a[touching]], axis=1), axis=0)
+        objects, fingers = np.unique(pairs[:, 0], return_counts=True)
+        return {int(obj) for obj in objects[fingers >= 2]}
 
     def _arm_contacts(self, allowed_objects: set[int]) -> list[str]:
-        hits = []
-        for c in self.data.contact[: self.data.ncon]:
-            g1, g2 = int(c.geom1), int(c.geom2)
-            for a, b in ((g1, g2), (g2, g1)):
-                if self.robot_geoms[a] and not self.robot_geoms[b]:
-                    if self.geom_to_object[b] in allowed_objects:
-                        continue
-                    if c.dist > -1e-4:
-                        continue
-                    hits.append(self.geom_names[b] or f"geom{b}")
-        return hits
+        """Names of the scene geoms (not the robot's, not ``allowed_objects``) the robot presses into by more
+        than 0.1 mm."""
+        a, b, dist = self._contact_pairs()
+        hits = (self.robot_geoms[a] & ~self.robot_geoms[b] & ~(dist > -1e-4)
+                & ~np.isin(self.geom_to_object[b], list(allowed_objects)))
+        return [self.geom_names[g] or f"geom{g}" for g in b[hits].tolist()]
 
     # --- motion ------------------------------------------------------------------------------
     def _plan(self, goal: np.ndarray, ignore_collision: bool, q_goal: np.ndarray, flipped: bool

@@ -24,6 +24,7 @@ the problem.
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 from abm.sim.split_file import DEFAULT_SPLITS_PATH, SPLITS_VERSION, ObjectSplits, SplitFileError, read_splits
@@ -32,6 +33,21 @@ from abm.sim.tasks import TASKS
 __all__ = ["DEFAULT_SPLITS_PATH", "SPLITS_VERSION", "ObjectSplits", "SplitFileError", "load_splits", "read_splits"]
 
 
+_READ: dict[tuple[str, int, int, tuple[str, ...]], ObjectSplits] = {}
+"""Split files read by this process, per (path, modification time, size, registered tasks)."""
+
+
 def load_splits(path: str | Path | None = None) -> ObjectSplits:
-    """Read and validate a split file (default: the packaged ``splits.yaml``) against every registered task."""
-    return read_splits(path, TASKS)
+    """Read and validate a split file (default: the packaged ``splits.yaml``) against every registered task.
+
+    A file is parsed once per process and version (an episode's environment reads it: parsing the YAML cost
+    ~0.1 CPU s per episode); each call returns a copy of what was read."""
+    file = Path(path) if path is not None else DEFAULT_SPLITS_PATH
+    try:
+        stat = file.stat()
+    except OSError:
+        return read_splits(path, TASKS)  # the reader names the problem
+    key = (str(file.resolve()), stat.st_mtime_ns, stat.st_size, tuple(TASKS))
+    if key not in _READ:
+        _READ[key] = read_splits(path, TASKS)
+    return copy.deepcopy(_READ[key])

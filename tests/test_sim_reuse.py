@@ -1,0 +1,102 @@
+"""What a worker keeps between episodes changes nothing an episode sees or does: the thread's GL context (each
+scene's renderer draws in it), the IK model compiled once per process, the one-draw depth check made once.
+
+An episode after another in the same process renders the same pixels, depth and segmentation as a renderer with
+its own GL context, executes the same motions as with a freshly compiled IK model, and an evaluation rollout gives
+the same outcome (success, steps, failure, keyframe digest) as the same rollout in a fresh simulator.
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sim_helpers import require_simulator
+
+require_simulator()
+
+import abm.sim.arm_control as arm_control  # noqa: E402
+import abm.sim.cameras as cameras  # noqa: E402
+from abm.sim.env import make_env  # noqa: E402
+from abm.types import Observation  # noqa: E402
+
+ZOO = Path(__file__).resolve().parents[1] / "models"
+
+
+@pytest.fixture
+def fresh_process_state(monkeypatch: pytest.MonkeyPatch) -> Any:
+    """A function that makes the simulator behave as in a fresh process: renderers with their own GL context, the
+    IK model compiled again, the one-draw check made again."""
+
+    def fresh() -> None:
+        monkeypatch.setattr(cameras, "scene_renderer", cameras.make_renderer)
+        monkeypatch.setattr(cameras, "_ONE_PASS_VERIFIED", False)
+        arm_control.ik_model.cache_clear()
+
+    return fresh
+
+
+def _rollout(task: str, seed: int) -> tuple[list[Observation], list[tuple[str, float]], np.ndarray]:
+    """The expert's first two keyframes on a scene at 32 px: the observation before each keyframe and after the
+    last, each motion's status and error, and the final simulator state."""
+    with make_env(task, "seen", seed, resolution=32) as env:
+        env.reset()
+        sim = env._require_sim()
+        observations, motions = [], []
+        for action in itertools.islice(env.expert_actions(), 2):
+            observations.append(sim.observe())
+            motion = sim.execute(action)
+            motions.append((motion.status, motion.position_error))
+        observations.append(sim.observe())
+        return observations, motions, np.concatenate([sim.data.qpos, sim.data.qvel])
+
+
+def _same_observations(a: list[Observation], b: list[Observation]) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        for name in x.cameras:
+            fx, fy = x.cameras[name], y.cameras[name]
+            assert np.array_equal(fx.rgb, fy.rgb), name
+            assert np.array_equal(fx.depth, fy.depth), name
+            assert np.array_equal(fx.segmentation, fy.segmentation), name
+
+
+def test_a_scene_after_another_renders_and_moves_as_in_a_fresh_process(fresh_process_state) -> None:
+    _rollout("place_food", 11)  # the worker's earlier episode: another scene, other objects
+    assert cameras._GL_CONTEXTS and cameras._ONE_PASS_VERIFIED
+    reused = _rollout("pick_block", 4)
+    assert reused[1] and all(status == "reached" for status, _ in reused[1])
+    fresh_process_state()
+    fresh = _rollout("pick_block", 4)
+    _same_observations(reused[0], fresh[0])
+    assert reused[1] == fresh[1]
+    assert np.array_equal(reused[2], fresh[2])
+    assert any(o.cameras["front"].segmentation.max() >= 0 for o in fresh[0])  # the objects are in view
+
+
+def test_evaluation_rollouts_after_others_give_the_outcomes_of_fresh_ones(fresh_process_state) -> None:
+    pytest.importorskip("torch")
+    model = ZOO / "abm_oracle_v2.pt"
+    if not model.is_file():
+        pytest.skip("the committed model zoo is not in this checkout")
+    from abm.evaluation.results import eval_seed
+    from abm.evaluation.runner import EvalJob, run_job
+    from abm.evaluation.settings import EvalSettings
+
+    settings = EvalSettings(max_steps=1)
+
+    def outcome(episode: int) -> tuple[Any, ...]:
+        job = EvalJob(str(model), "abm", "place_food", "seen", 0, episode, eval_seed(0, episode),
+                      checkpoint=str(model), settings=settings.signature())
+        o = run_job(job, settings)
+        assert not o.error, o.error
+        return o.success, o.steps, o.failure, o.trajectory
+
+    outcome(0)  # the worker's earlier episode
+    after_another = outcome(1)
+    fresh_process_state()
+    assert outcome(1) == after_another and len(after_another[3]) == 16
