@@ -253,14 +253,21 @@ class ClipBackbone:
     @torch.no_grad()
     def image_features(self, images: ClipImages, input_size: tuple[int, int] | None = None) -> torch.Tensor:
         """CLIP's image embedding ``(B, D)`` float32, unit length: the standard forward, CLS token, projection
-        (what the contrastive loss trains; used to score object crops)."""
+        (what the contrastive loss trains; used to score object crops).
+
+        The last layer is computed for the CLS token only (:func:`last_layer_cls`: its keys and values still see
+        every token), and every product over the CLS rows runs row by row, so an image's embedding does not
+        depend on the other images of the batch (the layers before it are products over ``B x tokens`` rows,
+        which do not either): callers may memoise embeddings per image (:class:`~abm.grounding.grounders.
+        ClipGrounder` does for its crops) and get what a fresh batch would give."""
         pixels = self.preprocess(images, input_size)
         vision = self.model.vision_model
         native = pixels.shape[-2:] == (self.image_size, self.image_size)
         x = vision.pre_layrnorm(vision.embeddings(pixels, interpolate_pos_encoding=not native))
-        for layer in vision.encoder.layers:
+        for layer in vision.encoder.layers[:-1]:
             x = run_encoder_layer(layer, x)
-        return F.normalize(self.model.visual_projection(vision.post_layernorm(x[:, 0])).float(), dim=-1)
+        cls = vision.post_layernorm(last_layer_cls(vision.encoder.layers[-1], x))
+        return F.normalize(rowwise_linear(self.model.visual_projection, cls).float(), dim=-1)
 
     # ---- text -----------------------------------------------------------------------------------
     def tokenize(self, texts: Sequence[str], full_length: bool = True) -> dict[str, torch.Tensor]:
@@ -320,6 +327,42 @@ def run_encoder_layer(layer: CLIPEncoderLayer, x: torch.Tensor) -> torch.Tensor:
     F.silu(hidden, inplace=True)
     out = torch.addmm(mlp.fc2.bias, hidden, mlp.fc2.weight.t(), alpha=1.0 / s)
     return x.add_(out.view_as(x))
+
+
+def rowwise_linear(linear: torch.nn.Linear, x: torch.Tensor) -> torch.Tensor:
+    """``linear`` on the rows of ``x`` ``(n, in)`` -> ``(n, out)``, each row as its own product.
+
+    A matrix product over a few rows takes a different kernel path for each row count, so a row's result would
+    change in the last bits with the number of rows beside it; one batched product of ``n`` single rows gives
+    every row what it gets alone (the same function as ``linear(x)`` up to float rounding)."""
+    n = x.shape[0]
+    weight = linear.weight.t().unsqueeze(0).expand(n, -1, -1)
+    rows = x.unsqueeze(1)
+    bias: torch.Tensor | None = linear.bias  # None for the projections
+    if bias is None:
+        return torch.bmm(rows, weight)[:, 0]
+    return torch.baddbmm(bias.view(1, 1, -1).expand(n, 1, -1), rows, weight)[:, 0]
+
+
+def last_layer_cls(layer: CLIPEncoderLayer, x: torch.Tensor) -> torch.Tensor:
+    """The output of a CLIP encoder layer at the CLS token only: ``(B, N, W)`` input -> ``(B, W)``.
+
+    The CLS token's query attends over the keys and values of all ``N`` tokens; the query, output projection,
+    residuals and MLP are computed for the CLS row alone (what the layer gives at that row, up to float
+    rounding; the other ``N - 1`` rows of a last layer are never read by the image embedding). Products over
+    the ``B`` CLS rows run row by row (:func:`rowwise_linear`)."""
+    attn = layer.self_attn
+    b, n, width = x.shape
+    heads = attn.num_heads
+    h = layer.layer_norm1(x)
+    keys = attn.k_proj(h).view(b, n, heads, -1).transpose(1, 2)
+    values = attn.v_proj(h).view(b, n, heads, -1).transpose(1, 2)
+    query = rowwise_linear(attn.q_proj, h[:, 0]).view(b, heads, 1, -1)
+    mixed = F.scaled_dot_product_attention(query, keys, values, scale=attn.scale)  # (B, heads, 1, head_dim)
+    cls = x[:, 0] + rowwise_linear(attn.out_proj, mixed.reshape(b, width))
+    mlp = layer.mlp
+    hidden = mlp.activation_fn(rowwise_linear(mlp.fc1, layer.layer_norm2(cls)))
+    return cls + rowwise_linear(mlp.fc2, hidden)
 
 
 NACLIP_SIGMA = 5.0

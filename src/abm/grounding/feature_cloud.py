@@ -70,6 +70,19 @@ def lift_patch_features(
     Returns:
         ``(N, D)`` float32: the nearest-patch feature at every point's source pixel.
     """
+    table, index = lift_patch_index(cloud, patch_features, image_sizes)
+    features: NDArray[np.float32] = table[index]
+    return features
+
+
+def lift_patch_index(
+    cloud: PointCloud,
+    patch_features: Mapping[str, np.ndarray | torch.Tensor],
+    image_sizes: Mapping[str, tuple[int, int]],
+) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+    """:func:`lift_patch_features` without the ``(N, D)`` array: the cameras' patches stacked into one table
+    ``(P, D)`` float32 (camera after camera in ``cloud.camera_names`` order, row-major within a grid) and each
+    point's row in it ``(N,)`` int64, so that ``table[index]`` is :func:`lift_patch_features`' result."""
     missing = [n for n in cloud.camera_names if n not in patch_features]
     if missing:
         raise KeyError(f"no patch features for cameras {missing}; got {sorted(patch_features)}")
@@ -82,8 +95,7 @@ def lift_patch_features(
         flats.append(grid.reshape(gh * gw, d))
         offset += gh * gw
     table = np.concatenate(flats).astype(np.float32, copy=False)
-    features: NDArray[np.float32] = table[cloud.gather(index_maps)]
-    return features
+    return table, np.asarray(cloud.gather(index_maps), np.int64)
 
 
 @dataclass

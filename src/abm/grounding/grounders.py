@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, cast, runtime_checkable
 
@@ -46,7 +47,7 @@ from abm.grounding.config import (  # the defaults live with the typed configura
     grounder_config_from_dict,
 )
 from abm.grounding.decision import normalize_name
-from abm.grounding.feature_cloud import lift_patch_features
+from abm.grounding.feature_cloud import lift_patch_features, lift_patch_index
 from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import MaskField, mask_field_from_features, negative_prompts
 from abm.grounding.proposals import object_proposals, with_base_points
@@ -147,6 +148,10 @@ class OracleGrounder:
         return MaskField(mask, mask.copy(), found, target, "", confidence=float(found))
 
 
+CROP_MEMORY = 1024
+"""Crop embeddings a :class:`ClipGrounder` keeps (:meth:`ClipGrounder.crop_embeddings`; 1 MiB at D = 128)."""
+
+
 class ClipGrounder:
     """The ABM grounder: MaskCLIP feature cloud, prompt ``"a photo of a X"``, normalised heatmap, threshold.
 
@@ -211,6 +216,7 @@ class ClipGrounder:
         self.cache_features = cache_features
         self.backbone_calls = 0  # images sent through the vision encoder (for tests and profiling)
         self._text_memory: dict[str, np.ndarray] = {}
+        self._crop_memory: dict[str, NDArray[np.float64]] = {}  # crop digest -> embedding (crop_embeddings)
 
     @classmethod
     def from_config(cls, config: ClipGrounderConfig, **runtime: Any) -> ClipGrounder:
@@ -271,6 +277,16 @@ class ClipGrounder:
                 if self.cache_features:
                     self.cache.put(key, {"features": out[name]})
         return out
+
+    def lifted_features(self, observation: Observation, cloud: PointCloud) -> LiftedFeatures | NDArray[np.float32]:
+        """:meth:`point_features` as a patch table and each point's row in it (:class:`LiftedFeatures`), or the
+        ``(N, D)`` array itself with extra ``scales`` (whose mean is per point)."""
+        if self.scales:
+            return self.point_features(observation, cloud)
+        _check_cloud(observation, cloud)
+        patch = self.camera_patch_features(observation, cloud.camera_names)
+        sizes = {n: (observation.camera(n).height, observation.camera(n).width) for n in cloud.camera_names}
+        return LiftedFeatures(*lift_patch_index(cloud, patch, sizes))
 
     def point_features(self, observation: Observation, cloud: PointCloud) -> NDArray[np.float32]:
         """``(N, D)`` float32 unit-length CLIP feature of every point of ``cloud`` (the Feature Cloud)."""
@@ -354,8 +370,9 @@ class ClipGrounder:
 
 
     def candidate_scores(self, observation: Observation, cloud: PointCloud, candidates: Sequence[np.ndarray],
-                         texts: np.ndarray, feats: np.ndarray | None) -> np.ndarray:
-        """``(C, T)`` CLIP scores of point-index candidates against unit text features ``texts`` ``(T, D)``:
+                         texts: np.ndarray, feats: LiftedFeatures | np.ndarray | None) -> np.ndarray:
+        """``(C, T)`` CLIP scores of point-index candidates against unit text features ``texts`` ``(T, D)``
+        (``feats``: the point features, :meth:`lifted_features`):
         the configured mix of the dense score (cosine of the candidate's mean point feature) and the crop
         score (pixel-weighted mean cosine of the CLIP image embeddings of its camera crops)."""
         cfg = self.proposal_config
@@ -374,10 +391,7 @@ class ClipGrounder:
             owner = chosen[owner]
             crop = np.zeros_like(out)
             if crops:
-                side = (self.backbone.image_size, self.backbone.image_size)
-                emb = self.backbone.image_features(crops, side).cpu().numpy().astype(np.float64)
-                self.backbone_calls += len(crops)
-                sims = emb @ texts.T
+                sims = self.crop_embeddings(crops) @ texts.T
                 total = np.bincount(owner, weights=weight, minlength=len(candidates))
                 for t in range(len(texts)):
                     crop[:, t] = np.bincount(owner, weights=weight * sims[:, t], minlength=len(candidates))
@@ -385,6 +399,28 @@ class ClipGrounder:
                 crop[seen] /= total[seen][:, None]
                 crop[~seen] = -1.0  # no camera sees it well enough: never preferred by its crops
             out += crop if cfg.scoring == "crop" else cfg.crop_weight * crop
+        return out
+
+    def crop_embeddings(self, crops: Sequence[np.ndarray]) -> NDArray[np.float64]:
+        """``(C, D)`` float64 unit CLIP image embeddings of ``uint8`` ``(h, w, 3)`` image crops.
+
+        Each distinct crop (by its pixels) goes through the vision encoder once per grounder: the new crops of a
+        call in one batch, the ones met before from memory (an object nothing moved or covered gives the same
+        crop at the next step of a rollout: about a third of a step's crops). The memory is exact, not an
+        approximation: :meth:`ClipBackbone.image_features` gives an image the same embedding whatever else is in
+        its batch. It keeps the :data:`CROP_MEMORY` latest crops."""
+        side = (self.backbone.image_size, self.backbone.image_size)
+        keys = [image_key(c) for c in crops]
+        todo = {k: c for k, c in zip(keys, crops, strict=True) if k not in self._crop_memory}
+        if todo:
+            emb = self.backbone.image_features(list(todo.values()), side).cpu().numpy().astype(np.float64)
+            self.backbone_calls += len(todo)
+            self._crop_memory.update(zip(todo, emb, strict=True))
+        out = np.stack([self._crop_memory[k] for k in keys])
+        for k in keys:  # the latest use last: what the memory drops first is what was met longest ago
+            self._crop_memory[k] = self._crop_memory.pop(k)
+        while len(self._crop_memory) > CROP_MEMORY:
+            del self._crop_memory[next(iter(self._crop_memory))]
         return out
 
     def _ground_proposals(self, observation: Observation, cloud: PointCloud, target: str, prompt: str
@@ -396,7 +432,7 @@ class ClipGrounder:
         if not len(props):
             return None
         texts = self.text_features([prompt, *negative_prompts(self.config.negatives)]).astype(np.float64)
-        feats = self.point_features(observation, cloud) if cfg.scoring != "crop" else None
+        feats = self.lifted_features(observation, cloud) if cfg.scoring != "crop" else None
         scores = self.candidate_scores(observation, cloud, props.candidates, texts, feats)
         best = int(np.argmax(scores[:, 0]))
         found = bool(len(texts) == 1 or scores[best, 0] > scores[best, 1:].max())
@@ -410,9 +446,48 @@ class ClipGrounder:
         heat[chosen] = np.maximum(heat[chosen], probs[best])
         mask = np.zeros(len(cloud), np.float32)
         mask[chosen] = 1.0
-        sim = (feats @ texts[0]).astype(np.float32) if feats is not None else None
+        sim = point_similarity(feats, texts[0]) if feats is not None else None
         # confidence: the chosen object's probability among all candidates (about 1/k for k look-alikes)
         return MaskField(mask, heat, found, target, prompt, sim, float(probs[best]))
+
+
+SIMILARITY_ROWS = 1024
+"""Points per block of :func:`point_similarity` (a block's float64 copy, 1 MiB at D = 128, stays in cache)."""
+
+
+@dataclass(frozen=True)
+class LiftedFeatures:
+    """Per-point features kept as the patch table they were lifted from (:func:`lift_patch_index`): point ``i``'s
+    feature is ``table[index[i]]``. Indexing gives the rows of the ``(N, D)`` array without building it (a
+    scene's ~50k points share ~1000 patches).
+
+    Attributes:
+        table: ``(P, D)`` float32 patch features.
+        index: ``(N,)`` int64 row of each point.
+    """
+
+    table: NDArray[np.float32]
+    index: NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, rows: NDArray[np.intp]) -> NDArray[np.float32]:
+        picked: NDArray[np.float32] = self.table[self.index[rows]]
+        return picked
+
+
+def point_similarity(feats: LiftedFeatures | NDArray[np.float32], text: NDArray[np.float64]) -> NDArray[np.float32]:
+    """``(N,)`` float32 cosine of every point feature ``(N, D)`` float32 with a unit text feature ``(D,)`` float64,
+    computed in float64 as ``(feats @ text).astype(float32)`` computes it (each row's dot product is the same
+    whatever rows are beside it), in blocks of :data:`SIMILARITY_ROWS` points (a block's float64 copy stays in
+    cache); of :class:`LiftedFeatures`, once per patch."""
+    if isinstance(feats, LiftedFeatures):
+        return point_similarity(feats.table, text)[feats.index]
+    out = np.empty(len(feats), np.float32)
+    for start in range(0, len(feats), SIMILARITY_ROWS):
+        out[start:start + SIMILARITY_ROWS] = feats[start:start + SIMILARITY_ROWS] @ text
+    return out
 
 
 def candidate_crops(observation: Observation, cloud: PointCloud, candidates: Sequence[np.ndarray],

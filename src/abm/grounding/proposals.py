@@ -215,6 +215,12 @@ def with_base_points(xyz: np.ndarray, rgb: np.ndarray, members: np.ndarray, tabl
     low = np.nonzero(table)[0]
     if not len(members) or not len(low):
         return members
+    # only the table points in the members' box grown by one voxel can be within a voxel of them
+    box = xyz[members]
+    near_box = np.all((xyz[low] >= box.min(0) - voxel) & (xyz[low] <= box.max(0) + voxel), axis=1)
+    low = low[near_box]
+    if not len(low):
+        return members
     dist, index = cKDTree(xyz[members]).query(xyz[low], distance_upper_bound=voxel)
     near = np.isfinite(dist)
     same = np.zeros_like(near)
