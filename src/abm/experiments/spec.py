@@ -903,8 +903,9 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         g.done()
 
     res = top.sub("resources")
-    resources = Resources(trainings_at_a_time=res.integer("trainings_at_a_time", 2),
-                          threads_each=res.integer("threads_each", 1), order=res.names("order", ()))
+    resources = Resources(trainings_at_a_time=res.integer("trainings_at_a_time", 2, high=256),
+                          threads_each=res.integer("threads_each", 1, high=256),  # as abm experiment run --threads
+                          order=res.names("order", ()))
     for run in resources.order:
         if run not in runs:
             raise res.error(f"{run!r} is no run of this spec", "order")
