@@ -100,3 +100,40 @@ def test_evaluation_rollouts_after_others_give_the_outcomes_of_fresh_ones(fresh_
     after_another = outcome(1)
     fresh_process_state()
     assert outcome(1) == after_another and len(after_another[3]) == 16
+
+
+def test_without_segmentation_the_colour_and_depth_are_the_same_and_no_draw_follows_the_last_keyframe(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from abm.sim.env import run_policy
+    from abm.sim.simulation import Simulation
+
+    with make_env("place_food", "seen", 3, resolution=32) as full, \
+            make_env("place_food", "seen", 3, resolution=32, segmentation=False) as lean:
+        a, b = full.reset(), lean.reset()
+        for name, frame in a.cameras.items():
+            assert np.array_equal(frame.rgb, b.cameras[name].rgb)
+            assert np.array_equal(frame.depth, b.cameras[name].depth)
+            assert frame.segmentation is not None and b.cameras[name].segmentation is None
+        assert cameras._COLOUR_DEPTH_VERIFIED is True  # the colour draw's depth was compared once and equal
+
+        action = next(iter(lean.expert_actions()))
+        draws = []
+        observe = Simulation.observe
+        monkeypatch.setattr(Simulation, "observe", lambda self: draws.append(1) or observe(self))
+        episode = run_policy(lean, lambda obs: action, max_steps=2)
+        assert len(episode.steps) == 2 and len(draws) == 2  # the first observation and the one after keyframe 1
+
+
+def test_only_policies_grounded_by_the_oracle_need_the_segmentation() -> None:
+    from types import SimpleNamespace
+
+    from abm.evaluation.policies import needs_segmentation
+
+    def policy(spec: Any) -> Any:
+        return SimpleNamespace(grounder_spec=spec)
+
+    assert needs_segmentation(policy({"kind": "oracle"}))
+    assert needs_segmentation(policy({"kind": "tracking", "inner": {"kind": "oracle"}}))
+    assert needs_segmentation(policy(None))  # a grounder object without a configuration: kept safe
+    assert not needs_segmentation(policy({"kind": "clip", "model": "models/benchmark-clip"}))
+    assert not needs_segmentation(policy({"kind": "tracking", "inner": {"kind": "clip", "model": "x"}}))

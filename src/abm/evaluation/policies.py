@@ -86,6 +86,25 @@ def clip_names(spec: Any) -> list[str]:
     return found
 
 
+def needs_segmentation(policy: KeyframePolicy) -> bool:
+    """Whether a rollout of ``policy`` needs the simulator's segmentation: when its grounder is the oracle (also
+    inside another, e.g. tracking's first grounding), which reads the ground-truth masks, or is not described
+    by a configuration. Other policies never read it, so their rollouts skip the segmentation draw of every
+    camera (:class:`abm.sim.cameras.CameraRig`), which changes none of their observations' colour or depth."""
+    spec = policy.grounder_spec
+    return spec is None or "oracle" in _grounder_kinds(spec)
+
+
+def _grounder_kinds(spec: Any) -> list[str]:
+    """The ``kind`` of a grounder configuration and of every configuration nested in it."""
+    found: list[str] = []
+    if isinstance(spec, Mapping):
+        found.append(str(spec.get("kind")))
+        for value in spec.values():
+            found += _grounder_kinds(value)
+    return found
+
+
 def _relative_folder_name(name: str) -> bool:
     """Whether a CLIP name may be a folder relative to where the model was trained (not a test CLIP or an
     absolute or home path; hub names such as ``openai/clip-vit-base-patch32`` qualify too, and simply are not

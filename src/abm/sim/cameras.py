@@ -250,9 +250,7 @@ class CameraRig:
         depth mode reads): for a model without transparent or reflecting surfaces, once this process compared
         the two on a frame and found them equal (the first such frame compares them)."""
         if self._colour_depth is None:
-            model = self.model
-            opaque = bool(np.all(model.geom_rgba[:, 3] >= 1.0) and np.all(model.mat_rgba[:, 3] >= 1.0)
-                          and np.all(model.mat_reflectance <= 0.0))
+            opaque = _opaque(self.model)
             if not opaque:
                 self._colour_depth = False
             elif _COLOUR_DEPTH_VERIFIED is None:
@@ -318,6 +316,21 @@ _ONE_PASS_VERIFIED = False
 def _verified_one_pass() -> None:
     global _ONE_PASS_VERIFIED
     _ONE_PASS_VERIFIED = True
+
+
+def _opaque(model: mujoco.MjModel) -> bool:
+    """Whether every geom drawn by default (the default ``MjvOption``'s geom groups) is opaque and no plane or box
+    among them reflects (MuJoCo draws reflections on those only): the colour draw then writes the depth the
+    segmentation draw writes."""
+    import mujoco
+
+    groups = [g for g, shown in enumerate(mujoco.MjvOption().geomgroup) if shown]
+    drawn = np.isin(model.geom_group, groups)
+    matid = model.geom_matid[drawn]
+    flat = drawn & np.isin(model.geom_type, [mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_BOX]) \
+        & (model.geom_matid >= 0)
+    return bool(np.all(model.geom_rgba[drawn, 3] >= 1.0) and np.all(model.mat_rgba[matid[matid >= 0], 3] >= 1.0)
+                and np.all(model.mat_reflectance[model.geom_matid[flat]] <= 0.0))
 
 
 _COLOUR_DEPTH_VERIFIED: bool | None = None

@@ -44,15 +44,18 @@ class TaskEnv:
         max_steps: keyframes before an episode ends unsuccessfully.
         splits_path: optional replacement split file.
         camera_names: cameras rendered into observations.
+        segmentation: render the cameras' segmentation (``False``: the observations have none, for policies
+            that never read it; one draw less per camera).
     """
 
     def __init__(self, task: str | Task, split: str = "seen", seed: int = 0, resolution: int = 128,
                  max_steps: int = DEFAULT_MAX_STEPS, splits_path: str | Path | None = None,
-                 camera_names: Sequence[str] = CAMERA_NAMES) -> None:
+                 camera_names: Sequence[str] = CAMERA_NAMES, segmentation: bool = True) -> None:
         self.task = task if isinstance(task, Task) else get_task(task, load_splits(splits_path))
         self.split, self.seed = split, int(seed)
         self.resolution, self.max_steps = int(resolution), int(max_steps)
         self.camera_names = tuple(camera_names)
+        self.segmentation = bool(segmentation)
         self.instance: TaskInstance = self.task.sample(self.seed, split)
         self.sim: Simulation | None = None
         self.steps = 0
@@ -72,7 +75,7 @@ class TaskEnv:
     def reset(self) -> Observation:
         """Build (first call) or reset the scene and return the first observation."""
         if self.sim is None:
-            self.sim = Simulation(self.instance.scene, self.resolution, self.camera_names)
+            self.sim = Simulation(self.instance.scene, self.resolution, self.camera_names, self.segmentation)
         else:
             self.sim.reset()
         self.steps = 0
@@ -208,14 +211,16 @@ def run_policy(env: TaskEnv, policy: Policy, max_steps: int | None = None) -> Ep
     success = False
     motions, stop_errors, held_after = [], [], []
     carried = env.task.held_object(env.instance)
-    for _ in range(max_steps or env.max_steps):
+    budget = max_steps or env.max_steps
+    for k in range(budget):
         action = policy(obs)
         steps.append((obs, action))
-        obs, success, info = env.step(action)
+        _, success, info = env.step(action, render=False)
         motions.append(info["motion"].status)
         stop_errors.append(float(info["motion"].position_error))
         held_after.append(carried is not None and carried in env._require_sim().held_objects())
-        if info["done"]:
+        if info["done"] or k == budget - 1:
             break
+        obs = env._require_sim().observe()  # only when the policy acts on it (no draw after the last keyframe)
     return _episode(env, steps, success, {"motions": motions, "stop_errors": stop_errors, "held": held_after,
                                           "held_target": any(held_after)})

@@ -21,10 +21,12 @@ class Simulation:
         scene: what to build.
         resolution: camera image size (square), pixels.
         camera_names: cameras to render (subset of :data:`abm.sim.scene.CAMERA_NAMES`).
+        segmentation: render each camera's segmentation (``False``: observations without it, one draw less per
+            camera; see :class:`abm.sim.cameras.CameraRig`).
     """
 
     def __init__(self, scene: SceneSpec, resolution: int = 128,
-                 camera_names: Sequence[str] = CAMERA_NAMES) -> None:
+                 camera_names: Sequence[str] = CAMERA_NAMES, segmentation: bool = True) -> None:
         import mujoco
 
         self._mujoco = mujoco
@@ -52,6 +54,7 @@ class Simulation:
                 names[g] = scene.objects[self.geom_to_object[g]].name
         self.robot = RobotController(m, self.data, robot_geoms, finger_geoms, self.geom_to_object, names)
         self.camera_names = list(camera_names)
+        self.segmentation = bool(segmentation)
         self._cameras: CameraRig | None = None
         self.step_count = 0
         self.reset()
@@ -85,7 +88,7 @@ class Simulation:
     def cameras(self) -> CameraRig:
         if self._cameras is None:
             self._cameras = CameraRig(self.model, self.camera_names, self.resolution, self.resolution,
-                                      self.geom_to_object)
+                                      self.geom_to_object, self.segmentation)
         return self._cameras
 
     def observe(self) -> Observation:
