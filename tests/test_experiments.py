@@ -97,7 +97,7 @@ def test_every_builtin_spec_loads() -> None:
     ({"out": ""}, r"out: '' is the root itself \(the checkout\): give a folder inside it"),
     ({"out": "."}, r"out: '\.' is the root itself"),
     ({"out": "../elsewhere"}, r"out: '\.\./elsewhere' leaves the root: give a path relative to the root"),
-    ({"kept": "/tmp/kept"}, r"kept: '/tmp/kept' leaves the root"),
+    ({"kept": "/srv/kept"}, r"kept: '/srv/kept' leaves the root"),
     ({"carry": "models/../../carry"}, r"carry: 'models/\.\./\.\./carry' leaves the root"),
     ({"data__folder": "/data"}, r"data\.folder: '/data' leaves the root"),
     ({"report__document": "../README.md"}, r"report\.document: '\.\./README\.md' leaves the root"),

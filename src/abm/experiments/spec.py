@@ -31,6 +31,7 @@ from abm.configuration import (
     recipe_value,
 )
 from abm.errors import ConfigError
+from abm.evaluation.settings import EXPERT_KEYFRAME_KINDS
 from abm.files import load_yaml
 from abm.grounding.config import GROUNDERS, grounder_config_from_dict
 from abm.policy.config import PolicyConfig
@@ -167,14 +168,17 @@ class EvalSplit:
 
 @dataclass(frozen=True)
 class GrounderVariant:
-    """A run evaluated with another grounder than it was trained with (``abm eval --grounder``).
+    """A run evaluated with other evaluation settings than its own, an arm without a training: another grounder
+    than it was trained with (``abm eval --grounder``), or the scripted expert's keyframes of a kind instead of
+    the policy's (``abm eval --expert-keyframes``).
 
     Attributes:
-        name: its folder under OUT/eval (``RUN@GROUNDER``).
+        name: its folder under OUT/eval (``RUN@GROUNDER`` for a grounder alone, else any plain name).
         run: the trained run.
-        grounder: the grounder at evaluation (``clip``, ``oracle`` or ``tracking``).
+        grounder: the grounder at evaluation (``clip``, ``oracle`` or ``tracking``; ``""``: the run's own).
         label: its row label in the report.
         description: what grounds its target, in the report.
+        expert_keyframes: the keyframe kind the expert executes instead of the policy (``move``; ``""``: none).
     """
 
     name: str
@@ -182,6 +186,7 @@ class GrounderVariant:
     grounder: str
     label: str
     description: str = ""
+    expert_keyframes: str = ""
 
 
 @dataclass(frozen=True)
@@ -287,7 +292,7 @@ class Section:
         kind: what it writes (``setup``, ``per_task``, ``per_run``, ``averages``, ``spread``, ``targets``,
             ``caveats``, ``weakest_keyframes``, ``approach_yaw``, ``zoo_eval``, ``text``, ``detail``,
             ``keyframe_accuracy``, ``keyframe_table``, ``figures``, ``heading``, ``outcome_tables``, ``seeds``,
-            ``diagnosis``).
+            ``diagnosis``, ``loops``: grasp <-> lift loops per row and split).
         title: a paragraph before a table.
         text: the paragraph of ``text`` / ``heading`` or the template of ``spread`` / ``targets``.
         runs: rows (or columns) of a table, in order.
@@ -358,11 +363,16 @@ class TargetCheck:
     Attributes:
         text: how the report states it (``seen ≥ 60 %``).
         kind: ``at_least`` (the split average ≥ ``value``), ``ratio`` (unseen / seen ≥ ``value``), ``beats``
-            (the split average ≥ ``base``'s + ``value``) or ``below`` (the split average < ``value`` × ``base``'s).
+            (the split average ≥ ``base``'s + ``value``), ``below`` (the split average < ``value`` × ``base``'s),
+            ``keyframe_cm`` / ``keyframe_deg`` (the diagnosis's median position error, cm, / rotation error, °, of
+            ``keyframe`` on the split, the median over the tasks of each task's median, ≤ ``value``) or
+            ``loops`` (the share of the split's episodes with a grasp <-> lift loop,
+            :func:`abm.experiments.arm_records.loops`, ≤ ``value`` %).
         split: the split it is checked on.
         value: the threshold, ratio or margin.
         base: the run compared with (``beats``, ``below``).
         run: the only row it is checked on (default: every row of the section).
+        keyframe: the keyframe kind of ``keyframe_cm`` / ``keyframe_deg`` (``move``).
     """
 
     text: str
@@ -371,6 +381,7 @@ class TargetCheck:
     value: float
     base: str = ""
     run: str = ""
+    keyframe: str = ""
 
 
 @dataclass(frozen=True)
@@ -399,6 +410,8 @@ class ReportSpec:
         title: the heading of the document.
         document: the full report (markdown, relative to the root).
         records: the machine-readable cells (JSON), or "" for none.
+        arm_records: every arm's keyframe accuracy, rollouts and grasp <-> lift loops (JSON:
+            :mod:`abm.experiments.arm_records`), or "" for none.
         readme: the file holding the generated block, or "" for none.
         block: the block's marker name (``<!-- NAME:start -->`` ... ``<!-- NAME:end -->``).
         summary: sections of the README block and the document's top.
@@ -413,6 +426,7 @@ class ReportSpec:
     records: str = ""
     readme: str = ""
     block: str = ""
+    arm_records: str = ""
     summary: tuple[Section, ...] = ()
     details: tuple[Section, ...] = ()
     figures: tuple[FigureSpec, ...] = ()
@@ -674,10 +688,11 @@ SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "grounding_quality": ("title", "source", "config"),
     "seeds": ("title", "of_table", "seeds", "splits", "digits"),
     "diagnosis": ("title", "runs", "splits", "kinds"),
+    "loops": ("title", "runs", "splits", "column"),
 }
 #: what a ``setup`` paragraph can state (default: machines, recipe, minutes, stages, evaluation)
 SETUP_ITEMS = ("machines", "data", "clip", "recipe", "minutes", "speed", "stages", "evaluation", "keyframes")
-TARGET_KINDS = ("at_least", "ratio", "beats", "below")
+TARGET_KINDS = ("at_least", "ratio", "beats", "below", "keyframe_cm", "keyframe_deg", "loops")
 FIGURE_KINDS = ("success", "losses", "keyframe_error")
 
 
@@ -729,7 +744,10 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
             c = _Reader(item, reader.source, f"{reader.where}.checks[{i}]")
             check = TargetCheck(text=c.text("text"), kind=c.choice("kind", TARGET_KINDS),
                                 split=c.choice("split", SPLITS), value=c.number("value"), base=c.text("base", ""),
-                                run=c.text("run", ""))
+                                run=c.text("run", ""), keyframe=c.text("keyframe", ""))
+            if (check.kind in ("keyframe_cm", "keyframe_deg")) != bool(check.keyframe):
+                raise c.error(f"a keyframe kind goes with a keyframe_cm or keyframe_deg check, not {check.kind}",
+                              "keyframe")
             if check.kind in ("beats", "below") and check.base not in known:
                 raise c.error(f"expected a run of this spec, got {check.base!r}", "base")
             if check.run and check.run not in section_runs:
@@ -787,8 +805,12 @@ def builtin_specs() -> list[str]:
     return sorted(p.stem for p in SPECS.glob("*.yaml"))
 
 
-def load_spec(name: str | Path) -> ExperimentSpec:
+def load_spec(name: str | Path, *, check_tasks: bool = True) -> ExperimentSpec:
     """Read and validate an experiment spec (a file, or a built-in name; see :func:`spec_path`).
+
+    ``check_tasks=False`` leaves the task names unchecked against the task registry, which imports the
+    simulator's task modules (numpy, the asset catalogue): for reading a built-in spec's defaults into a command's
+    ``--help``, which must stay light; whatever then runs the spec checks them (``abm data generate --task``).
 
     Raises:
         SpecError: (a ``ValueError``) naming the file and the key of the first mistake.
@@ -799,11 +821,12 @@ def load_spec(name: str | Path) -> ExperimentSpec:
         data = load_yaml(path, "experiment spec")
     except ValueError as err:
         raise SpecError(str(err)) from None
-    return parse_spec(data, path)
+    return parse_spec(data, path, check_tasks=check_tasks)
 
 
-def parse_spec(data: Any, path: Path) -> ExperimentSpec:
+def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> ExperimentSpec:
     """The :class:`ExperimentSpec` of the plain data ``data`` read from ``path`` (see :func:`load_spec`)."""
+    _tasks = functools.partial(_task_names, check=check_tasks)
     top = _Reader(data, path, "")
     name = top.text("name")
     if not _NAME.match(name):
@@ -869,11 +892,14 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
         base = one.text("run")
         if base not in runs:
             raise one.error(f"{base!r} is no run of this spec (known: {', '.join(names)})", "run")
-        grounder = one.choice("grounder", GROUNDERS.names())
-        if variant != f"{base}@{grounder}":
+        expert = one.choice("expert_keyframes", EXPERT_KEYFRAME_KINDS) if one.has("expert_keyframes") else ""
+        grounder = one.choice("grounder", GROUNDERS.names()) if one.has("grounder") or not expert else ""
+        if not expert and variant != f"{base}@{grounder}":
             raise v.error(f"a variant is named RUN@GROUNDER ({base}@{grounder}), got {variant!r}")
+        if expert and (not _NAME.match(variant) or variant in runs):
+            raise v.error(f"an expert-keyframe arm needs a plain name that is no run's, got {variant!r}")
         variants.append(GrounderVariant(name=variant, run=base, grounder=grounder, label=one.text("label", variant),
-                                    description=one.text("description", "")))
+                                        description=one.text("description", ""), expert_keyframes=expert))
         one.done()
     evaluation = EvaluationSpec(episodes=e.flag_value("episodes", 25, "eval", "episodes"),
                                 repeats=e.flag_value("repeats", 1, "eval", "repeats"),
@@ -927,6 +953,7 @@ def parse_spec(data: Any, path: Path) -> ExperimentSpec:
     rows = [*names, *(v.name for v in variants)]
     report = ReportSpec(title=rep.text("title", ""), document=rep.path("document", ""),
                         records=rep.path("records", ""), readme=rep.path("readme", ""), block=rep.text("block", ""),
+                        arm_records=rep.path("arm_records", ""),
                         summary=_sections(rep, "summary", rows), details=_sections(rep, "details", rows),
                         figures=tuple(figures), zoo_readme=rep.flag("zoo_readme"), zoo_note=rep.text("zoo_note", ""))
     if report.readme and not _MARKER.match(report.block):
@@ -976,13 +1003,16 @@ def command_parser(command: str) -> argparse.ArgumentParser:
     return parser
 
 
-def _tasks(reader: _Reader, key: str, lists: Mapping[str, tuple[str, ...]], trainable: bool = False
-           ) -> tuple[str, ...]:
+def _task_names(reader: _Reader, key: str, lists: Mapping[str, tuple[str, ...]], trainable: bool = False,
+                check: bool = True) -> tuple[str, ...]:
     """A list of task names (or a task list's name), each a task of the benchmark (``trainable``: one
-    demonstrations can be generated for, as ``abm data generate --task`` checks)."""
+    demonstrations can be generated for, as ``abm data generate --task`` checks; ``check=False``: not looked up
+    in the registry, see :func:`load_spec`)."""
+    names = reader.names(key, lists=lists)
+    if not check:
+        return names
     from abm.sim.tasks import TASKS  # the task registry (no simulator is built)
 
-    names = reader.names(key, lists=lists)
     for task in names:
         if task not in TASKS:
             raise reader.error(f"{task!r} is no task of the benchmark (known: {', '.join(sorted(TASKS))})", key)
