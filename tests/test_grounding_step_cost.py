@@ -86,3 +86,18 @@ def test_base_points_of_a_candidate_are_those_within_a_voxel(scene):
         nearest = members[dist.argmin(1)]
         same = near & same_colour(rgb[low], rgb[nearest], 0.05)
         np.testing.assert_array_equal(got, np.union1d(members, low[same]))
+
+
+def test_the_lean_attention_is_the_modules(scene):
+    from abm.grounding.clip import sdpa_attention
+
+    _obs, _cloud, backbone, crops = scene
+    layer = backbone.model.vision_model.encoder.layers[0]
+    side = (backbone.image_size, backbone.image_size)
+    with torch.no_grad():
+        h = layer.layer_norm1(backbone.model.vision_model.embeddings(backbone.preprocess(crops[:2], side)))
+        own = layer.self_attn(hidden_states=h)
+        lean = sdpa_attention(layer.self_attn, h)
+    assert isinstance(lean, torch.Tensor)  # the module's sdpa implementation without gradients: the lean path
+    torch.testing.assert_close(lean, own[0], rtol=0, atol=1e-6)
+    assert isinstance(sdpa_attention(layer.self_attn, h), tuple)  # recording gradients: the module itself

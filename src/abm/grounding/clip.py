@@ -303,6 +303,24 @@ QUICK_GELU_SCALE = 1.702
 """CLIP's ``quick_gelu(x) = x * sigmoid(1.702 x)``; equal to ``silu(1.702 x) / 1.702``."""
 
 
+def sdpa_attention(attn: CLIPAttention, h: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, Any]:
+    """A CLIP self-attention without masks over ``h`` ``(B, N, W)``: what the module computes with its ``sdpa``
+    implementation (the same calls, so the same result), without the library's dispatch around them (a few
+    percent of a small model's forward on the CPU). Other implementations, and calls that record gradients, run
+    the module itself."""
+    if torch.is_grad_enabled() or getattr(attn.config, "_attn_implementation", None) != "sdpa":
+        out: tuple[torch.Tensor, Any] = attn(hidden_states=h)
+        return out
+    b, n, width = h.shape
+    shape = (b, n, -1, attn.head_dim)
+    q = attn.q_proj(h).view(shape).transpose(1, 2)
+    k = attn.k_proj(h).view(shape).transpose(1, 2)
+    v = attn.v_proj(h).view(shape).transpose(1, 2)
+    mixed = F.scaled_dot_product_attention(q, k, v, dropout_p=0.0, scale=attn.scale, is_causal=False)
+    projected: torch.Tensor = attn.out_proj(mixed.transpose(1, 2).reshape(b, n, width).contiguous())
+    return projected
+
+
 def run_encoder_layer(layer: CLIPEncoderLayer, x: torch.Tensor) -> torch.Tensor:
     """One CLIP encoder layer without masks, ``(B, N, W) -> (B, N, W)``: the layer's own attention and
     layer norms, and an MLP that computes ``quick_gelu`` as one ``silu`` kernel.
@@ -313,7 +331,7 @@ def run_encoder_layer(layer: CLIPEncoderLayer, x: torch.Tensor) -> torch.Tensor:
     same result up to float rounding. Other activations, and any call that records gradients (training the
     benchmark CLIP), run the layer's own MLP out of place.
     """
-    attn = layer.self_attn(hidden_states=layer.layer_norm1(x))
+    attn = sdpa_attention(layer.self_attn, layer.layer_norm1(x))
     x = x + (attn[0] if isinstance(attn, tuple) else attn)
     h = layer.layer_norm2(x)
     mlp = layer.mlp
