@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from abm.errors import ConfigError, OutputError
+from abm.evaluation.expert_move import ExpertMove
 from abm.evaluation.html_report import write_html_report
 from abm.evaluation.plots import run_loss_curves, success_chart
 from abm.evaluation.policies import (
@@ -103,7 +104,9 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
     instruction = target = ""
     grounding: list[dict[str, Any]] = []
     step_grounding: list[dict[str, Any] | None] = []  # per step, None without a mask
+    replaced: list[Any] = []  # per step under --expert-keyframes: the prediction an expert keyframe replaced, or None
     try:
+        expert_move = _expert_move(job, settings)  # before the rollout's RNGs are seeded: they stay untouched
         with rollout_state(job.seed):
             policy = _load_policy(job.checkpoint or job.run, settings)
             with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
@@ -120,6 +123,10 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                     else:
                         explained.append(policy.explain(obs, env.instruction, env.object_names))
                         action = explained[-1].action
+                    if expert_move is not None:
+                        executed = expert_move.choose(action, _holds(env))
+                        replaced.append(action if executed is not action else None)
+                        action = executed
                     decision = recorder.record()
                     step_grounding.append(None if decision is None else
                                           {k: decision[k] for k in ("found", "confidence", "target", "reason")})
@@ -133,9 +140,11 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
         steps = len(episode.steps)
         meta = episode.metadata
         held = bool(meta.get("held_target"))
-        records = [step_record(action, motion, held_after, stop, expert, decided)
-                   for (_, action), motion, held_after, stop, decided in zip(
-                       episode.steps, meta["motions"], meta["held"], meta["stop_errors"], step_grounding, strict=True)]
+        predicted = replaced or [None] * steps
+        records = [step_record(action, motion, held_after, stop, expert, decided, own)
+                   for (_, action), motion, held_after, stop, decided, own in zip(
+                       episode.steps, meta["motions"], meta["held"], meta["stop_errors"], step_grounding, predicted,
+                       strict=True)]
         failure = episode_failure(bool(episode.success), "", records)
         if job.gif_path:
             save_rollout_gif(episode, job.gif_path, result="success" if episode.success else failure)
@@ -176,6 +185,25 @@ def _expert_of(job: EvalJob, settings: EvalSettings, env: Any) -> tuple[Any, ...
         if len(_EXPERTS) > 512:  # a long evaluation in one process: forget the oldest scene
             del _EXPERTS[next(iter(_EXPERTS))]
     return _EXPERTS[key]
+
+
+def _expert_move(job: EvalJob, settings: EvalSettings) -> ExpertMove | None:
+    """The expert-move rule of a rollout under ``--expert-keyframes`` (``None`` without), with the expert's
+    keyframes of the job's scene computed in a separate copy of it (:func:`_expert_of`), so the rollout's own
+    scene and RNGs are untouched."""
+    if settings.expert_keyframes is None:
+        return None
+    from abm.sim.env import make_env  # mujoco (optional `sim` extra)
+
+    with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
+                  splits_path=settings.splits_path) as scene:
+        return ExpertMove(_expert_of(job, settings, scene))
+
+
+def _holds(env: Any) -> bool:
+    """Whether the gripper holds the task's held object now (as :func:`abm.sim.env.run_policy` records it)."""
+    carried = env.task.held_object(env.instance)
+    return carried is not None and carried in env.sim.held_objects()
 
 
 def _worker_init() -> None:

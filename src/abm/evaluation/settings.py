@@ -8,7 +8,12 @@ import json
 from dataclasses import asdict, dataclass, field
 
 from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
+from abm.errors import ConfigError
 from abm.grounding.config import GROUNDERS, grounder_from_flags
+
+EXPERT_KEYFRAME_KINDS = ("move",)
+"""Keyframe kinds ``abm eval --expert-keyframes`` executes as the scripted expert's
+(:mod:`abm.evaluation.expert_move`)."""
 
 
 @dataclass(frozen=True)
@@ -24,6 +29,8 @@ class EvalSettings:
         splits_path: object split file replacing the built-in one.
         clip_model: CLIP weights (hub name or folder) of the ``clip`` grounder or of ``tracking``'s first
             step; needs ``grounder`` clip or tracking ('tiny' and 'random:ARCH' are random weights, for tests only).
+        expert_keyframes: execute the scripted expert's keyframe of this kind (move) instead of the policy's, by
+            the rule of docs/evaluation.md (the reference of a perfect destination; outcomes keyed apart).
     """
 
     device: str = "cpu"
@@ -32,14 +39,19 @@ class EvalSettings:
     max_steps: int = MAX_KEYFRAMES
     splits_path: str | None = field(default=None, metadata={"flag": "--splits"})
     clip_model: str | None = None
+    expert_keyframes: str | None = field(default=None, metadata={"choices": EXPERT_KEYFRAME_KINDS})
 
     def __post_init__(self) -> None:
+        if self.expert_keyframes is not None and self.expert_keyframes not in EXPERT_KEYFRAME_KINDS:
+            raise ConfigError(f"expert_keyframes: expected one of {', '.join(EXPERT_KEYFRAME_KINDS)}, "
+                              f"got {self.expert_keyframes!r}")
         if self.grounder is None and self.clip_model is None:
             return  # nothing to check
         grounder_from_flags(self.grounder, self.clip_model)  # a clear error for --clip-model without a CLIP grounder
 
     def signature(self) -> str:
-        """Compact JSON of the settings that change outcomes (recorded with every outcome; ``clip_model``
-        only when set, so outcomes recorded before it existed still match)."""
-        fields = {k: v for k, v in asdict(self).items() if k != "device" and not (k == "clip_model" and v is None)}
+        """Compact JSON of the settings that change outcomes (recorded with every outcome; ``clip_model`` and
+        ``expert_keyframes`` only when set, so outcomes recorded before they existed still match)."""
+        optional = ("clip_model", "expert_keyframes")
+        fields = {k: v for k, v in asdict(self).items() if k != "device" and not (k in optional and v is None)}
         return json.dumps(fields, sort_keys=True)

@@ -59,6 +59,10 @@ class StepRecord:
         expert_deg: the prediction's rotation error against it, degrees (the label's symmetry counted).
         grounding: a mask policy's target decision on the step's mask (``found``, ``confidence``, ``target``,
             ``reason``: :func:`abm.grounding.decision.decide_target`); ``None`` for variants without a mask.
+        substituted: the kind of the expert keyframe executed instead of the prediction (``move`` under
+            ``abm eval --expert-keyframes move``: :mod:`abm.evaluation.expert_move`; ``""``: the prediction ran).
+            ``position`` and ``quaternion`` are then the executed (expert's) keyframe's.
+        policy_pose: the policy's own prediction of a substituted step, ``(x, y, z, qx, qy, qz, qw)``.
     """
 
     position: tuple[float, float, float]
@@ -73,6 +77,8 @@ class StepRecord:
     expert_cm: float | None = None
     expert_deg: float | None = None
     grounding: dict[str, Any] | None = field(default=None)
+    substituted: str = ""
+    policy_pose: tuple[float, ...] | None = None
 
     @property
     def yaw_deg(self) -> float:
@@ -94,6 +100,11 @@ class StepRecord:
         }
         if self.grounding is not None:
             record["grounding"] = self.grounding
+        if self.substituted:
+            record["substituted"] = self.substituted
+            if self.policy_pose is not None:
+                record["policy_pos"] = [round(float(v), 4) for v in self.policy_pose[:3]]
+                record["policy_quat"] = [round(float(v), 4) for v in self.policy_pose[3:]]
         return record
 
     @classmethod
@@ -104,7 +115,8 @@ class StepRecord:
                    str(record["motion"]), bool(record["held"]), record.get("stop_cm"),
                    bool(record.get("straight", False)), str(record.get("expert", "")),
                    int(record.get("expert_i", -1)), record.get("expert_cm"), record.get("expert_deg"),
-                   record.get("grounding"))
+                   record.get("grounding"), str(record.get("substituted", "")),
+                   (*record["policy_pos"], *record["policy_quat"]) if "policy_pos" in record else None)
 
 
 def _rounded(value: float | None, digits: int = 1) -> float | None:
@@ -127,16 +139,20 @@ def nearest_expert(action: KeyframeAction, expert: Sequence[KeyframeAction]) -> 
 
 
 def step_record(action: KeyframeAction, motion: str, held: bool, stop_error_m: float,
-                expert: Sequence[KeyframeAction], grounding: dict[str, Any] | None = None) -> StepRecord:
-    """The record of one executed keyframe: ``action`` predicted, its motion's ``motion`` status ending
+                expert: Sequence[KeyframeAction], grounding: dict[str, Any] | None = None,
+                predicted: KeyframeAction | None = None) -> StepRecord:
+    """The record of one executed keyframe: ``action`` executed, its motion's ``motion`` status ending
     ``stop_error_m`` (m, NaN: did not move) from its pose, ``held`` after it, against the ``expert``'s
-    keyframes of the same scene (:func:`nearest_expert`)."""
+    keyframes of the same scene (:func:`nearest_expert`); ``predicted``: the policy's own keyframe when an expert
+    keyframe (``action``, of its ``kind``) was executed instead (:mod:`abm.evaluation.expert_move`)."""
     index, cm, deg = nearest_expert(action, expert)
     pos, quat = action.position, action.quaternion
+    policy_pose = None if predicted is None else (*map(float, predicted.position), *map(float, predicted.quaternion))
     return StepRecord((float(pos[0]), float(pos[1]), float(pos[2])),
                       (float(quat[0]), float(quat[1]), float(quat[2]), float(quat[3])),
                       action.gripper_open, motion, held, 100.0 * stop_error_m, action.ignore_collision,
-                      expert[index].kind if index >= 0 else "", index, cm, deg, grounding)
+                      expert[index].kind if index >= 0 else "", index, cm, deg, grounding,
+                      action.kind if predicted is not None else "", policy_pose)
 
 
 def _redoes(later: StepRecord, stopped: StepRecord) -> bool:
