@@ -37,7 +37,8 @@ from typing import Any
 import numpy as np
 
 from abm.errors import ConfigError, DataError, OutputError
-from abm.experiments.spec import SPECS, ExperimentSpec, GrounderVariant, Section
+from abm.experiments.arm_records import Loops, arm_records, is_arm_records, loop_counts, loop_share
+from abm.experiments.spec import SPECS, ExperimentSpec, GrounderVariant, Section, TargetCheck
 from abm.experiments.state import Layout, machines, stage_minutes
 from abm.files import is_inside, sha256_file
 from abm.zoo import edition
@@ -64,6 +65,8 @@ class Outcomes:
         zoo_eval: the timed ``abm zoo eval``: its table and seconds, or ``None`` before it ran.
         probes: the skill-text probes (``benchmarks/skill_text_probe.py``'s JSON) by (run, task).
         index: the whole zoo index the report writes (with other specs' entries), or ``None`` without a zoo.
+        loops: grasp <-> lift loops per (run or variant, task, split): (episodes that loop, episodes)
+            (:func:`abm.experiments.arm_records.loop_counts`).
     """
 
     cells: Cells
@@ -74,6 +77,7 @@ class Outcomes:
     zoo_eval: tuple[str, int] | None = None
     probes: dict[tuple[str, str], dict[str, Any]] = field(default_factory=dict)
     index: list[dict[str, Any]] | None = None
+    loops: Loops = field(default_factory=dict)
 
 
 # -------------------------------------------------------------------------------------------------- reading
@@ -247,7 +251,16 @@ def collect(spec: ExperimentSpec, layout: Layout) -> Outcomes:
     entries = [e for e in index if e["name"] in mine] if index is not None else kept_run_summaries(spec, layout)
     return Outcomes(cells=collect_cells(spec, layout), summaries=keyframe_summaries(spec, layout), entries=entries,
                     stages=stage_minutes(layout.times), machines=machines(layout.machines), zoo_eval=zoo_eval,
-                    probes=skill_text_probes(spec, layout), index=index)
+                    probes=skill_text_probes(spec, layout), index=index,
+                    loops=loop_counts(spec, layout) if _reads_loops(spec) else {})
+
+
+def _reads_loops(spec: ExperimentSpec) -> bool:
+    """Whether the report shows grasp <-> lift loops (its arm records, a ``loops`` section or check), which are
+    read from every evaluation's outcome archive."""
+    sections = (*spec.report.summary, *spec.report.details)
+    return bool(spec.report.arm_records) or any(
+        s.kind == "loops" or any(c.kind == "loops" for c in s.checks) for s in sections)
 
 
 # ---------------------------------------------------------------------------------------------- numbers
@@ -585,6 +598,8 @@ def _targets(ctx: Context, section: Section) -> list[str]:
                 seen = ctx.average(run, "seen")
                 ok = None if seen is None or value is None or not seen else value / seen >= check.value
                 shown = ratio(seen, value)
+            elif check.kind in ("keyframe_cm", "keyframe_deg", "loops"):
+                ok, shown = _at_most(ctx, run, check)
             else:
                 base = ctx.average(check.base, check.split)
                 if check.kind == "beats":
@@ -604,6 +619,39 @@ def _targets(ctx: Context, section: Section) -> list[str]:
         out.append("Where a target is missed, the diagnosis shows: " + " ".join(
             f"{run} (misses {', '.join(texts)}): {diagnosis_summary(ctx, run)}." for run, texts in missed.items()))
     return out
+
+
+def _at_most(ctx: Context, run: str, check: TargetCheck) -> tuple[bool | None, str]:
+    """A ``keyframe_cm``, ``keyframe_deg`` or ``loops`` check of ``run`` (:class:`TargetCheck`): whether the
+    measured value is at most the check's (``None``: not measured yet) and the value as shown."""
+    if check.kind == "loops":
+        share = loop_share(ctx.outcomes.loops, run, check.split)
+        episodes = sum(n for (name, _, split), (_, n) in ctx.outcomes.loops.items()
+                       if name == run and split == check.split)
+        return (None, "–") if share is None else (share <= check.value, f"{share:.1f} % of {episodes} episodes")
+    medians = kind_medians(ctx.outcomes.summaries.get(run, []), check.split).get(check.keyframe)
+    if medians is None:
+        return None, "–"
+    value, unit = (medians[0], " cm") if check.kind == "keyframe_cm" else (medians[1], "°")
+    return value <= check.value, f"{value:.1f}{unit}"
+
+
+def _loops(ctx: Context, section: Section) -> list[str]:
+    """Episodes with a grasp <-> lift loop (:func:`abm.experiments.arm_records.loops`) per row and split, summed
+    over the tasks: ``loops / episodes (%)``."""
+    runs = section.runs or tuple(dict.fromkeys(name for name, _, _ in ctx.outcomes.loops))
+    splits = section.splits or tuple(s.split for s in ctx.spec.evaluation.splits)
+    if not any(name in runs for name, _, _ in ctx.outcomes.loops):
+        return []
+    lines = _head([section.column or "arm", *splits])
+    for run in runs:
+        shown = []
+        for split in splits:
+            found = [v for (name, _, s), v in ctx.outcomes.loops.items() if name == run and s == split]
+            looped, episodes = sum(k for k, _ in found), sum(n for _, n in found)
+            shown.append(f"{looped} / {episodes} ({100 * looped / episodes:.0f} %)" if episodes else "–")
+        lines.append(_row([ctx.label(run), *shown]))
+    return [section.title, "\n".join(lines)] if section.title else ["\n".join(lines)]
 
 
 def _caveats(ctx: Context, section: Section) -> list[str]:
@@ -1053,7 +1101,7 @@ WRITERS: dict[str, Callable[[Context, Section], list[str]]] = {
     "figures": _figures, "heading": _heading, "success_rows": _success_rows, "sentences": _sentences,
     "missing": _missing, "keyframe_rows": _keyframe_rows, "keyframe_curve": _keyframe_curve,
     "keyframe_compare": _keyframe_compare, "grounding_quality": _grounding_quality, "outcome_tables": _outcome_tables,
-    "seeds": _seeds, "diagnosis": _diagnosis,
+    "seeds": _seeds, "diagnosis": _diagnosis, "loops": _loops,
 }
 
 
@@ -1229,6 +1277,7 @@ OWNED: dict[str, Callable[[str, str], bool]] = {
     "document": lambda text, name: text.startswith("# ") and text.split("\n", 3)[2:3] != [] and text.split(
         "\n", 3)[2].startswith(f"Written by `abm experiment run {name}` ("),
     "records": lambda text, name: _records_file(text),
+    "arm records": lambda text, name: is_arm_records(text),
     "zoo index": lambda text, name: _zoo_index_file(text),
     "zoo README": lambda text, name: text.startswith("# Model zoo\n\nWritten by `abm experiment run "),
 }
@@ -1238,7 +1287,8 @@ def report_files(spec: ExperimentSpec, layout: Layout) -> list[tuple[Path, str]]
     """``(file, what it is)`` of every file the report writes outside KEPT (:data:`OWNED` names the kinds)."""
     report, root = spec.report, layout.root
     files = [(root / name, what) for name, what in ((report.records, "records"), (report.document, "document"),
-                                                     (report.readme, "README block")) if name]
+                                                     (report.readme, "README block"),
+                                                     (report.arm_records, "arm records")) if name]
     if layout.zoo is not None:
         files.append((layout.zoo / "index.json", "zoo index"))
         if report.zoo_readme:
@@ -1357,6 +1407,9 @@ def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> 
             _write(layout.zoo / "README.md", written.zoo_readme)
     if spec.report.records:
         _write(layout.root / spec.report.records, json.dumps(written.records, indent=1) + "\n")
+    if spec.report.arm_records:
+        records_of_arms = arm_records(spec, outcomes.cells, outcomes.summaries, outcomes.loops)
+        _write(layout.root / spec.report.arm_records, json.dumps(records_of_arms, indent=1) + "\n")
     if spec.report.document:
         _write(layout.root / spec.report.document, written.document)
     if spec.report.readme:

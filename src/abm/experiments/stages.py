@@ -420,16 +420,19 @@ class Engine:
                     str(ev.workers), "--max-steps", str(ev.max_steps), "--resolution", str(self.spec.data.resolution),
                     "--out", self.rel(folder), *(["--gifs", str(ev.gifs)] if ev.gifs else []),
                     *(["--device", ev.device] if ev.device != "cpu" else []))
-                if variant is not None:
+                variant_clip = bool(variant and variant.grounder and GROUNDERS[variant.grounder].clip)
+                if variant is not None and variant.grounder:
                     argv += ["--grounder", variant.grounder]
-                    if GROUNDERS[variant.grounder].clip and self.clip_arg():
+                    if variant_clip and self.clip_arg():
                         argv += ["--clip-model", self.clip_arg()]
+                if variant is not None and variant.expert_keyframes:
+                    argv += ["--expert-keyframes", variant.expert_keyframes]
                 job = Job(f"eval/{name}/{split.split}", "eval", argv, folder=folder)
                 if self.have(folder / "results.json"):
                     job.state = DONE
                 elif model is None:
                     job.state, job.note = BLOCKED, "not exported yet" if ev.from_zoo else "not trained yet"
-                elif (self.needs_clip(base) or (variant and GROUNDERS[variant.grounder].clip)) and not self.has_clip():
+                elif (self.needs_clip(base) or variant_clip) and not self.has_clip():
                     job.state, job.note = BLOCKED, "no benchmark CLIP"
                 else:
                     outcomes = folder / "outcomes.jsonl"
