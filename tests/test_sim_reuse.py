@@ -137,3 +137,18 @@ def test_only_policies_grounded_by_the_oracle_need_the_segmentation() -> None:
     assert needs_segmentation(policy(None))  # a grounder object without a configuration: kept safe
     assert not needs_segmentation(policy({"kind": "clip", "model": "models/benchmark-clip"}))
     assert not needs_segmentation(policy({"kind": "tracking", "inner": {"kind": "clip", "model": "x"}}))
+
+
+def test_scenes_alive_together_each_render_their_own_pictures(fresh_process_state) -> None:
+    """Renderers of several scenes alive in one thread (a gym env caches scenes) each draw into their own buffer."""
+    with make_env("pick_block", "seen", 3, resolution=32) as a, make_env("place_food", "seen", 5, resolution=32) as b:
+        first_a = a.reset()
+        b.reset()
+        again_a = a.reset()  # after b's renderer was made and drew
+        first_b = b._require_sim().observe()
+    fresh_process_state()
+    with make_env("place_food", "seen", 5, resolution=32) as fresh:
+        fresh.reset()
+        reference_b = fresh._require_sim().observe()
+    _same_observations([first_a], [again_a])
+    _same_observations([first_b], [reference_b])

@@ -158,6 +158,18 @@ def _shared_context_renderer() -> type:
             self._depth_rendering = False
             self._segmentation_rendering = False
 
+        def activate(self) -> None:
+            """Make the shared context current and bind this renderer's offscreen buffer: other scenes' renderers
+            alive in the thread bind theirs (mujoco.Renderer binds its buffer once, in a context of its own)."""
+            if self._gl_context is not None and self._mjr_context is not None:
+                self._gl_context.make_current()
+                mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._mjr_context)
+
+        def render(self, *, out: np.ndarray | None = None) -> np.ndarray:
+            self.activate()
+            image: np.ndarray = super().render(out=out)
+            return image
+
         def close(self) -> None:
             if self._mjr_context is not None and self._gl_context is not None:
                 try:
@@ -216,7 +228,10 @@ class CameraRig:
         """Render every camera at the current simulator state."""
         renderer = self._renderer
         frames: dict[str, CameraFrame] = {}
+        activate = getattr(renderer, "activate", None)  # a renderer in the thread's shared GL context
         for name, cid in zip(self.camera_names, self.camera_ids, strict=True):
+            if activate is not None:
+                activate()
             renderer.update_scene(data, camera=cid)
             seg: np.ndarray | None = None
             if self.segmentation or not self._colour_depth_usable():
