@@ -636,3 +636,37 @@ def test_new_options_have_help(argv, words, capsys):
     assert done.value.code == 0
     text = " ".join(capsys.readouterr().out.split())  # as wrapped for any terminal width
     assert all(w in text for w in words), [w for w in words if w not in text]
+
+
+class _Array2D(pa.ExtensionType):
+    """An arrow extension type like Hugging Face ``datasets``' ``Array2D``, which a process that imported
+    ``datasets`` (as LeRobot always does) reads LeRobot-written 2-D columns as."""
+
+    def __init__(self, storage_type: pa.DataType) -> None:
+        super().__init__(storage_type, "abm-test.array2d")
+
+    def __arrow_ext_serialize__(self) -> bytes:
+        return b""
+
+    @classmethod
+    def __arrow_ext_deserialize__(cls, storage_type: pa.DataType, serialized: bytes) -> "_Array2D":
+        return cls(storage_type)
+
+
+def test_columns_read_as_extension_types_import_as_their_values(tmp_path, cli_errors):
+    ds = tmp_path / "other"
+    truth = _write_foreign(ds, geometry=True, episodes=1)
+    frames = ds / "data/chunk-000/file-000.parquet"
+    table = pq.read_table(frames)
+    i = table.schema.get_field_index("geometry.depth.front")
+    storage = table.column(i).combine_chunks()
+    wrapped = pa.ExtensionArray.from_storage(_Array2D(storage.type), storage)
+    pq.write_table(table.set_column(i, "geometry.depth.front", wrapped), frames)
+    pa.register_extension_type(_Array2D(storage.type))
+    try:
+        assert isinstance(pq.read_table(frames).schema.field(i).type, _Array2D)  # what the importer now meets
+        assert _import(ds, tmp_path / "out", "--task", "pick_block") == 0, cli_errors()
+    finally:
+        pa.unregister_extension_type("abm-test.array2d")
+    ep = load_episode(tmp_path / "out" / "pick_block" / "seen" / "episode_000000.h5")
+    assert np.array_equal(ep.steps[0][0].cameras["front"].depth, truth[0][1][0])

@@ -104,6 +104,7 @@ from abm.data.lerobot_schema import (
     image_key,
     intrinsics_key,
     non_numeric_column,
+    plain_table,
     segmentation_key,
 )
 from abm.data.lerobot_stats import aggregate_stats, feature_stats
@@ -701,9 +702,10 @@ def _read_parquet(path: Path, skip_prefix: str | None = None) -> pa.Table:
         columns = None
         if skip_prefix is not None:
             columns = [c for c in pq.read_schema(path).names if not c.startswith(skip_prefix)]
-        return pq.read_table(path, columns=columns)
+        table = pq.read_table(path, columns=columns)
     except Exception as err:  # noqa: BLE001 - pyarrow raises several types for damaged files
         raise LeRobotFormatError(f"{path}: not a readable parquet file ({err})") from None
+    return plain_table(table)
 
 
 class _VideoFrames:
@@ -772,7 +774,7 @@ class _Rows:
         while self.buffer is None or self.start + self.buffer.num_rows < hi:
             if self.group >= self.file.num_row_groups:
                 raise LeRobotFormatError(f"{self.path}: rows {lo} to {hi - 1} are missing")
-            part = self.file.read_row_group(self.group)
+            part = plain_table(self.file.read_row_group(self.group))
             self.group += 1
             self.buffer = part if self.buffer is None else pa.concat_tables([self.buffer, part])
         rows = self.buffer.slice(lo - self.start, hi - lo)

@@ -113,12 +113,37 @@ NOT_NUMBERS = frozenset({"string", "image", "video"})
 """Feature dtypes of ``meta/info.json`` whose columns abm does not read as numbers (it reads every other as numbers)."""
 
 
-def innermost_type(typ: pa.DataType) -> pa.DataType:
-    """The element type of a (nested) list column's type; the type itself otherwise."""
+def plain_type(typ: pa.DataType) -> pa.DataType:
+    """The storage type of an arrow extension type (Hugging Face ``datasets`` registers ``Array2D`` and the like,
+    so a process that has imported it, as LeRobot always does, reads 2-D columns as those); the type otherwise."""
     import pyarrow as pa
 
+    while isinstance(typ, pa.ExtensionType):
+        typ = typ.storage_type
+    return typ
+
+
+def plain_table(table: pa.Table) -> pa.Table:
+    """``table`` with every extension-typed column replaced by its storage (the same values as plain arrow
+    lists), so the reader sees the same columns whether or not ``datasets`` was imported in this process."""
+    import pyarrow as pa
+
+    for i, field in enumerate(table.schema):
+        if isinstance(field.type, pa.ExtensionType):
+            column = table.column(i)
+            storage = pa.chunked_array([chunk.storage for chunk in column.chunks], type=plain_type(field.type))
+            table = table.set_column(i, pa.field(field.name, storage.type, field.nullable), storage)
+    return table
+
+
+def innermost_type(typ: pa.DataType) -> pa.DataType:
+    """The element type of a (nested) list column's type; the type itself otherwise (extension types read as
+    their storage, :func:`plain_type`)."""
+    import pyarrow as pa
+
+    typ = plain_type(typ)
     while pa.types.is_list(typ) or pa.types.is_large_list(typ) or pa.types.is_fixed_size_list(typ):
-        typ = typ.value_type
+        typ = plain_type(typ.value_type)
     return typ
 
 
