@@ -12,9 +12,10 @@ import statistics
 from pathlib import Path
 
 import pytest
+import yaml
 
 from abm.experiments import report as rep
-from abm.experiments.spec import Section, load_spec
+from abm.experiments.spec import Section, SpecError, load_spec
 from abm.experiments.state import Layout, kept_pairs
 from abm.zoo import pick, read_index
 
@@ -146,7 +147,7 @@ def test_the_diagnosis_shows_keyframes_beside_chance_the_probe_and_failure_reaso
     cells[("abm_clip", "close_jar", "seen")]["failures"] = {"grasp missed": 50, "IK unreachable": 10}
     ctx = _ctx(V2, cells, tmp_path, summaries=SUMMARIES, probes=PROBES)
     blocks = rep._diagnosis(ctx, _section(V2, "diagnosis"))
-    assert blocks[0].startswith("**Diagnosis**")
+    assert blocks[0].startswith("Per model, what it gets wrong")
     seen = blocks[2].splitlines()
     assert seen[0] == "| model | approach | grasp | move | place |"  # kinds in keyframe order
     # medians over the tasks: approach 3.0 cm / 42° beside the two-fold chance 45°; a round move has chance 0
@@ -167,39 +168,45 @@ def test_a_missed_target_says_what_the_diagnosis_shows(tmp_path: Path) -> None:
     cells = _cells("abm_clip", "seen", [70.0, 60.0, 80.0]) | _cells("abm_clip", "unseen", [20.0] * 3, failures=FAILED)
     cells |= _cells("abm_oracle", "seen", [90.0] * 3)
     ctx = _ctx(V2, cells, tmp_path, summaries=SUMMARIES, probes=PROBES)
-    goals, why = rep._targets(ctx, _section(V2, "targets"))
+    (goals,) = rep._targets(ctx, _section(V2, "targets"))
     assert "abm_clip: seen ≥ 60 %: met (70.0); unseen ≥ 0.85 × seen: not met (0.29)" in goals
+    assert goals.startswith("Targets, abm with CLIP masks: ")  # no issue named in generated text
+    # the explanation is a section of its own, written into the edition's page only
+    section = _section(V2, "target_diagnosis")
+    assert section.only == "document"
+    (why,) = rep._target_diagnosis(ctx, section)  # abm_oracle meets its target: one paragraph
     assert why == ("Where a target is missed, the diagnosis shows: abm_clip (misses unseen ≥ 0.85 × seen): the "
                    "largest keyframe errors (seen objects) at move (25.0 cm, 5°) and place (9.0 cm, 8°); a rotation "
                    "no better than a random yaw's at approach (42° against 45°); the skill-text probe at the move "
                    "keyframe: place_wine's own text 26.3 cm from the expert's (not within 5 cm), pick_block's own "
                    "text 1.5 cm from the expert's (within 5 cm); its failed rollouts: grasp missed 320, timeout 80.")
-    # met targets need no explanation, and a run without any diagnosis says so
     (oracle,) = rep._targets(ctx, _section(V2, "targets", nth=1))
-    assert oracle == "Target (issue 42), abm with oracle masks: abm_oracle: seen ≥ 70 %: met (90.0)."
+    assert oracle == "Target, abm with oracle masks: abm_oracle: seen ≥ 70 %: met (90.0)."
+    # a run without any diagnosis says so
     cells |= _cells("abm_oracle", "seen", [50.0] * 3)
-    _, why = rep._targets(_ctx(V2, cells, tmp_path), _section(V2, "targets", nth=1))
-    assert why.endswith("abm_oracle (misses seen ≥ 70 %): no diagnosis of it yet.")
-    # the first edition's targets section does not explain (its report stays as it was)
-    assert len(rep._targets(_ctx(V1, cells, tmp_path, summaries=SUMMARIES), _section(V1, "targets"))) == 1
+    whys = rep._target_diagnosis(_ctx(V2, cells, tmp_path), section)
+    assert whys[-1].endswith("abm_oracle (misses seen ≥ 70 %): no diagnosis of it yet.")
+    # met targets need no explanation
+    met = _cells("abm_oracle", "seen", [90.0] * 3)
+    assert rep._target_diagnosis(_ctx(V2, met, tmp_path), section) == []
 
 
 def test_a_target_missed_by_less_than_the_seed_spread_says_so(tmp_path: Path) -> None:
     cells = _cells("abm_clip", "seen", [58.0] * 3) | _cells("abm_oracle", "seen", [61.0] * 3)
     cells |= _cells("rvt_clip", "unseen", [40.0] * 3) | _cells("abm_clip", "unseen", [55.0] * 3)
     section = _section(V2, "targets")
-    goals, _ = rep._targets(_ctx(V2, cells, tmp_path), section)
+    (goals,) = rep._targets(_ctx(V2, cells, tmp_path), section)
     assert "seen ≥ 60 %: not met (58.0);" in goals and "seed spread" not in goals  # no seed pair evaluated yet
     # center-pixel's two seeds 7 points apart on seen objects, 3 on unseen: the seed spread
     cells |= _cells("abm_clip_hash", "seen", [50.0] * 3) | _cells("abm_clip_hash_seed1", "seen", [57.0] * 3)
     cells |= _cells("abm_clip_hash", "unseen", [40.0] * 3) | _cells("abm_clip_hash_seed1", "unseen", [43.0] * 3)
     ctx = _ctx(V2, cells, tmp_path)
     assert rep.seed_spread(ctx) == {"seen": 7.0, "unseen": 3.0}
-    goals, _ = rep._targets(ctx, section)
+    (goals,) = rep._targets(ctx, section)
     assert "abm_clip: seen ≥ 60 %: not met (58.0; 2.0 short, within the seed spread of 7.0 points);" in goals
     # unseen 55 against rvt's 40 + 20: 5 short, more than the unseen spread of 3: a measured miss
     assert "unseen ≥ rvt_clip unseen + 20: not met (55.0 vs 40.0);" in goals
-    (oracle, _) = rep._targets(ctx, _section(V2, "targets", nth=1))
+    (oracle,) = rep._targets(ctx, _section(V2, "targets", nth=1))
     assert "seen ≥ 70 %: not met (61.0; 9.0 short" not in oracle and "not met (61.0)." in oracle  # 9 > 7
 
 
@@ -284,3 +291,60 @@ def test_both_editions_share_the_zoo_and_abm_zoo_eval_takes_the_newest(tmp_path:
     # a model file that is gone leaves the index with the next report
     (zoo / "abm_clip_hash.pt").unlink()
     assert "abm_clip_hash" not in [e["name"] for e in rep.zoo_index(V2, v2)]
+
+
+# ----------------------------------------------------------------------------------- headline, blocks
+def test_the_headline_states_ours_beside_the_paper_once_every_number_is_measured(tmp_path: Path) -> None:
+    (section,) = V2.report.blocks["headline"]
+    comp = V2.split_tasks()["compositional"]
+    cells: rep.Cells = {}
+    for run, seen, unseen, composed in (("abm_clip", 60.0, 50.0, 70.0), ("rvt_clip", 40.0, 20.0, 10.0)):
+        cells |= _cells(run, "seen", [seen] * 3) | _cells(run, "unseen", [unseen] * 3)
+        cells |= _cells(run, "compositional", [composed] * 3, tasks=comp)
+    text, table = rep._headline(_ctx(V2, cells, tmp_path), section)
+    assert text.startswith("**Result:** on objects it never saw, abm succeeds in 50.0 % of the episodes and the rvt "
+                           "baseline in 20.0 % (the paper: 57.5 % and 24.0 %); on the two compositional tasks no "
+                           "model was trained on, 70.0 % against 10.0 % (the paper: 53.2 % and 21.6 %).")
+    assert table.splitlines() == ["| method | seen | unseen | compositional |", "|---|---|---|---|",
+                                  "| abm (CLIP mask field), ours | 60.0 | 50.0 | 70.0 |",
+                                  "| abm (CLIP mask field), paper | 70.0 | 57.5 | 53.2 |",
+                                  "| rvt (CLIP text), ours | 40.0 | 20.0 | 10.0 |",
+                                  "| rvt (CLIP text), paper | 74.2 | 24.0 | 21.6 |"]
+    # a number not measured yet: no sentence claims it, the table shows –
+    del cells[("rvt_clip", comp[0], "compositional")]
+    (table,) = rep._headline(_ctx(V2, cells, tmp_path), section)
+    assert "| rvt (CLIP text), ours | 40.0 | 20.0 | – |" in table
+
+
+def test_the_readme_block_leaves_the_diagnosis_to_the_page_and_the_dash_note_to_reports_with_dashes(
+        tmp_path: Path) -> None:
+    cells = _cells("abm_clip", "seen", [60.0] * 3) | _cells("abm_clip", "unseen", [20.0] * 3)
+    outcomes = rep.Outcomes(cells=cells, summaries=SUMMARIES, probes=PROBES)
+    written = rep.compose(V2, Layout.of(V2, tmp_path, tmp_path / "out"), outcomes)
+    assert "Per model, what it gets wrong" in written.document and "## Diagnosis" in written.document
+    assert "Where a target is missed" in written.document
+    assert "Per model, what it gets wrong" not in written.block and "Where a target is missed" not in written.block
+    assert "[the diagnosis](docs/results/paper_tables_v2.md#diagnosis)" in written.block
+    assert "(paper_tables_v2.md#diagnosis)" not in written.document  # the readme-only link stays out of the page
+    assert written.block.count("Reproduce: `abm experiment run paper_tables_v2`") == 1  # once, after the tables
+    assert "cells not evaluated yet show –" in written.block.splitlines()[0]  # most cells are missing
+    assert set(written.blocks) == {"headline"} and "| abm (CLIP mask field), ours | 60.0 | 20.0 | – |" in (
+        written.blocks["headline"])
+    assert not rep.shows_dash(["| a | 1.0 |\n|---|---|\n| b | 44.5–59.0 |"]) and rep.shows_dash(["| a | **–** |"])
+
+
+def test_further_readme_blocks_are_checked_when_the_spec_is_loaded(tmp_path: Path) -> None:
+    data = yaml.safe_load(V2.path.read_text())
+    data["report"]["blocks"] = {"paper-tables": []}  # the block's own marker
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(SpecError, match="report.blocks.paper-tables: expected a marker name"):
+        load_spec(bad)
+    data["report"]["blocks"] = {"headline": [{"kind": "headline", "runs": ["abm_clip"]}]}
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(SpecError, match="needs its runs and splits"):
+        load_spec(bad)
+    data["report"]["summary"][0]["only"] = "somewhere"
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(SpecError, match="only: expected one of readme, document, got 'somewhere'"):
+        load_spec(bad)

@@ -6,7 +6,7 @@ the committed ones count) and writes
 * the document (``report.document``, e.g. ``docs/results/paper_tables.md``): the summary sections, then the
   detail sections;
 * the README block between ``<!-- BLOCK:start -->`` and ``<!-- BLOCK:end -->`` (the summary sections and a
-  link to the document);
+  link to the document), and the further blocks of ``report.blocks`` in the same README (e.g. a headline);
 * the records (``report.records``, e.g. ``docs/results/paper_tables.json``): one record per (table, run,
   task, split) cell with ``successes`` and ``episodes`` (plus mean, std and per-repeat rates);
 * the zoo's index and README (``ZOO/index.json``, ``ZOO/README.md``) when the spec exports into a zoo:
@@ -18,8 +18,9 @@ the committed ones count) and writes
   the kept files only.
 
 A report is a list of paragraphs (blocks) joined by blank lines; each section of the spec
-(:data:`abm.experiments.spec.SECTION_KEYS`) adds zero or more. Cells not evaluated yet show "–", so tables fill
-in stages. Links in the summary are written relative to the repository root (the README's folder) and
+(:data:`abm.experiments.spec.SECTION_KEYS`) adds zero or more; a section marked ``only: document`` (or
+``readme``) is left out of the other. Cells not evaluated yet show "–", so tables fill in stages (the first line
+says so while one does). Links in the summary are written relative to the repository root (the README's folder) and
 rewritten relative to the document's folder in the document.
 """
 
@@ -574,10 +575,10 @@ def _shortfall(missed_by: float, split: str, spread: Mapping[str, float], digits
     return f"; {missed_by:.{digits}f} short, within the seed spread of {spread[split]:.{digits}f} points"
 
 
-def _targets(ctx: Context, section: Section) -> list[str]:
-    """Each target checked against the averages of each row run (measured, not asserted); with ``explain``, a
-    paragraph on what the diagnosis shows of each run that misses one, and a target in points missed by no more
-    than the report's seed spread (:func:`seed_spread`) says so."""
+def _checked(ctx: Context, section: Section) -> tuple[list[str], dict[str, list[str]]]:
+    """The verdicts of a ``targets`` section, one ``RUN: check: verdict; ...`` per row run, and the texts of the
+    checks each run misses (measured, not asserted; with ``explain``, a target in points missed by no more than
+    the report's seed spread, :func:`seed_spread`, says so)."""
     parts = []
     digits = section.digits
     missed: dict[str, list[str]] = {}
@@ -614,11 +615,48 @@ def _targets(ctx: Context, section: Section) -> list[str]:
                 missed.setdefault(run, []).append(check.text)
         if checks:
             parts.append(f"{run}: " + "; ".join(checks))
-    out = [f"{section.text}: " + ". ".join(parts) + "."]
-    if section.explain and missed:
-        out.append("Where a target is missed, the diagnosis shows: " + " ".join(
-            f"{run} (misses {', '.join(texts)}): {diagnosis_summary(ctx, run)}." for run, texts in missed.items()))
+    return parts, missed
+
+
+def _targets(ctx: Context, section: Section) -> list[str]:
+    """Each target checked against the averages of each row run (:func:`_checked`), as one paragraph."""
+    parts, _ = _checked(ctx, section)
+    return [f"{section.text}: " + ". ".join(parts) + "."]
+
+
+def _target_diagnosis(ctx: Context, section: Section) -> list[str]:
+    """For every ``targets`` section of the report with ``explain``: a paragraph on what the diagnosis shows of
+    each run that misses one of its targets (nothing when every target is met)."""
+    out = []
+    for targets in (*ctx.spec.report.summary, *ctx.spec.report.details):
+        if targets.kind != "targets" or not targets.explain:
+            continue
+        _, missed = _checked(ctx, targets)
+        if missed:
+            out.append("Where a target is missed, the diagnosis shows: " + " ".join(
+                f"{run} (misses {', '.join(texts)}): {diagnosis_summary(ctx, run)}." for run, texts in missed.items()))
     return out
+
+
+def _headline(ctx: Context, section: Section) -> list[str]:
+    """The result in one paragraph and a small table: the section's text with ``{RUN_SPLIT}`` (the run's
+    average, %) and ``{RUN_SPLIT_paper}`` (the paper's) filled in once every one is known, then one row per run
+    and source (ours, the paper's) with a column per split."""
+    digits = section.digits
+    values: dict[str, str] = {}
+    for run in section.runs:
+        paper = section.paper.get(run, ())
+        for i, split in enumerate(section.splits):
+            values[f"{run}_{split}"] = pct(ctx.average(run, split), digits)
+            values[f"{run}_{split}_paper"] = f"{paper[i]:.{digits}f}" if i < len(paper) else "–"
+    lines = _head([section.column or "method", *section.splits])
+    for run in section.runs:
+        name = section.names.get(run, ctx.label(run))
+        lines.append(_row([f"{name}, ours", *(values[f"{run}_{s}"] for s in section.splits)]))
+        if run in section.paper:
+            lines.append(_row([f"{name}, paper", *(values[f"{run}_{s}_paper"] for s in section.splits)]))
+    known = "–" not in values.values()
+    return ([section.text.format(**values)] if section.text and known else []) + ["\n".join(lines)]
 
 
 def _at_most(ctx: Context, run: str, check: TargetCheck) -> tuple[bool | None, str]:
@@ -1101,38 +1139,52 @@ WRITERS: dict[str, Callable[[Context, Section], list[str]]] = {
     "figures": _figures, "heading": _heading, "success_rows": _success_rows, "sentences": _sentences,
     "missing": _missing, "keyframe_rows": _keyframe_rows, "keyframe_curve": _keyframe_curve,
     "keyframe_compare": _keyframe_compare, "grounding_quality": _grounding_quality, "outcome_tables": _outcome_tables,
-    "seeds": _seeds, "diagnosis": _diagnosis, "loops": _loops,
+    "seeds": _seeds, "diagnosis": _diagnosis, "loops": _loops, "target_diagnosis": _target_diagnosis,
+    "headline": _headline,
 }
+#: section kinds whose tables do not call for :func:`reproduce`'s line (zoo_eval names its own command, a
+#: headline stands at the top of a README, where the tables it summarises are linked)
+NO_REPRODUCE = ("zoo_eval", "headline")
 
 
 def reproduce(ctx: Context) -> str:
-    """The line under every generated table: the command that reproduces it."""
+    """The line under a block's tables: the command that reproduces them."""
     name = ctx.spec.name if ctx.spec.path.resolve().parent == SPECS else spec_name(ctx.spec, ctx.layout)
     return (f"Reproduce: `abm experiment run {name}` (every stage, resuming from the kept outcomes; "
-            f"`abm experiment run {name} --stages report` rewrites this table from them alone).")
+            f"`abm experiment run {name} --stages report` rewrites the tables above from them alone).")
 
 
-def blocks(ctx: Context, sections: Sequence[Section]) -> list[str]:
-    """The paragraphs of ``sections``, in order (empty ones left out); a table is followed by
-    :func:`reproduce`'s line."""
-    out = []
+def blocks(ctx: Context, sections: Sequence[Section], into: str = "") -> list[str]:
+    """The paragraphs of ``sections``, in order (empty ones and repeats of an earlier one left out), then, when
+    one of them wrote a table, :func:`reproduce`'s line. ``into`` (``readme`` or ``document``) leaves out the
+    sections meant only for the other (``Section.only``)."""
+    out: list[str] = []
+    tables = False
     for section in sections:
+        if into and section.only and section.only != into:
+            continue
         writer = WRITERS.get(section.kind)
         if writer is None:
             raise ConfigError(f"{ctx.spec.path}: the report cannot write {section.kind!r} sections yet")
-        written = [b for b in writer(ctx, section) if b]
+        written = [b for b in writer(ctx, section) if b and b not in out]
         out += written
-        table = any("\n|---" in b or b.startswith("|---") for b in written)
-        if table and section.kind != "zoo_eval":  # a section that wrote a table (zoo_eval names its own command)
-            out.append(reproduce(ctx))
-    return out
+        if section.kind not in NO_REPRODUCE:
+            tables = tables or any("\n|---" in b or b.startswith("|---") for b in written)
+    return out + [reproduce(ctx)] if tables else out
 
 
-def provenance(spec: ExperimentSpec, layout: Layout) -> str:
-    """The report's first line: what wrote it, from which spec, from which kept outcomes."""
+def shows_dash(paragraphs: Sequence[str]) -> bool:
+    """Whether a table among ``paragraphs`` has a cell that shows "–" (not evaluated yet)."""
+    return any(c.strip().strip("*") == "–" for p in paragraphs for line in p.splitlines() if line.startswith("|")
+               for c in line.strip().strip("|").split("|"))
+
+
+def provenance(spec: ExperimentSpec, layout: Layout, dashes: bool = True) -> str:
+    """The report's first line: what wrote it, from which spec, from which kept outcomes (and, when a table of
+    the report has a "–" cell, what "–" means)."""
     kept, source = layout.show(layout.kept), spec_name(spec, layout)
-    what, tail = ("evaluation JSON", "; cells not evaluated yet show –") if spec.evaluation.splits else (
-        "diagnosis JSON", "")
+    what, tail = ("evaluation JSON", "; cells not evaluated yet show –" if dashes else "") if (
+        spec.evaluation.splits) else ("diagnosis JSON", "")
     return (f"Written by `abm experiment run {spec.name}` ([{source}]({source})) from the {what} kept in "
             f"[{kept}/]({kept}/){tail}.")
 
@@ -1157,6 +1209,7 @@ class Written:
     summary: str
     document: str
     block: str
+    blocks: dict[str, str]
     records: list[dict[str, Any]]
     zoo: list[dict[str, Any]] | None
     zoo_readme: str
@@ -1217,17 +1270,23 @@ def newest_edition(spec: ExperimentSpec, entries: Sequence[Mapping[str, Any]]) -
 def compose(spec: ExperimentSpec, layout: Layout, outcomes: Outcomes) -> Written:
     """Every text of the report (nothing written yet)."""
     ctx = Context(spec, outcomes, layout)
-    head = [provenance(spec, layout)]
-    summary = "\n\n".join(head + blocks(ctx, spec.report.summary)) + "\n"
-    details = blocks(ctx, spec.report.details)
+    in_document = blocks(ctx, spec.report.summary, "document")
+    in_readme = blocks(ctx, spec.report.summary, "readme")
+    details = blocks(ctx, spec.report.details, "document")
+    head = provenance(spec, layout, shows_dash([*in_document, *in_readme, *details]))
+    summary = "\n\n".join([head, *in_document]) + "\n"
     document = relink(f"# {spec.report.title}\n\n" + "\n\n".join([summary.rstrip("\n"), *details]) + "\n",
                       Path(spec.report.document).parent.as_posix()) if spec.report.document else ""
-    block = summary + (f"Full report: [{spec.report.document}]({spec.report.document}).\n"
-                       if spec.report.document else "")
+    block = "\n\n".join([head, *in_readme]) + "\n" + (
+        f"Full report: [{spec.report.document}]({spec.report.document}).\n" if spec.report.document else "")
+    folder = Path(spec.report.readme).parent.as_posix()
     if spec.report.readme:
-        block = relink(block, Path(spec.report.readme).parent.as_posix())
+        block = relink(block, folder)
+    extra = {name: relink("\n\n".join(blocks(ctx, sections, "readme")) + "\n", folder)
+             for name, sections in spec.report.blocks.items()}
     zoo = (outcomes.index if outcomes.index is not None else outcomes.entries) if layout.zoo is not None else None
-    return Written(summary=summary, document=document, block=block, records=records(spec, outcomes.cells),
+    return Written(summary=summary, document=document, block=block, blocks=extra,
+                   records=records(spec, outcomes.cells),
                    zoo=zoo, zoo_readme=zoo_readme(spec, layout, zoo) if zoo is not None else "")
 
 
@@ -1414,5 +1473,8 @@ def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> 
         _write(layout.root / spec.report.document, written.document)
     if spec.report.readme:
         readme = layout.root / spec.report.readme
-        _write(readme, replace_block(readme.read_text(), spec.report.block, written.block, spec.report.readme))
+        text = replace_block(readme.read_text(), spec.report.block, written.block, spec.report.readme)
+        for name, body in written.blocks.items():
+            text = replace_block(text, name, body, spec.report.readme)
+        _write(readme, text)
     return written

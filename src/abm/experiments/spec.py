@@ -314,7 +314,10 @@ class Section:
         config: the grounding configuration it shows.
         spread: a table's averages also show their standard error over the repeats (cells show mean ± std).
         seeds: run -> the same run with another seed (a ``seeds`` section: their difference is the seed spread).
-        explain: a ``targets`` section also says, for each missed target, what the run's diagnosis shows.
+        explain: a ``targets`` section measures a miss against the seed spread, and a ``target_diagnosis``
+            section says, for each target it misses, what the run's diagnosis shows.
+        only: ``readme``: the section is written into the README block only; ``document``: into the document
+            only; "" (default): into both.
     """
 
     kind: str
@@ -340,6 +343,7 @@ class Section:
     spread: bool = False
     seeds: Mapping[str, str] = field(default_factory=dict)
     explain: bool = False
+    only: str = ""
 
 
 @dataclass(frozen=True)
@@ -414,6 +418,8 @@ class ReportSpec:
             :mod:`abm.experiments.arm_records`), or "" for none.
         readme: the file holding the generated block, or "" for none.
         block: the block's marker name (``<!-- NAME:start -->`` ... ``<!-- NAME:end -->``).
+        blocks: further blocks of the same README, marker name -> their sections (e.g. a ``headline`` block at
+            the top of the README: no provenance line and no link to the document, just their sections).
         summary: sections of the README block and the document's top.
         details: sections of the document only.
         figures: figures drawn from the kept outcomes.
@@ -429,6 +435,7 @@ class ReportSpec:
     arm_records: str = ""
     summary: tuple[Section, ...] = ()
     details: tuple[Section, ...] = ()
+    blocks: Mapping[str, tuple[Section, ...]] = field(default_factory=dict)
     figures: tuple[FigureSpec, ...] = ()
     zoo_readme: bool = False
     zoo_note: str = ""
@@ -669,6 +676,8 @@ SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "averages": ("title", "runs", "splits", "table", "paper", "names", "column", "spread"),
     "spread": ("of_table", "text"),
     "targets": ("text", "runs", "checks", "digits", "explain"),
+    "target_diagnosis": (),
+    "headline": ("text", "runs", "splits", "paper", "names", "column", "digits"),
     "caveats": (),
     "weakest_keyframes": ("splits",),
     "approach_yaw": ("splits", "task", "note"),
@@ -700,7 +709,7 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
     kind = reader.choice("kind", list(SECTION_KEYS))
     allowed = SECTION_KEYS[kind]
     for key in reader.data:
-        if key != "kind" and key not in allowed:
+        if key not in ("kind", "only") and key not in allowed:
             raise reader.error(f"a {kind!r} section takes {', '.join(allowed) or 'no other key'}", key)
     known = set(runs)
     section_runs = reader.names("runs", ()) if "runs" in allowed else ()
@@ -777,7 +786,10 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
                       column=reader.text("column", ""), show=show, describe=reader.flag("describe"),
                       kinds=reader.names("kinds", ()), sentences=tuple(sentences), source=reader.path("source", ""),
                       config=reader.text("config", ""), spread=reader.flag("spread"), seeds=seeds,
-                      explain=reader.flag("explain"))
+                      explain=reader.flag("explain"),
+                      only=reader.choice("only", ("readme", "document")) if reader.has("only") else "")
+    if kind == "headline" and (not section_runs or not splits):
+        raise reader.error("a 'headline' section needs its runs and splits", "runs")
     if kind == "seeds" and (not seeds or section.of_table is None):
         raise reader.error("a 'seeds' section needs seeds (RUN: RUN_OTHER_SEED) and the table it measures (of_table)",
                            "seeds")
@@ -791,6 +803,21 @@ def _sections(reader: _Reader, key: str, runs: Sequence[str]) -> tuple[Section, 
         raise reader.error(f"expected a list of sections, got {_shown(raw)}", key)
     return tuple(_section(_Reader(item, reader.source, f"{reader.where}.{key}[{i}]"), runs)
                  for i, item in enumerate(raw))
+
+
+def _readme_blocks(reader: _Reader, runs: Sequence[str]) -> dict[str, tuple[Section, ...]]:
+    """``report.blocks``: marker name -> the sections of that README block."""
+    if not reader.has("blocks"):
+        return {}
+    sub = reader.sub("blocks")
+    out = {}
+    for name in list(sub.data):
+        if not isinstance(name, str) or not _MARKER.match(name) or name == reader.data.get("block"):
+            raise sub.error(f"expected a marker name (lower case, digits, -) other than the block's, got {name!r}",
+                            str(name))
+        out[name] = _sections(sub, name, runs)
+    sub.done()
+    return out
 
 
 # ------------------------------------------------------------------------------------------------ the spec
@@ -955,9 +982,12 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
                         records=rep.path("records", ""), readme=rep.path("readme", ""), block=rep.text("block", ""),
                         arm_records=rep.path("arm_records", ""),
                         summary=_sections(rep, "summary", rows), details=_sections(rep, "details", rows),
+                        blocks=_readme_blocks(rep, rows),
                         figures=tuple(figures), zoo_readme=rep.flag("zoo_readme"), zoo_note=rep.text("zoo_note", ""))
     if report.readme and not _MARKER.match(report.block):
         raise rep.error(f"a README block needs a marker name (lower case, digits, -), got {report.block!r}", "block")
+    if report.blocks and not report.readme:
+        raise rep.error("further README blocks need the README they go into (readme)", "blocks")
     if not report.document and not report.readme:
         raise rep.error("writes nothing: give a document, a README block, or both", "document")
     if report.document and not report.title:

@@ -663,7 +663,9 @@ class Engine:
             write_report(self.spec, self.layout)
             written = [self.spec.report.document] if self.spec.report.document else []
             if self.spec.report.readme:
-                written.append(f"the {self.spec.report.block} block of {self.spec.report.readme}")
+                names = [self.spec.report.block, *self.spec.report.blocks]
+                written.append(f"the {' and '.join(names)} block{'s' if len(names) > 1 else ''} of "
+                               f"{self.spec.report.readme}")
             LOG.info("report: wrote %s", " and ".join(written))
             return True
         if stage == "carry":
