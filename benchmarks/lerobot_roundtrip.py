@@ -2,7 +2,7 @@
 LeRobot's API imported into abm. Run it with the Python of an environment that holds both abm and LeRobot
 0.6.1 (the recipe is in docs/datasets.md, "Using the exports from LeRobot 0.6.1"):
 
-    OMP_NUM_THREADS=1 python benchmarks/lerobot_roundtrip.py --out /tmp/lerobot_roundtrip \
+    OMP_NUM_THREADS=1 python benchmarks/lerobot_roundtrip.py --out runs/lerobot_roundtrip \
         [--episodes 2] [--resolution 64] [--steps 5] [--json docs/results/lerobot_roundtrip.json]
 
 Steps, each timed and checked:

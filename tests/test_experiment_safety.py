@@ -8,6 +8,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -258,6 +259,11 @@ def test_a_job_s_live_pid_in_the_job_log_counts_only_if_that_process_runs_the_jo
         engine = Engine(spec, root=tmp_path, runner=runner)
         with subprocess.Popen(argv) as orphan:  # the training a killed engine left, or an unrelated process
             try:
+                # until the child has exec'd, /proc/PID/cmdline is still this test's own (a loaded machine is slow)
+                cmdline = Path(f"/proc/{orphan.pid}/cmdline")
+                deadline = time.monotonic() + 30
+                while b"time.sleep" not in cmdline.read_bytes() and time.monotonic() < deadline:
+                    time.sleep(0.02)
                 engine.layout.jobs.unlink(missing_ok=True)
                 log_job(engine.layout, "train/abm_oracle", "start", pid=orphan.pid)
                 assert engine.run(["train"]) == (0 if started else 1)
