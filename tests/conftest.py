@@ -27,6 +27,9 @@ import pytest
 # the commands that name no grounder fall to the oracle, as on a machine without CLIP weights
 # (abm.grounding.default; the tests of that order set their own).
 os.environ.setdefault("ABM_BENCHMARK_CLIP", str(Path(tempfile.gettempdir()) / "abm-tests-no-benchmark-clip"))
+# The expert keyframes' disk cache (abm.evaluation.expert_cache) of the tests is their own, so a run computes them
+# with the code under test and leaves the user's cache alone.
+os.environ.setdefault("ABM_EXPERT_CACHE", tempfile.mkdtemp(prefix="abm-tests-expert-keyframes-"))
 
 TINY_POLICY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
                "decoder_channels": 4, "lang_dim": 16}

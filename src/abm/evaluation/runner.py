@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from abm.errors import ConfigError, OutputError
+from abm.evaluation import expert_cache
 from abm.evaluation.expert_move import ExpertMove
 from abm.evaluation.html_report import write_html_report
 from abm.evaluation.plots import run_loss_curves, success_chart
@@ -172,27 +173,61 @@ _EXPERTS: dict[tuple[str, str, int, str | None], tuple[Any, ...]] = {}
 evaluation faces the same scenes."""
 
 
-def _expert_of(job: EvalJob, settings: EvalSettings, env: Any) -> tuple[Any, ...]:
-    """The expert's keyframes on the job's scene (:func:`abm.evaluation.step_records.expert_keyframes`, run in
-    ``env`` once its rollout is over, or remembered from another method's rollout of the scene); ``()`` when the
-    expert cannot run there (the step records then name no expert keyframe; the outcome is unchanged)."""
+def _expert_path(job: EvalJob, settings: EvalSettings) -> Path | None:
+    """The disk cache's file of the job's scene (:mod:`abm.evaluation.expert_cache`), ``None`` with the cache off."""
+    folder = expert_cache.cache_folder()
+    if folder is None:
+        return None
+    return expert_cache.scene_file(folder, job.task, job.split, job.seed, settings.splits_path, code_digest())
+
+
+def _known_expert(job: EvalJob, settings: EvalSettings) -> tuple[Any, ...] | None:
+    """The expert's keyframes of the job's scene if this process or the disk cache has them, else ``None``."""
     key = (job.task, job.split, job.seed, settings.splits_path)
     if key not in _EXPERTS:
-        try:
-            _EXPERTS[key] = expert_keyframes(env)
-        except Exception:  # noqa: BLE001 - the expert is extra data: it must never fail the episode
-            return ()
-        if len(_EXPERTS) > 512:  # a long evaluation in one process: forget the oldest scene
-            del _EXPERTS[next(iter(_EXPERTS))]
+        path = _expert_path(job, settings)
+        keyframes = None if path is None else expert_cache.read(path)
+        if keyframes is None:
+            return None
+        _remember(key, keyframes)
     return _EXPERTS[key]
+
+
+def _remember(key: tuple[str, str, int, str | None], keyframes: tuple[Any, ...]) -> None:
+    """Keep a scene's expert keyframes for the process (at most 512 scenes: the oldest is forgotten)."""
+    _EXPERTS[key] = keyframes
+    if len(_EXPERTS) > 512:
+        del _EXPERTS[next(iter(_EXPERTS))]
+
+
+def _expert_of(job: EvalJob, settings: EvalSettings, env: Any) -> tuple[Any, ...]:
+    """The expert's keyframes on the job's scene: known already (:func:`_known_expert`), or
+    :func:`abm.evaluation.step_records.expert_keyframes` run in ``env`` once its rollout is over and kept in the
+    process and on disk; ``()`` when the expert cannot run there (the step records then name no expert keyframe;
+    the outcome is unchanged)."""
+    known = _known_expert(job, settings)
+    if known is not None:
+        return known
+    try:
+        keyframes = expert_keyframes(env)
+    except Exception:  # noqa: BLE001 - the expert is extra data: it must never fail the episode
+        return ()
+    path = _expert_path(job, settings)
+    if path is not None:
+        expert_cache.write(path, keyframes)
+    _remember((job.task, job.split, job.seed, settings.splits_path), keyframes)
+    return keyframes
 
 
 def _expert_move(job: EvalJob, settings: EvalSettings) -> ExpertMove | None:
     """The expert-move rule of a rollout under ``--expert-keyframes`` (``None`` without), with the expert's
-    keyframes of the job's scene computed in a separate copy of it (:func:`_expert_of`), so the rollout's own
-    scene and RNGs are untouched."""
+    keyframes of the job's scene known already or computed in a separate copy of it (:func:`_expert_of`), so the
+    rollout's own scene and RNGs are untouched."""
     if settings.expert_keyframes is None:
         return None
+    known = _known_expert(job, settings)
+    if known is not None:
+        return ExpertMove(known)
     from abm.sim.env import make_env  # mujoco (optional `sim` extra)
 
     with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
