@@ -1,0 +1,84 @@
+"""The base of every diagnosis request (:class:`DiagnosisRequest`): a frozen dataclass whose fields say what to
+measure and where to write it, that round-trips through JSON (:meth:`~DiagnosisRequest.to_dict`,
+:meth:`~DiagnosisRequest.from_dict`) so the experiment engine can hand it to another process, and whose
+:meth:`~DiagnosisRequest.run` measures and writes the output file."""
+
+from __future__ import annotations
+
+import json
+import types
+from dataclasses import fields
+from pathlib import Path
+from typing import Any, ClassVar, Self, Union, get_args, get_origin, get_type_hints
+
+from abm.errors import ConfigError
+
+
+def _plain(value: Any) -> Any:
+    """``value`` as JSON holds it: paths as text, tuples as lists."""
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _typed(hint: Any, value: Any) -> Any:
+    """``value`` read from JSON as the field type ``hint`` says (``Path``, ``tuple[X, ...]``, optional ones)."""
+    if value is None:
+        return None
+    origin = get_origin(hint)
+    if origin in (Union, types.UnionType):
+        return _typed(next(a for a in get_args(hint) if a is not type(None)), value)
+    if origin is tuple:
+        return tuple(_typed(get_args(hint)[0], v) for v in value)
+    return Path(value) if hint is Path else value
+
+
+class DiagnosisRequest:
+    """What one diagnosis measures (a frozen dataclass subclass; its registry name is :attr:`kind`).
+
+    Subclasses implement :meth:`run`, which measures, writes the output file (its ``out`` field, when set) and
+    returns what it wrote as a JSON-ready value."""
+
+    kind: ClassVar[str]
+    """The diagnosis' name in :data:`abm.evaluation.diagnose.DIAGNOSES`."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"kind": KIND, FIELD: value, ...}`` (JSON types: paths as text, tuples as lists)."""
+        return {"kind": self.kind, **{f.name: _plain(getattr(self, f.name)) for f in fields(self)}}  # type: ignore[arg-type]
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Self:
+        """The request :meth:`to_dict` wrote (``kind``, when given, must be this class's).
+
+        Raises:
+            ConfigError: another kind, a key the request does not have, or a field it needs missing.
+        """
+        data = dict(data)
+        kind = data.pop("kind", cls.kind)
+        if kind != cls.kind:
+            raise ConfigError(f"a {cls.kind!r} diagnosis request, not {kind!r}")
+        hints = get_type_hints(cls)
+        names = [f.name for f in fields(cls)]  # type: ignore[arg-type]
+        unknown = sorted(set(data) - set(names))
+        if unknown:
+            raise ConfigError(f"unknown key(s) {', '.join(unknown)} of a {cls.kind!r} diagnosis; known: "
+                              f"{', '.join(names)}")
+        try:
+            return cls(**{k: _typed(hints[k], v) for k, v in data.items()})
+        except TypeError as err:  # a required field missing
+            raise ConfigError(f"a {cls.kind!r} diagnosis request: {err}") from None
+
+    def run(self) -> Any:
+        """Measure, write the output file and return its content (JSON-ready)."""
+        raise NotImplementedError
+
+
+def write_json(out: Path | None, payload: Any, newline: bool = False) -> None:
+    """Write ``payload`` as indented JSON (``indent=1``; a final newline when ``newline``) to ``out`` (its folder
+    made), unless ``out`` is ``None``."""
+    if out is None:
+        return
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(payload, indent=1) + ("\n" if newline else ""))
