@@ -166,8 +166,8 @@ def test_task_all_expands_to_the_trainable_tasks():
 
 
 def test_data_generate_all_covers_every_trainable_task(tmp_path, monkeypatch, capsys):
-    import abm.cli.commands.data as command
     import abm.data.generate as gen
+    import abm.data.stores as stores
     from abm.cli import main
 
     calls = []
@@ -176,7 +176,7 @@ def test_data_generate_all_covers_every_trainable_task(tmp_path, monkeypatch, ca
         calls.append((task, split))
         return gen.GenerationReport(episodes, 0, [], 1.0)
 
-    monkeypatch.setattr(command, "generate", fake_generate)
+    monkeypatch.setattr(stores, "generate", fake_generate)
     assert main(["data", "generate", "--task", "all", "--split", "seen", "--episodes", "2",
                  "--out", str(tmp_path)]) == 0
     assert [t for t, _ in calls] == trainable_tasks()

@@ -84,4 +84,4 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     e.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), default="float32",
                    help="storage dtype of the floating-point weights (default: float32, unchanged)")
     e.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
-    e.set_defaults(func="abm.cli.commands.train:run_export")
+    e.set_defaults(func="abm.cli.commands.export:run")

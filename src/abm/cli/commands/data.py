@@ -9,36 +9,18 @@ from typing import Any
 
 from abm.data.episode_store import EpisodeInfo, EpisodeStore, verify_episode
 from abm.data.formats import DATASET_FORMATS
-from abm.data.generate import expand_tasks, generate
-from abm.data.keyframes import EpisodeSource, ground_keyframes
+from abm.data.generate import expand_tasks
+from abm.data.stores import generate_tasks, ground_store
 from abm.errors import ConfigError, ExternalError
 from abm.geometry import Workspace
-from abm.grounding.config import grounder_from_flags
 from abm.policy.config import PolicyConfig
 from abm.registry import resolve
-from abm.sim.recorder import control_period
 
 
 def _generate(args: argparse.Namespace) -> int:
-    tasks = expand_tasks(args.task)
-    if args.episodes < 1:
-        raise ConfigError(f"--episodes must be at least 1, got {args.episodes}")
-    if args.workers < 1:
-        raise ConfigError(f"--workers must be at least 1, got {args.workers}")
-    if not 16 <= args.resolution <= 1024:
-        raise ConfigError(f"--resolution must be between 16 and 1024, got {args.resolution}")
-    if args.out.exists() and not args.out.is_dir():
-        raise ConfigError(f"--out {args.out} is a file; give a folder")
-    if args.dense:
-        control_period(args.dense_fps)  # a ConfigError naming the allowed rates
-    for task in tasks:
-        report = generate(task, args.split, args.episodes, args.out, workers=args.workers,
-                          seed=args.seed, resolution=args.resolution, splits_path=args.splits,
-                          dense_fps=args.dense_fps if args.dense else None, backend=args.backend,
-                          ray_address=args.ray_address)
-        print(f"{task}/{args.split}: {report.created} new, {report.skipped} already present, "
-              f"{len(report.failed_seeds)} expert failures, {report.seconds:.0f} s "
-              f"({report.episodes_per_minute:.1f} episodes/min) -> {args.out}")
+    generate_tasks(expand_tasks(args.task), args.split, args.episodes, args.out, workers=args.workers, seed=args.seed,
+                   resolution=args.resolution, splits_path=args.splits,
+                   dense_fps=args.dense_fps if args.dense else None, backend=args.backend, ray_address=args.ray_address)
     return 0
 
 
@@ -112,22 +94,10 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _ground(args: argparse.Namespace) -> int:
-    if not args.data.is_dir():
-        raise ConfigError(f"--data {args.data} is not a folder")
-    if args.cache.exists() and not args.cache.is_dir():
-        raise ConfigError(f"--cache {args.cache} is a file; give a folder")
     defaults = PolicyConfig()
     workspace = Workspace(tuple(args.workspace_center or defaults.workspace_center),
                           args.workspace_size or defaults.workspace_size)
-    store = EpisodeStore(args.data)
-    indices = store.select(tasks=args.tasks, splits=args.splits)
-    if not indices:
-        raise ConfigError(store.nothing_selected(args.tasks, args.splits))
-    store.check_consistent(indices)
-    grounder = grounder_from_flags(args.grounder, args.clip_model, args.clip_device)
-    assert grounder is not None  # --grounder has a default
-    made = ground_keyframes(EpisodeSource(store, indices), workspace, grounder, args.cache, mask=not args.features,
-                            features=args.features, augment=not args.no_augment, camera_names=args.cameras)
-    what = "CLIP point features" if args.features else "mask fields"
-    print(f"{what} of {made} keyframes computed ({len(indices)} episodes) -> {args.cache}")
+    ground_store(args.data, args.cache, workspace, grounder=args.grounder, clip_model=args.clip_model,
+                 clip_device=args.clip_device, features=args.features, tasks=args.tasks, splits=args.splits,
+                 cameras=args.cameras, augment=not args.no_augment)
     return 0

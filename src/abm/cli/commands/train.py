@@ -26,27 +26,11 @@ from abm.configuration import (
 from abm.data.episode_store import held_out_overlap
 from abm.errors import ConfigError, ExternalError
 from abm.evaluation.plots import run_loss_curves
-from abm.files import FolderLock
 from abm.grounding.default import default_grounder
-from abm.policy.checkpoint import check_export_target, export_checkpoint, resolve_checkpoint
 from abm.policy.config import PolicyConfig
 from abm.train.config import TrainConfig, grounding_from_flags
 from abm.train.loop import train
 from abm.train.synthetic import synthetic_episodes
-
-
-def run_export(args: argparse.Namespace) -> int:
-    import torch
-
-
-    src = resolve_checkpoint(args.run)
-    dtype = None if args.dtype == "float32" else getattr(torch, args.dtype)
-    check_export_target(src, args.out, args.overwrite)
-    with FolderLock(Path(args.out).parent, "abm export"):  # not while another command writes that folder
-        out = export_checkpoint(src, args.out, dtype)
-    logging.getLogger("abm").info("exported %s (%.1f MiB) -> %s (%.1f MiB)", src, src.stat().st_size / 2**20,
-                                  out, out.stat().st_size / 2**20)
-    return 0
 
 
 def train_grounder(args: argparse.Namespace) -> tuple[str, str | None]:
