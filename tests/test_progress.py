@@ -79,3 +79,27 @@ def test_train_logs_summary_validation_loss_plain_lines_and_curve(tmp_path, caps
     held_out = {int(r["step"]): float(r["val_total"]) for r in rows if r["val_total"]}
     assert sorted(held_out) == [2, 4] and all(v > 0 for v in held_out.values())
     assert (run / "training_curve.png").stat().st_size > 1000
+
+
+def test_the_time_left_leaves_out_the_start_up_and_waits_for_a_rate(monkeypatch) -> None:
+    """A 100-unit job whose first unit takes 100 s (imports, a model, a renderer) and every other 1 s: the line at
+    10 % says ~1.5 min left (the start-up counted would say ~16 min); before 3 units after the first, no guess."""
+    import abm.progress
+
+    clock = [0.0]
+    monkeypatch.setattr(abm.progress.time, "monotonic", lambda: clock[0])
+    out = io.StringIO()
+    bar = Progress(100, "eval seen", "episodes", stream=out, interval_s=1e9)
+    clock[0] = 100.0
+    bar.update(1)
+    for _ in range(9):
+        clock[0] += 1.0
+        bar.update(1)
+    assert out.getvalue().splitlines() == ["eval seen: 10/100 episodes (10 %), 1.8 min, ~1.5 min left"]
+    early = io.StringIO()
+    slow = Progress(10, "eval unseen", "episodes", stream=early, interval_s=0.0)
+    for _ in range(4):
+        clock[0] += 30.0
+        slow.update(1)
+    lines = early.getvalue().splitlines()
+    assert [line.rsplit(", ", 1)[-1] for line in lines] == ["estimating time left"] * 3 + ["~3.0 min left"]

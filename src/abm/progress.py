@@ -4,6 +4,11 @@ On a terminal it is a tqdm bar. When the output is not a terminal (CI, ``nohup``
 the bar is turned off (``--no-progress``) it writes plain lines instead, at most one per ``every`` of the
 work (10 %) or per ``interval_s`` (a minute), whichever comes first, plus one at the end, so a log stays
 readable: ``train abm/small: 140/1400 steps (10 %), 2.1 min, ~19 min left, loss=0.412``.
+
+The time left is the rate since the first unit finished times the units left: the start-up before it (imports,
+loading a model, a renderer's first frame) is not a rate, and counting it made the first estimate of a 26-minute
+evaluation read ~84 minutes. Until :data:`MIN_UNITS_FOR_ETA` units have finished since then, lines say
+``estimating time left``.
 """
 
 from __future__ import annotations
@@ -11,6 +16,9 @@ from __future__ import annotations
 import sys
 import time
 from typing import IO, Any
+
+#: units finished after the first one before a line estimates the time left
+MIN_UNITS_FOR_ETA = 3
 
 
 def _minutes(seconds: float) -> str:
@@ -41,6 +49,7 @@ class Progress:
         self.postfix: dict[str, Any] = {}
         self._start_n, self._t0 = self.n, time.monotonic()
         self._last_t, self._last_n = self._t0, self.n
+        self._first: tuple[float, int] | None = None  # (time, units) when the first unit of this process finished
         self._closed = False
         self._bar = None
         if enabled and bar and self.stream.isatty():
@@ -68,6 +77,8 @@ class Progress:
         """``n`` more units done; ``postfix`` values (``loss=0.41``) are shown beside the count."""
         self.n += n
         self.postfix.update(postfix)
+        if self._first is None:
+            self._first = (time.monotonic(), self.n)
         if not self.enabled:
             return
         if self._bar is not None:
@@ -110,11 +121,20 @@ class Progress:
             text += f" ({100 * self.n / self.total:.0f} %)"
         text += f", {_minutes(elapsed)}"
         if 0 < done and self.n < self.total:
-            text += f", ~{_minutes(elapsed / done * (self.total - self.n))} left"
+            text += f", {self._left(now)}"
         if self.postfix:
             text += ", " + ", ".join(f"{k}={_text(v)}" for k, v in self.postfix.items())
         print(text, file=self.stream, flush=True)
         self._last_t, self._last_n = now, self.n
+
+
+    def _left(self, now: float) -> str:
+        """``~T left`` from the rate since the first unit finished, or ``estimating time left`` (module doc)."""
+        assert self._first is not None  # a unit was done
+        since, units = now - self._first[0], self.n - self._first[1]
+        if units < MIN_UNITS_FOR_ETA or since <= 0:
+            return "estimating time left"
+        return f"~{_minutes(since / units * (self.total - self.n))} left"
 
 
 def _text(value: Any) -> str:
