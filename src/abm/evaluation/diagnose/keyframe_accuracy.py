@@ -16,6 +16,12 @@ from pathlib import Path
 from typing import Any
 
 from abm.evaluation.diagnose.request import DiagnosisRequest, write_json
+from abm.evaluation.keyframe_accuracy import as_records, keyframe_errors, markdown, summarise
+from abm.evaluation.runner import method_labels
+from abm.grounding.config import grounder_from_flags
+from abm.machine import describe_machine
+from abm.policy import KeyframePolicy
+from abm.policy.checkpoint import checkpoint_path
 
 log = logging.getLogger(__name__)
 
@@ -52,11 +58,6 @@ class KeyframeAccuracy(DiagnosisRequest):
 
     def policies(self) -> dict[str, Any]:
         """Label -> loaded :class:`abm.policy.KeyframePolicy` of every model (and of its ``steps``)."""
-        from abm.evaluation.runner import method_labels
-        from abm.grounding.config import grounder_from_flags
-        from abm.policy import KeyframePolicy
-        from abm.policy.checkpoint import checkpoint_path
-
         grounder = grounder_from_flags(self.grounder, self.clip_model)
         labels = method_labels(self.models)
         policies = {}
@@ -73,9 +74,6 @@ class KeyframeAccuracy(DiagnosisRequest):
 
     def run(self) -> dict[str, Any]:
         """Score every policy, write :attr:`out` and return its content (the summary table is logged)."""
-        from abm.evaluation.keyframe_accuracy import as_records, keyframe_errors, markdown, summarise
-        from abm.machine import describe_machine
-
         policies = self.policies()
         start = time.perf_counter()
         errors = []

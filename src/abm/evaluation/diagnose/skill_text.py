@@ -20,6 +20,10 @@ from typing import Any
 
 from abm.errors import ConfigError
 from abm.evaluation.diagnose.request import DiagnosisRequest, write_json
+from abm.evaluation.keyframe_accuracy import skill_text_probe, task_skills
+from abm.grounding.config import grounder_from_flags
+from abm.machine import describe_machine
+from abm.policy import KeyframePolicy
 
 log = logging.getLogger(__name__)
 
@@ -60,11 +64,6 @@ class SkillTextProbe(DiagnosisRequest):
         Raises:
             ConfigError: the model is not a mask variant (it reads the whole instruction, not a skill text).
         """
-        from abm.evaluation.keyframe_accuracy import skill_text_probe, task_skills
-        from abm.grounding.config import grounder_from_flags
-        from abm.machine import describe_machine
-        from abm.policy import KeyframePolicy
-
         policy = KeyframePolicy.from_checkpoint(self.model, grounder=grounder_from_flags(self.grounder))
         if policy.spec.language != "skill":
             raise ConfigError(f"{self.model} is a {policy.spec.name!r} policy: it reads the whole instruction, not a "
