@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -128,7 +129,7 @@ def test_abm_ground_leaves_the_grounder_to_the_order():
 
 
 def test_abm_eval_without_out_never_writes_into_the_zoo(tmp_path, monkeypatch):
-    from abm.cli.commands.evaluate import default_eval_base
+    from abm.evaluation.session import default_eval_base
 
     monkeypatch.chdir(tmp_path)
     zoo = tmp_path / "models"
@@ -150,19 +151,18 @@ def test_abm_eval_without_out_never_writes_into_the_zoo(tmp_path, monkeypatch):
 
 
 def test_abm_eval_records_its_protocol():
-    from abm.cli.commands.evaluate import eval_protocol
     from abm.evaluation.results import eval_seed
+    from abm.evaluation.session import EvalRequest, eval_protocol
     from abm.evaluation.settings import EvalSettings
 
-    args = argparse.Namespace(run=[Path("models/abm_clip.pt")], episodes=3, repeats=2, tasks=None, grounder=None,
-                              clip_model=None, max_steps=8)
-    protocol = eval_protocol(args, {"seen": ["pick_block"]}, EvalSettings())
+    request = EvalRequest(runs=[Path("models/abm_clip.pt")], episodes=3, repeats=2)
+    protocol = eval_protocol(request, {"seen": ["pick_block"]})
     assert protocol["seeds"] == [[eval_seed(r, e) for e in range(3)] for r in range(2)]
     assert protocol["seeds_text"] == f"{eval_seed(0, 0)}-{eval_seed(0, 2)}, {eval_seed(1, 0)}-{eval_seed(1, 2)}"
     assert protocol["command"] == ("abm eval --run models/abm_clip.pt --split seen --episodes 3 --repeats 2 "
                                    f"--max-steps {EvalSettings().max_steps} --resolution {EvalSettings().resolution}")
-    one = argparse.Namespace(**{**vars(args), "episodes": 1, "repeats": 1, "tasks": ["pick_block"]})
-    protocol = eval_protocol(one, {"seen": ["pick_block"]}, EvalSettings(grounder="oracle"))
+    one = replace(request, episodes=1, repeats=1, tasks=["pick_block"], settings=EvalSettings(grounder="oracle"))
+    protocol = eval_protocol(one, {"seen": ["pick_block"]})
     assert protocol["seeds_text"] == str(eval_seed(0, 0))
     assert "--tasks pick_block --grounder oracle" in protocol["command"]
     json.dumps(protocol)
@@ -176,7 +176,7 @@ def _outcome(method: str, episode: int, success: bool, repeat: int = 0, error: s
 
 
 def test_gifs_show_a_fixed_mix_of_successes_and_failures():
-    from abm.cli.commands.evaluate import gif_choice
+    from abm.evaluation.session import gif_choice
 
     wins = [1, 3, 4, 6]
     outcomes = [_outcome("abm", e, e in wins) for e in range(8)] + [_outcome("abm", 0, True, repeat=1)]

@@ -285,7 +285,7 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
     import functools
     import shutil
 
-    import abm.cli.commands.evaluate as command
+    import abm.evaluation.session as command
     from abm.cli import main as cli_main
     from abm.evaluation import runner
     from abm.train import TrainConfig, train

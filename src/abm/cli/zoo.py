@@ -4,9 +4,10 @@ training.
 * ``abm zoo list`` prints the index (``models/index.json``, written by ``abm experiment run paper_tables``)
   and checks every file against its recorded sha256;
 * ``abm zoo eval`` evaluates the zoo's abm and rvt models on seen and unseen objects of the paper's 8 tasks
-  (:data:`ZOO_EVAL_TASKS`, fixed before looking at any result) through the full pipeline (simulator, grounding,
-  policy, executor) and prints one table. The default budget is 5 episodes per task and split: 160 rollouts, about
-  10 minutes on 2 CPU cores (estimated: the previous default, 80 rollouts of 2 tasks, took 5 minutes here).
+  (:data:`~abm.evaluation.settings.ZOO_EVAL_TASKS`, fixed before looking at any result) through the full pipeline
+  (simulator, grounding, policy, executor) and prints one table. The default budget is 5 episodes per task and
+  split: 160 rollouts, about 10 minutes on 2 CPU cores (estimated: the previous default, 80 rollouts of 2 tasks,
+  took 5 minutes here).
 
 Of each method (abm, rvt) it runs the first model of the index that the zoo can run: a CLIP-grounded one when
 the benchmark CLIP is in the zoo too (abm_clip, rvt_clip in the committed zoo), else one that needs no CLIP
@@ -18,14 +19,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from abm.configuration import int_range
+from abm.configuration import WORKERS, int_range
+from abm.evaluation.settings import ZOO_EVAL_EPISODES, ZOO_EVAL_MAX_STEPS, ZOO_EVAL_TASKS
 from abm.zoo import DEFAULT_ZOO
-
-#: the tasks ``abm zoo eval`` runs by default: the paper's 8 (Table 1), all of them, so the choice does not depend
-#: on which tasks the zoo's models happen to do well on
-ZOO_EVAL_TASKS = ("close_jar", "insert_peg", "pick_block", "place_food", "place_wine", "put_in_shelf", "take_off_pan",
-                  "water_plants")
-ZOO_EVAL_EPISODES = 5
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -42,7 +38,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                     help="tasks to evaluate (default: the paper's 8 tasks)")
     ev.add_argument("--episodes", type=int_range(1, 10_000), default=ZOO_EVAL_EPISODES,
                     help=f"seeded episodes per task and split (default {ZOO_EVAL_EPISODES}: ~7 min on 2 cores)")
-    ev.add_argument("--workers", type=int_range(1, 256), default=2, help="parallel rollout processes (default 2)")
-    ev.add_argument("--max-steps", type=int_range(1, 100), default=8, help="keyframes per episode (default 8)")
+    ev.add_argument("--workers", type=int_range(1, 256), default=WORKERS,
+                    help=f"parallel rollout processes (default {WORKERS})")
+    ev.add_argument("--max-steps", type=int_range(1, 100), default=ZOO_EVAL_MAX_STEPS,
+                    help=f"keyframes per episode (default {ZOO_EVAL_MAX_STEPS})")
     ev.add_argument("--out", type=Path, default=Path("out/zoo"), help="output folder (default out/zoo)")
     ev.set_defaults(func="abm.cli.commands.zoo:evaluate_zoo")

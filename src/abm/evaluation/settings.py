@@ -11,6 +11,13 @@ from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
 from abm.errors import ConfigError
 from abm.grounding.config import GROUNDERS, grounder_from_flags
 
+#: the tasks ``abm zoo eval`` runs by default: the paper's 8 (Table 1), all of them, so the choice does not depend
+#: on which tasks the zoo's models happen to do well on
+ZOO_EVAL_TASKS = ("close_jar", "insert_peg", "pick_block", "place_food", "place_wine", "put_in_shelf", "take_off_pan",
+                  "water_plants")
+ZOO_EVAL_EPISODES = 5  #: ``abm zoo eval``'s episodes per task and split (~7 min on 2 cores)
+ZOO_EVAL_MAX_STEPS = 8  #: ``abm zoo eval``'s keyframes per episode
+
 EXPERT_KEYFRAME_KINDS = ("move",)
 """Keyframe kinds ``abm eval --expert-keyframes`` executes as the scripted expert's
 (:mod:`abm.evaluation.expert_move`)."""
