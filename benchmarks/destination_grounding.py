@@ -6,7 +6,7 @@ Usage: python benchmarks/destination_grounding.py [--clip-model models/benchmark
 For the first observation of evaluation scenes (held-out seeds: :func:`abm.evaluation.results.eval_seed`), each
 task's target X and its declared destination (``Task.destination``) are grounded by the CLIP grounder (its default
 configuration with ``--clip-model``, as the paper-table runs ground), the text as the policy reads it (X from the
-instruction's split, the destination from :func:`abm.grounding.conditioning.instruction_destination`), and scored
+instruction's split, the destination from :func:`abm.language.roles.instruction_destination`), and scored
 against the simulator's segmentation of the true object (``abm.grounding.metrics``): point IoU, hit rate (mask
 centre inside the object's bounding box + 1 cm) and found rate. The oracle grounds both exactly (IoU 1) by
 construction. Prints a markdown table; ``--out`` writes the rows as JSON.
@@ -25,10 +25,10 @@ import numpy as np
 
 from abm.evaluation.results import eval_seed
 from abm.geometry import Workspace, fuse_cameras
-from abm.grounding.conditioning import instruction_destination, split_instruction
 from abm.grounding.config import ClipGrounderConfig, build_grounder
 from abm.grounding.grounders import target_point_mask
 from abm.grounding.metrics import score_mask
+from abm.language.roles import instruction_destination, split_instruction
 from abm.sim.env import make_env
 from abm.sim.tasks import TASKS
 

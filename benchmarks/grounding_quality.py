@@ -136,7 +136,7 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "proposals (crop, no split)": {"mode": "proposals", "proposals": {"scoring": "crop", "split": False}},
     "proposals (combined, 256 input)": {"mode": "proposals", "input_size": 256, "proposals": {"scoring": "combined"}},
 }
-"""Named grounding configurations: ``make_grounder("clip", **options)`` (or the oracle)."""
+"""Named grounding configurations: ``build_grounder({"kind": "clip", **options})`` (or the oracle)."""
 
 
 def build_config_grounder(options: dict[str, Any], backbone: Any) -> Any:
@@ -145,9 +145,9 @@ def build_config_grounder(options: dict[str, Any], backbone: Any) -> Any:
     kind = options.pop("kind", "clip")
     if kind == "oracle":
         return OracleGrounder()
-    from abm.grounding import make_grounder
+    from abm.grounding import build_grounder
 
-    return make_grounder("clip", backbone=backbone, cache_features=False, **options)
+    return build_grounder({"kind": "clip", "cache_features": False, **options}, backbone=backbone)
 
 
 def sweep(cases: list[tuple[Any, dict[str, Any]]], grounders: dict[str, Any]) -> list[dict[str, Any]]:

@@ -1,5 +1,5 @@
 """How often instructions in plain words resolve to the right scene object and task: the template parser alone
-(before) against :func:`abm.grounding.resolve_instruction` (after), on the hand-written set
+(before) against :func:`abm.language.resolve_instruction` (after), on the hand-written set
 ``tests/data/free_instructions.yaml`` (issue 40 item 4; recorded in docs/grounding.md).
 
 A case is *right* when the answer's object is the expected one of the scene and its task the expected task
@@ -21,8 +21,8 @@ from typing import Any
 
 from abm.files import load_yaml
 from abm.grounding.decision import target_candidates
-from abm.grounding.instruction import InstructionError, default_parser
-from abm.grounding.resolve import resolve_instruction
+from abm.language.instruction import InstructionError, default_parser
+from abm.language.resolve import resolve_instruction
 
 CASES = Path(__file__).resolve().parents[1] / "tests" / "data" / "free_instructions.yaml"
 SHELF_SKILLS = {"top": "put X on the top shelf", "bottom": "put X on the bottom shelf"}

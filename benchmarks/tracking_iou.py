@@ -23,7 +23,7 @@ import numpy as np
 
 from abm.data.generate import trainable_tasks
 from abm.geometry import Workspace, fuse_cameras
-from abm.grounding import make_grounder
+from abm.grounding import build_grounder
 from abm.grounding.grounders import OracleGrounder
 from abm.grounding.mask_field import MaskField
 from abm.grounding.tracking import TrackingGrounder
@@ -103,7 +103,7 @@ def main() -> None:
 
             def make(seed=seed):
                 if args.clip_model:
-                    return make_grounder("clip", model=args.clip_model, **clip_options)
+                    return build_grounder({"kind": "clip", "model": args.clip_model, **clip_options})
                 return NoisyOracle(args.drop, args.jump, seed)
 
             reacquire = args.reacquire == "on"

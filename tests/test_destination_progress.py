@@ -15,10 +15,10 @@ import pytest
 import torch
 
 from abm.geometry import Workspace, fuse_cameras
-from abm.grounding.conditioning import destination_for, instruction_destination
 from abm.grounding.config import ClipGrounderConfig, OracleGrounderConfig
 from abm.grounding.grounders import OracleGrounder
 from abm.grounding.tracking import TrackingGrounder
+from abm.language.roles import destination_for, instruction_destination
 from abm.policy import KeyframePolicy, PolicyConfig
 from abm.policy.keyframe_policy import proprioception
 from abm.render.synthetic import synthetic_scene
@@ -57,7 +57,7 @@ def test_every_task_declares_its_destination() -> None:
 
 @pytest.mark.parametrize("task", sorted(DESTINATIONS))
 def test_the_resolver_names_each_tasks_destination(task: str) -> None:
-    from abm.grounding.resolve import resolve_instruction
+    from abm.language.resolve import resolve_instruction
 
     text, want = DESTINATIONS[task]
     instance = TASKS[task]().sample(0, "compositional" if TASKS[task].evaluation_only else "seen")
@@ -201,7 +201,7 @@ def test_train_save_load_predict_with_both_switches(pick_block, tmp_path: Path) 
     episode, _ = pick_block
     overrides = {**TINY, "destination_mask": True, "progress_input": True}
     cfg = TrainConfig(method="abm", preset="small", out=tmp_path / "run", steps=2, batch=2, checkpoint_every=2,
-                      log_every=1, policy_overrides=overrides, progress=False, warmup=1)
+                      log_every=1, policy=overrides, progress=False, warmup=1)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from abm.cli import build_parser
 from abm.cli import main as cli_main
 from abm.data.episode_store import EpisodeFormatError, load_episode, read_info
-from abm.grounding.instruction import InstructionError, decompose_instruction
+from abm.language.instruction import InstructionError, decompose_instruction
 from abm.policy.checkpoint import load_checkpoint
 from abm.sim.splits import SplitFileError, load_splits
 from conftest import TINY_POLICY

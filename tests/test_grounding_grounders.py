@@ -11,10 +11,11 @@ import torch
 from abm.geometry import Workspace, fuse_cameras
 from abm.grounding import (
     ClipGrounder,
+    ClipGrounderConfig,
     GroundingCache,
     MaskField,
     OracleGrounder,
-    make_grounder,
+    build_grounder,
     match_object_ids,
     target_point_mask,
 )
@@ -40,7 +41,7 @@ def backbone():
 def test_oracle_marks_exactly_the_target(scene):
     obs, names, cloud = scene
     seg = cloud.gather({n: f.segmentation for n, f in obs.cameras.items()})
-    grounder = make_grounder("oracle")
+    grounder = build_grounder({"kind": "oracle"})
     for obj_id, name in names.items():
         field = grounder.ground(obs, cloud, name, names)
         assert isinstance(field, MaskField) and field.mask.shape == (len(cloud),)
@@ -75,9 +76,11 @@ def test_name_matching():
 
 def test_unknown_grounder_and_options():
     with pytest.raises(ValueError, match="unknown grounder"):
-        make_grounder("sam")
-    with pytest.raises(TypeError):
-        make_grounder("oracle", model="tiny")
+        build_grounder({"kind": "sam"})
+    with pytest.raises(ValueError, match=r"unknown option\(s\) \['model'\] for the 'oracle' grounder"):
+        build_grounder({"kind": "oracle", "model": "tiny"})
+    with pytest.raises(ValueError, match="takes no options"):
+        build_grounder({"kind": "oracle"}, cache=None)
 
 
 def test_clip_grounder_interface(scene, backbone):
@@ -93,9 +96,7 @@ def test_clip_grounder_interface(scene, backbone):
     np.testing.assert_allclose(np.linalg.norm(feats, axis=1), 1.0, atol=1e-5)
     text = grounder.text_features([field.prompt])[0]
     np.testing.assert_allclose(field.similarity, feats @ text, atol=1e-5)
-    tokens = grounder.skill_embeddings(["put X in the plate", "close X"])
-    assert isinstance(tokens, torch.Tensor) and tokens.shape == (2, 77, backbone.text_width)
-    minmax = make_grounder("clip", backbone=backbone, normalization="minmax", threshold=0.9, mode="field")
+    minmax = build_grounder(ClipGrounderConfig(normalization="minmax", threshold=0.9, mode="field"), backbone=backbone)
     f2 = minmax.ground(obs, cloud, "red block", names)
     assert f2.found and f2.heatmap.max() == pytest.approx(1.0) and f2.heatmap.min() == pytest.approx(0.0)
     assert np.all(f2.mask == (f2.heatmap >= 0.9))
@@ -193,7 +194,6 @@ def test_ground_command_reports_a_target_the_scene_does_not_hold(tmp_path, capsy
 
 
 def test_ground_command_bad_inputs_are_one_line_errors(tmp_path, capsys):
-    import torch
 
     from abm.cli import main
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from abm.errors import ConfigError
-from abm.grounding.instruction import (
+from abm.language.instruction import (
     InstructionError,
     InstructionParser,
     RewritingParser,
@@ -258,8 +258,8 @@ def test_and_inside_an_object_name_is_not_a_second_step():
 
 
 def test_multi_step_requests_are_not_silently_shortened_by_the_policy_or_a_rewriter():
-    from abm.grounding.conditioning import split_instruction
-    from abm.grounding.instruction import MultiStepInstructionError, RewritingParser
+    from abm.language.instruction import MultiStepInstructionError, RewritingParser
+    from abm.language.roles import split_instruction
 
     text = "put the ketchup in the plate and then close the jar"
     with pytest.raises(MultiStepInstructionError):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from abm.geometry import Workspace, fuse_cameras
-from abm.grounding import ClipGrounder, make_grounder
+from abm.grounding import ClipGrounder, build_grounder
 from abm.grounding.grounders import candidate_crops
 from abm.grounding.proposals import (
     ProposalConfig,
@@ -145,7 +145,7 @@ def setup():
 @pytest.mark.parametrize("scoring", ["dense", "crop", "combined"])
 def test_proposal_grounder_keeps_the_mask_field_contract(setup, scoring):
     obs, names, cloud, backbone = setup
-    grounder = make_grounder("clip", backbone=backbone, mode="proposals", scoring=scoring)
+    grounder = build_grounder({"kind": "clip", "mode": "proposals", "scoring": scoring}, backbone=backbone)
     assert grounder.proposal_config.scoring == scoring
     target = next(iter(names.values()))
     field = grounder.ground(obs, cloud, target, names)
@@ -210,16 +210,17 @@ def test_ground_command_takes_the_new_options(tmp_path):
 
 
 def test_resolved_spec_names_the_defaults_a_spec_relies_on(monkeypatch):
-    from abm.grounding import grounders
+    from abm.grounding import config, grounders
 
     for name, value in (("DEFAULT_CLIP_MODE", "field"), ("DEFAULT_DENSE_MODE", "maskclip"),
                         ("DEFAULT_INPUT_SIZE", None), ("DEFAULT_SCALES", ())):
-        monkeypatch.setattr(grounders, name, value)
+        monkeypatch.setattr(config, name, value)  # the defaults live with the typed configurations
     old = {"kind": "clip", "model": "m"}
     assert grounders.resolved_spec(old) == old  # the legacy defaults: cache keys of older specs stay valid
     assert grounders.resolved_spec({"kind": "oracle"}) == {"kind": "oracle"}
-    monkeypatch.setattr(grounders, "DEFAULT_CLIP_MODE", "proposals")
-    monkeypatch.setattr(grounders, "DEFAULT_INPUT_SIZE", 256)
+    assert grounders.resolved_spec({"kind": "tracking"}) == {"kind": "tracking"}  # no inner named: none added
+    monkeypatch.setattr(config, "DEFAULT_CLIP_MODE", "proposals")
+    monkeypatch.setattr(config, "DEFAULT_INPUT_SIZE", 256)
     got = grounders.resolved_spec(old)
     assert got["mode"] == "proposals" and got["input_size"] == 256 and "dense_mode" not in got
     assert got["proposals"] == ProposalConfig().__dict__

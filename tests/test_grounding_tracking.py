@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from abm.geometry import Workspace, fuse_cameras
-from abm.grounding import make_grounder
+from abm.grounding import build_grounder
 from abm.grounding.grounders import OracleGrounder
 from abm.grounding.mask_field import MaskField
 from abm.grounding.tracking import TrackingGrounder
@@ -72,7 +72,7 @@ def test_reset_target_change_and_loss_of_track_reground(rollout) -> None:
     episode, clouds = rollout
     target, names = episode.target_names[0], episode.object_names
     obs, cloud = clouds[0]
-    tracker = make_grounder("tracking", inner={"kind": "oracle"})
+    tracker = build_grounder({"kind": "tracking", "inner": {"kind": "oracle"}})
     assert isinstance(tracker, TrackingGrounder)
     tracker.ground(obs, cloud, target, names)
     tracker.ground(obs, cloud, target, names)
@@ -176,7 +176,7 @@ def test_clip_model_override_keeps_the_trained_clip_options(tmp_path, tiny_polic
 
     episodes = synthetic_episodes(2, camera_resolution=32)
     tiny = {k: v for k, v in tiny_policy.items() if k != "lang_dim"}  # the CLIP text width
-    train(TrainConfig(out=tmp_path, steps=1, batch=2, policy_overrides=tiny, progress=False,
+    train(TrainConfig(out=tmp_path, steps=1, batch=2, policy=tiny, progress=False,
                       grounder=ClipGrounderConfig(model="tiny", threshold=0.4)), episodes)
     other = str(tmp_path / "elsewhere")  # a CLIP folder that was moved: only the model changes
     spec = KeyframePolicy.from_checkpoint(tmp_path, grounder=grounder_from_flags("tracking", "tiny")).grounder_spec

@@ -1,6 +1,7 @@
 """Imports flow one way: types (and the small helpers errors, machine, workers, configuration, files,
 schema, lazy, progress, ray_pool, registry) -> geometry
--> render / grounding / sim -> samples -> data -> policy -> train -> evaluation / robot / viewer / zoo / gym
+-> render / sim -> language (instruction understanding: the benchmark's tasks and catalog are its vocabulary)
+-> grounding -> samples -> data -> policy -> train -> evaluation / robot / viewer / zoo / gym
 -> clip_training (the benchmark CLIP's trainer) -> experiments (the experiment engine) -> cli (the command line:
 parsers in ``abm.cli.<group>``, command functions in ``abm.cli.commands.<group>``).
 
@@ -26,7 +27,9 @@ LAYERS = [
     ("types", "errors", "machine", "workers", "configuration", "files", "schema", "lazy", "progress", "ray_pool",
      "registry"),
     ("geometry",),
-    ("render", "grounding", "sim"),
+    ("render", "sim"),
+    ("language",),  # reads the tasks' skills and the object catalog (sim); nothing here grounds or renders
+    ("grounding",),  # grounds the object the instruction names (language) in the points (render: mask views)
     ("samples",),
     ("data",),  # below policy: the dataset yields policy-independent samples
     ("policy",),
@@ -217,6 +220,7 @@ def test_the_check_sees_a_backwards_import(tmp_path) -> None:
     assert layer("abm.cli.commands.data") == layer("abm.cli") > layer("abm.clip_training.train")
     assert layer("abm.clip_training.data") > layer("abm.sim.cameras") and layer("abm.clip_training") > layer(
         "abm.grounding.clip")
+    assert layer("abm.grounding.conditioning") > layer("abm.language.roles") > layer("abm.sim.tasks")
 
 
 def test_the_module_level_import_graph_has_no_cycle() -> None:

@@ -1,4 +1,4 @@
-"""An instruction is acted on only if it is one positive command about one object (abm.grounding.one_command):
+"""An instruction is acted on only if it is one positive command about one object (abm.language.one_command):
 negations, conditions, alternatives, exclusions and swapped roles are refused in one line that quotes the words,
 by the resolver, the template parser, every fallback after them, ``abm run`` (dry-run, replay, MuJoCo) and
 ``abm ground --strict``; plain commands, polite ones and object names that hold such words still resolve."""
@@ -13,16 +13,16 @@ from tests.test_target_decision import OPEN, OPEN_YAML, recording  # noqa: F401 
 
 from abm.cli import main as cli_main
 from abm.errors import RefusedError
-from abm.grounding.conditioning import split_roles
-from abm.grounding.instruction import (
+from abm.language.instruction import (
     MultiStepInstructionError,
     NotOneCommandError,
     RewritingParser,
     decompose_instruction,
     default_parser,
 )
-from abm.grounding.one_command import ALTERNATIVE, CONDITION, EXCLUSION, NEGATION, SWAPPED, find_trigger
-from abm.grounding.resolve import UnresolvedInstructionError, resolve_instruction
+from abm.language.one_command import ALTERNATIVE, CONDITION, EXCLUSION, NEGATION, SWAPPED, find_trigger
+from abm.language.resolve import UnresolvedInstructionError, resolve_instruction
+from abm.language.roles import split_roles
 from abm.robot import run_robot
 
 SCENES = {

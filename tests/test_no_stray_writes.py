@@ -24,6 +24,8 @@ pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 
 import abm.data.lerobot as lerobot  # noqa: E402
+import abm.data.lerobot_export as lerobot_export  # noqa: E402
+import abm.data.lerobot_import as lerobot_import  # noqa: E402
 from abm.cli import build_parser  # noqa: E402
 from abm.cli import main as cli_main  # noqa: E402
 from abm.cli.commands.robot import check_record_target  # noqa: E402
@@ -128,7 +130,7 @@ def test_a_failed_export_removes_only_what_it_created(tmp_path, victim, monkeypa
         victim(path.parents[1] / "arrived_meanwhile.txt")
         raise raised[0]
 
-    monkeypatch.setattr(lerobot, "_write_tasks", fail)
+    monkeypatch.setattr(lerobot_export, "_write_tasks", fail)
     assert cli_main(["data", "export", "--format", "lerobot", "--data", str(data), "--out", str(empty)]) == 2
     _one_error(cli_errors, "the disk went away")
     assert sorted(p.name for p in empty.iterdir()) == ["arrived_meanwhile.txt"]  # the export's own files went
@@ -216,7 +218,7 @@ def test_an_interrupted_import_is_marked_and_refused_until_redone(tmp_path, monk
                                                                   cli_errors) -> None:
     ds = _export(tmp_path)
     out = tmp_path / "out"
-    real_save = lerobot.save_episode
+    real_save = lerobot_import.save_episode
     calls: list[Path] = []
 
     def save_then_stop(episode, path) -> None:  # Ctrl-C after the first episode is written
@@ -224,9 +226,9 @@ def test_an_interrupted_import_is_marked_and_refused_until_redone(tmp_path, monk
         calls.append(Path(path))
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(lerobot, "save_episode", save_then_stop)
+    monkeypatch.setattr(lerobot_import, "save_episode", save_then_stop)
     assert _import(ds, out) == 130
-    monkeypatch.setattr(lerobot, "save_episode", real_save)
+    monkeypatch.setattr(lerobot_import, "save_episode", real_save)
     assert len(calls) == 1 and (out / IMPORT_MARKER).is_file()
     assert "--overwrite" in (out / IMPORT_MARKER).read_text().splitlines()[0]
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from abm.grounding.instruction import (
+from abm.language.instruction import (
     InstructionError,
     MultiStepInstructionError,
     RewritingParser,

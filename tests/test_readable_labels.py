@@ -105,7 +105,7 @@ def test_version_is_checked_on_the_stored_metadata(tmp_path) -> None:
 
 
 def test_lerobot_import_refuses_an_old_episode_before_writing(tmp_path) -> None:
-    from abm.data.lerobot import LeRobotFormatError, _plan_episode
+    from abm.data.lerobot_import import LeRobotFormatError, _plan_episode
 
     def row(task: str, version: int | None) -> dict:
         meta = {"task": task, "split": "seen", "seed": 0, "success": True, "metadata": _simulated(version)}

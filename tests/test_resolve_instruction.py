@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from abm.grounding.instruction import InstructionError, MultiStepInstructionError, default_parser
-from abm.grounding.resolve import (
+from abm.language.instruction import InstructionError, MultiStepInstructionError, default_parser
+from abm.language.resolve import (
     PLACES,
     SKILL_PLACES,
     Resolution,

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from abm.grounding.resolve import UnresolvedInstructionError
+from abm.language.resolve import UnresolvedInstructionError
 from abm.robot import DryRunArm, MotionLimits, NoTargetError, run_robot
 from abm.robot.run import resolve_for_policy
 from abm.types import CameraFrame, KeyframeAction

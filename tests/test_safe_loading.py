@@ -119,7 +119,7 @@ def test_calibration_file(tmp_path, marker) -> None:
 
 
 def test_template_file(tmp_path, marker) -> None:
-    from abm.grounding.instruction import load_templates
+    from abm.language.instruction import load_templates
 
     bad = tmp_path / "templates.yaml"
     bad.write_text("skills: " + _yaml_payload(marker))
@@ -186,7 +186,7 @@ def test_a_key_given_twice_is_refused_in_every_yaml_file(tmp_path, capsys) -> No
     """Two ``limits:`` sections (or a key twice inside one) in any file abm reads: one error naming the file, the
     key and both lines, never a silent choice of the last one."""
     from abm.files import DuplicateKeyError, load_yaml
-    from abm.grounding.instruction import load_templates
+    from abm.language.instruction import load_templates
     from abm.robot.calibration import load_calibration
     from abm.robot.run import RobotConfig
     from abm.sim.splits import SplitFileError, load_splits

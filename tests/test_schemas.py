@@ -103,7 +103,7 @@ def test_split_files_refuse_unknown_keys_and_repeated_objects(tmp_path) -> None:
 
 
 def test_template_files_refuse_unknown_keys_and_name_the_file(tmp_path) -> None:
-    from abm.grounding.instruction import load_templates
+    from abm.language.instruction import load_templates
 
     path = tmp_path / "templates.yaml"
     path.write_text("skills: []\nskils: []\n")

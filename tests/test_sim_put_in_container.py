@@ -188,7 +188,7 @@ def test_predicate_wants_x_resting_in_the_named_container():
 
 
 def test_instructions_parse_to_x_and_y(task, splits):
-    from abm.grounding.instruction import TemplateParser, decompose_instruction
+    from abm.language.instruction import TemplateParser, decompose_instruction
 
     parser = TemplateParser()
     for split in SPLITS:

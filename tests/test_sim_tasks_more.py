@@ -14,7 +14,7 @@ from sim_helpers import require_simulator, teleport
 require_simulator("h5py")
 
 from abm.data.generate import EvaluationOnlyTaskError, expand_tasks, generate, trainable_tasks  # noqa: E402
-from abm.grounding.instruction import decompose_instruction  # noqa: E402
+from abm.language.instruction import decompose_instruction  # noqa: E402
 from abm.sim.assets import libero_available  # noqa: E402
 from abm.sim.env import make_env, run_expert  # noqa: E402
 from abm.sim.splits import SplitFileError, load_splits  # noqa: E402
@@ -209,7 +209,7 @@ def test_water_plants_predicate_needs_tilt():
 
 
 def test_every_task_instruction_parses_to_a_skill_of_that_task():
-    """The tasks' templates and the parser's skills (grounding/templates.yaml) cannot drift apart."""
+    """The tasks' templates and the parser's skills (language/templates.yaml) cannot drift apart."""
     from abm.grounding import TemplateParser
     from abm.sim.splits import load_splits
 

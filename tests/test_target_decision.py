@@ -12,9 +12,9 @@ from abm.cli import main as cli_main
 from abm.geometry import Workspace, fuse_cameras
 from abm.grounding.decision import MIN_CONFIDENCE, GroundingRecorder, decide_target, target_candidates
 from abm.grounding.grounders import ClipGrounder, OracleGrounder
-from abm.grounding.instruction import InstructionError
 from abm.grounding.mask_field import MaskField, MaskFieldConfig
 from abm.grounding.tracking import TrackingGrounder
+from abm.language.instruction import InstructionError
 from abm.render.synthetic import synthetic_scene
 from abm.robot import DryRunArm, MotionLimits, NoTargetError, ReplayCamera, record_observations, run_robot
 

@@ -15,9 +15,9 @@ import numpy as np
 import torch
 from PIL import Image
 
-from abm.grounding.conditioning import instruction_destination
 from abm.grounding.config import OracleGrounderConfig
 from abm.grounding.visualize import blend, hstack, label, mark_pixels, to_uint8, upscale, vstack
+from abm.language.roles import instruction_destination
 from abm.policy import KeyframePolicy, PolicyConfig
 from abm.render import center_pixel_mask
 from abm.samples import collate

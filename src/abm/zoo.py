@@ -16,6 +16,8 @@ from typing import Any
 
 from abm.errors import DataError
 from abm.files import is_inside, sha256_file
+from abm.grounding.config import as_grounder_config
+from abm.policy.language_config import as_language_config
 
 DEFAULT_ZOO = Path("models")
 #: the methods ``abm zoo eval`` compares, one model of each (:func:`pick`)
@@ -102,9 +104,15 @@ def verify(zoo: Path, entry: dict[str, Any]) -> Path:
     return path
 
 
+def grounds_with_clip(entry: dict[str, Any]) -> bool:
+    """Whether a model's grounder (its ``grounder_spec``) uses a CLIP."""
+    return as_grounder_config(entry.get("grounder_spec")).clip_model() is not None
+
+
 def needs_clip(entry: dict[str, Any]) -> bool:
-    """Whether a model grounds or words its instruction with the benchmark CLIP."""
-    return entry.get("grounder") == "clip" or entry.get("language") == "clip"
+    """Whether a model grounds or words its instruction (its ``language`` kind) with a CLIP: the benchmark CLIP."""
+    language = entry.get("language")
+    return grounds_with_clip(entry) or (language is not None and as_language_config(language).clip_model() is not None)
 
 
 def edition(entry: dict[str, Any]) -> int:
@@ -127,5 +135,5 @@ def pick(entries: list[dict[str, Any]], method: str) -> dict[str, Any] | None:
         newest = max(edition(e) for e in compared)
         return next(e for e in compared if edition(e) == newest)
     first = [e for e in runnable if edition(e) == 1] or runnable
-    grounded = [e for e in first if e.get("grounder") == "clip"]
+    grounded = [e for e in first if grounds_with_clip(e)]
     return (grounded or first)[0] if grounded or first else None

@@ -1,7 +1,7 @@
 """``abm clip train``: render an image-text set from the simulator and train the benchmark CLIP on it.
 
 The parser; the command is :mod:`abm.cli.commands.clip`. The trained folder loads everywhere a CLIP model is
-accepted (``--clip-model DIR``, ``load_clip(DIR)``, ``make_grounder("clip", model=DIR)``).
+accepted (``--clip-model DIR``, ``load_clip(DIR)``, ``build_grounder({"kind": "clip", "model": DIR})``).
 """
 
 from __future__ import annotations

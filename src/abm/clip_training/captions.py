@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from abm.grounding.instruction import clip_prompt
+from abm.language.instruction import clip_prompt
 from abm.sim.catalog import BLOCK_COLOURS, CATALOG
 
 TABLE, FLOOR, ROBOT = "table", "floor", "robot arm"

@@ -46,8 +46,8 @@ from abm.errors import CheckpointError, OutputError
 from abm.files import atomic_path, load_torch_data, write_text_atomic
 from abm.grounding.clip import TEXT_CONTEXT, maskclip_head, run_encoder_layer
 from abm.grounding.config import DEFAULT_NEGATIVES
-from abm.grounding.instruction import clip_prompt
 from abm.grounding.tokenizer import char_vocab, tiny_tokenizer
+from abm.language.instruction import clip_prompt
 from abm.progress import Progress
 
 log = logging.getLogger("abm")

@@ -50,6 +50,6 @@ def register_format(name: str, fmt: DatasetFormat) -> DatasetFormat:
 
 
 register_format("lerobot", DatasetFormat(
-    "abm.data.lerobot:export_lerobot", "abm.data.lerobot:import_lerobot",
+    "abm.data.lerobot_export:export_lerobot", "abm.data.lerobot_import:import_lerobot",
     "LeRobot v3.0 (parquet + H.264 mp4; abm's own exports come back exactly, other datasets need depth and "
     "calibration)", export_options=("frames", "crf", "data_file_mb", "video_file_mb"), extra="lerobot"))

@@ -46,15 +46,10 @@ from torch.utils.data import Dataset, Sampler
 from abm.errors import ConfigError, DataError
 from abm.files import atomic_path
 from abm.geometry import Workspace, augment_cloud, transform_points
-from abm.grounding.conditioning import (
-    ConditionedCloud,
-    PointMask,
-    condition_cloud,
-    instruction_destination,
-    split_roles,
-)
+from abm.grounding.conditioning import ConditionedCloud, PointMask, condition_cloud
 from abm.grounding.config import GROUNDERS, GrounderConfig, OracleGrounderConfig, as_grounder_config, build_grounder
 from abm.grounding.grounders import Grounder, resolved_spec
+from abm.language.roles import instruction_destination, split_roles
 from abm.progress import Progress
 from abm.samples import Sample, action_targets, cloud_sample, collate
 from abm.sim.tasks import TASKS

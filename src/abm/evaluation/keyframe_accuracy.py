@@ -27,7 +27,7 @@ import numpy as np
 
 from abm.evaluation.results import eval_seed
 from abm.geometry import ROUND_SYMMETRY, symmetric_angle_deg
-from abm.grounding.conditioning import split_roles
+from abm.language.roles import split_roles
 from abm.sim.env import make_env, run_expert
 from abm.types import KeyframeAction, Observation
 

@@ -32,9 +32,10 @@ import torch
 
 from abm.errors import CheckpointError
 from abm.evaluation.settings import EvalSettings
-from abm.grounding.config import grounder_from_flags
+from abm.grounding.config import GrounderConfig, grounder_config_from_dict, grounder_from_flags
 from abm.policy import KeyframePolicy
 from abm.policy.checkpoint import load_checkpoint, resolve_checkpoint
+from abm.policy.language_config import LanguageConfig, as_language_config
 
 ROLLOUT_THREADS = 1
 """torch threads of every rollout (the pool workers' and Ray actors' count, also for ``--workers 1`` in-process)."""
@@ -73,17 +74,15 @@ def rollout_state(seed: int) -> Iterator[None]:
         random.setstate(py_state)
 
 
-def clip_names(spec: Any) -> list[str]:
-    """The ``model`` of every CLIP grounder configuration in a checkpoint's grounder or language spec (nested
-    ones too, e.g. a tracking grounder's ``inner``)."""
-    found: list[str] = []
-    if isinstance(spec, Mapping):
-        model = spec.get("model")
-        if spec.get("kind") == "clip" and isinstance(model, str) and model:
-            found.append(model)
-        for value in spec.values():
-            found += clip_names(value)
-    return found
+def clip_names(ckpt: Mapping[str, Any]) -> list[str]:
+    """The CLIP weights a checkpoint names, without repeats: the ``model`` of the CLIP its grounder and its language
+    encoder use (:meth:`~abm.grounding.config.GrounderConfig.clip_model`, a tracking grounder's inner one too)."""
+    stored = ckpt.get("grounder")  # the dict forms (file boundary); no grounder: none named
+    configs: list[GrounderConfig | LanguageConfig] = [] if stored is None else [grounder_config_from_dict(stored)]
+    if ckpt.get("language") is not None:
+        configs.append(as_language_config(ckpt["language"]))
+    models = [clip.model for config in configs if (clip := config.clip_model()) is not None and clip.model]
+    return list(dict.fromkeys(models))
 
 
 def needs_segmentation(policy: KeyframePolicy) -> bool:
@@ -135,7 +134,7 @@ def checkpoint_clips(run: str | Path) -> dict[str, Path | None]:
     (a hub name, or missing); test CLIPs and absolute paths map to themselves."""
     path = resolve_checkpoint(run).resolve()
     ckpt = load_checkpoint(path)
-    names = list(dict.fromkeys(clip_names(ckpt.get("grounder")) + clip_names(ckpt.get("language"))))
+    names = clip_names(ckpt)
     root = clip_root(path, names) or Path.cwd()
     out: dict[str, Path | None] = {}
     for name in names:
@@ -152,7 +151,7 @@ def _build(path: Path, settings: EvalSettings) -> KeyframePolicy:
         clip_model = str(Path(clip_model).expanduser().resolve())
     grounder = grounder_from_flags(settings.grounder, clip_model)
     ckpt = load_checkpoint(path)
-    root = clip_root(path, clip_names(ckpt.get("grounder")) + clip_names(ckpt.get("language")))
+    root = clip_root(path, clip_names(ckpt))
     with contextlib.chdir(root) if root is not None else contextlib.nullcontext():
         policy = KeyframePolicy.from_checkpoint(path, device=settings.device, grounder=grounder)
         policy.grounder  # noqa: B018 - the grounder loads lazily: build it here, where its CLIP path resolves

@@ -55,9 +55,9 @@ from abm.evaluation.settings import EvalSettings
 from abm.evaluation.step_records import episode_failure, expert_keyframes, step_record
 from abm.files import write_text_atomic
 from abm.geometry import project_to_camera
-from abm.grounding.conditioning import split_roles
 from abm.grounding.decision import GroundingRecorder
 from abm.grounding.visualize import hstack, label, overlay_views, upscale, vstack
+from abm.language.roles import split_roles
 from abm.policy.checkpoint import load_checkpoint, resolve_checkpoint
 from abm.progress import Progress
 from abm.ray_pool import RayActorPool

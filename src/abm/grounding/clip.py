@@ -34,16 +34,15 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from abm.configuration import GPU_CLIP_MODEL, TEST_ONLY_CLIP
+from abm.configuration import TEST_ONLY_CLIP
 from abm.errors import ConfigError, ExternalError
 from abm.files import sha256_file
-from abm.grounding.config import DENSE_MODES
+from abm.grounding.config import DEFAULT_MODEL, DENSE_MODES, ClipModelConfig
 from abm.grounding.tokenizer import tiny_tokenizer
 
 if TYPE_CHECKING:  # transformers is imported where a model is built, so importing abm stays fast
     from transformers.models.clip.modeling_clip import CLIPAttention, CLIPEncoderLayer
 
-DEFAULT_MODEL = GPU_CLIP_MODEL  # the paper's (abm.configuration holds the defaults shared by commands)
 TEXT_CONTEXT = 77
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
@@ -593,3 +592,9 @@ def load_clip(
         raise ClipWeightsNotFoundError(_missing_weights_message(name_or_path, reason)) from err
     return ClipBackbone(_finish(model, dev, dt), tokenizer, name_or_path, dev, dt, *mean_std,
                         fingerprint=model_fingerprint(name_or_path))
+
+
+def load_clip_model(config: ClipModelConfig) -> ClipBackbone:
+    """The backbone a :class:`~abm.grounding.config.ClipModelConfig` names (:func:`load_clip`): the CLIP grounder's
+    and the CLIP text encoder's."""
+    return load_clip(config.model or DEFAULT_MODEL, device=config.device, allow_download=config.allow_download)

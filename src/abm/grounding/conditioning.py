@@ -11,11 +11,12 @@ needs no extra label, so demonstrations and rollouts pick the same target at the
 one-target policies and checkpoints are unchanged.
 
 **Destination.** Where the task brings X (the plate, the target pad, the wine rack; X itself for the jar a lid
-closes; Y of a two-target instruction) is declared by each task (``Task.destination``); :func:`destination_for`
-reads it for the tasks of an instruction's skill. With ``destination=True`` :func:`condition_cloud` grounds it
-with the same grounder into a second mask field (:attr:`ConditionedCloud.destination_mask`; a grounder with a
-``ground_destination`` method, the tracking one, keeps a track of its own for it). An instruction whose tasks
-declare no destination (take_off_pan) gets an empty second mask.
+closes; Y of a two-target instruction) is declared by each task (``Task.destination``);
+:func:`abm.language.roles.destination_for` reads it for the tasks of an instruction's skill. With
+``destination=True`` :func:`condition_cloud` grounds it with the same grounder into a second mask field
+(:attr:`ConditionedCloud.destination_mask`; a grounder with a ``ground_destination`` method, the tracking one, keeps
+a track of its own for it). An instruction whose tasks declare no destination (take_off_pan) gets an empty second
+mask.
 
 Grounders are configured by the typed configurations of :mod:`abm.grounding.config` (stored in checkpoints
 as their dict form ``{"kind": "oracle"}``, ``{"kind": "clip", ...}`` or ``{"kind": "tracking", "inner": {...}}``).
@@ -23,17 +24,14 @@ as their dict form ``{"kind": "oracle"}``, ``{"kind": "clip", ...}`` or ``{"kind
 
 from __future__ import annotations
 
-import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
 
-from abm.errors import ConfigError
 from abm.geometry import PointCloud, Workspace, fuse_cameras
-from abm.grounding.instruction import PLACEHOLDER, MultiStepInstructionError, default_parser
-from abm.sim.tasks import TASKS
+from abm.language.roles import instruction_destination, split_roles
 from abm.types import Observation
 
 if TYPE_CHECKING:
@@ -63,74 +61,10 @@ class PointMask:
     found: bool
 
 
-def _replace_target(instruction: str, target: str) -> str | None:
-    pattern = re.compile(r"\b" + re.escape(target) + r"\b", re.IGNORECASE)
-    if not pattern.search(instruction):
-        return None
-    return pattern.sub(PLACEHOLDER, instruction, count=1)
-
-
-def split_roles(instruction: str, object_names: Mapping[int, str] | None = None,
-                target: str | None = None) -> tuple[tuple[str, ...], str]:
-    """Split an instruction into its sub-goals' objects and the skill text: ``((X,), "put X in the plate")``
-    or, for a two-target skill, ``((X, Y), "put X in Y")``.
-
-    Uses ``abm.grounding.instruction`` (the templates); when no template matches, replaces a known
-    ``target`` name, or the longest scene object name found in the text, by ``X`` (one sub-goal).
-    Training and inference call this the same way, so the skill text the policy sees is the same in both.
-
-    Raises:
-        ValueError: no target can be identified, or the instruction asks for several skills
-            (:class:`abm.grounding.instruction.MultiStepInstructionError`).
-    """
-    try:  # the scene's names never read as a negation, condition or choice (an object called "either box")
-        parsed = default_parser().parse(instruction, names=tuple((object_names or {}).values()))
-        return parsed.targets, parsed.skill
-    except MultiStepInstructionError:
-        raise  # several skills in one instruction: never run just one of them silently
-    except ValueError:  # no template matches: fall back to a scene object name
-        pass
-    names = ([target] if target else []) + sorted(set((object_names or {}).values()), key=len, reverse=True)
-    for name in names:
-        skill = _replace_target(instruction, name)
-        if skill is not None:
-            return (name,), skill
-    raise ConfigError(f"cannot find the target object in instruction {instruction!r}")
-
-
-def split_instruction(instruction: str, object_names: Mapping[int, str] | None = None,
-                      target: str | None = None) -> tuple[str, str]:
-    """``(X, skill text)``: :func:`split_roles` for the first sub-goal's object."""
-    targets, skill = split_roles(instruction, object_names, target)
-    return targets[0], skill
-
-
 def active_role(gripper_open: float, roles: int) -> int:
     """Index of the active sub-goal: the first (grasp X) while the gripper is open (``>= 0.5``), the second
     (place in Y) once it has closed; always 0 for one-target instructions."""
     return 0 if roles < 2 or float(gripper_open) >= 0.5 else 1
-
-
-def destination_for(tasks: Sequence[str], targets: Sequence[str]) -> str | None:
-    """The destination object of an instruction whose skill the benchmark ``tasks`` use and whose sub-goals name
-    ``targets`` (``(X,)`` or ``(X, Y)``): what the tasks declare (``Task.destination``, X / Y filled in), ``None``
-    when they declare none or disagree. A two-target skill no benchmark task uses (a user's) brings X to Y."""
-    known = [TASKS[t] for t in tasks if t in TASKS]
-    if not known:
-        return targets[1] if len(targets) > 1 else None
-    names = {task.destination_name(tuple(targets)) for task in known}
-    return names.pop() if len(names) == 1 else None
-
-
-def instruction_destination(instruction: str, targets: Sequence[str] | None = None) -> str | None:
-    """The destination object of ``instruction`` (:func:`destination_for` of its parse by the templates), with
-    ``targets`` in place of the parsed X (and Y) when given (the oracle's ground-truth names); ``None`` when no
-    template matches."""
-    try:
-        parsed = default_parser().parse(instruction)
-    except ValueError:  # no template (the scene-name fallback of split_roles): no known task, no destination
-        return None
-    return destination_for(parsed.tasks, tuple(targets) if targets else parsed.targets)
 
 
 def ground_points(grounder: Grounder, observation: Observation, cloud: PointCloud, target: str,
@@ -175,7 +109,8 @@ class ConditionedCloud:
         point_mask: the mask field over the cloud's points (``None`` unless asked for).
         features: ``(N, F)`` float32 per-point CLIP features (``None`` unless asked for).
         role: index of the active sub-goal (:func:`active_role`).
-        destination: the destination object's name (:func:`destination_for`; ``None``: none, or not asked for).
+        destination: the destination object's name (:func:`~abm.language.roles.destination_for`; ``None``: none, or
+            not asked for).
         destination_mask: the destination's mask field over the cloud's points (``None`` unless asked for).
     """
 
@@ -214,7 +149,7 @@ def condition_cloud(
         workspace: crop cube of the fused cloud.
         grounder: grounder object (needed when ``mask`` or ``features``).
         object_names: segmentation id -> object name (the oracle grounder needs them).
-        split: split the instruction into ``(X, skill text)`` with :func:`split_instruction` unless
+        split: split the instruction into ``(X, skill text)`` with :func:`~abm.language.roles.split_roles` unless
             ``target`` and ``skill`` are given (a dataset splits each episode's instruction once).
         target / skill: the already known split; ``target`` may be the tuple of the sub-goals' objects,
             of which the active one (:func:`active_role`) is grounded.
@@ -223,7 +158,7 @@ def condition_cloud(
         camera_names: cameras to fuse (default all).
         destination: also ground the destination into a second mask field (:attr:`ConditionedCloud.destination_mask`).
         destination_name: the destination's name when known (a dataset's ground truth); default the instruction's
-            (:func:`instruction_destination`).
+            (:func:`~abm.language.roles.instruction_destination`).
 
     Raises:
         ValueError: no target in the instruction (when splitting), or no grounder for ``mask`` /

@@ -1,5 +1,8 @@
-"""Typed grounder configurations, the registry of grounder kinds (:data:`GROUNDERS`) and :func:`build_grounder`.
+"""Typed grounder configurations, the registry of grounder kinds (:data:`GROUNDERS`) and :func:`build_grounder`, the
+one way to build a grounder.
 
+* :class:`ClipModelConfig` — which CLIP weights on which device: what the CLIP grounder and the CLIP text encoder
+  (:class:`abm.policy.language_config.ClipLanguageConfig`) share (:meth:`GrounderConfig.clip_model`);
 * :class:`OracleGrounderConfig` — simulator segmentation (no options);
 * :class:`ClipGrounderConfig` — the CLIP grounder (model, mode, dense features, mask-field and proposal settings:
   :class:`MaskFieldConfig`, :class:`ProposalConfig`);
@@ -29,10 +32,11 @@ Equality compares the option values only: ``{"kind": "clip"}`` equals ``{"kind":
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, overload
 
+from abm.configuration import GPU_CLIP_MODEL
 from abm.errors import ConfigError
 from abm.registry import Registry, resolve
 
@@ -41,6 +45,7 @@ if TYPE_CHECKING:
 
     from abm.grounding.grounders import ClipGrounder, Grounder  # types only: grounders.py loads torch and CLIP
 
+DEFAULT_MODEL = GPU_CLIP_MODEL  # the paper's (abm.configuration holds the defaults shared by commands)
 CLIP_MODES: tuple[str, ...] = ("field", "proposals")
 DEFAULT_CLIP_MODE = "proposals"  # measured best (docs/grounding.md section 9); "field" is the paper's
 DENSE_MODES: tuple[str, ...] = ("maskclip", "clearclip", "sclip", "naclip")
@@ -102,6 +107,8 @@ class MaskFieldConfig:
 
 
 SCORINGS: tuple[str, ...] = ("dense", "crop", "combined")
+LEGACY_CLIP_OPTIONS: dict[str, Any] = {"mode": "field", "dense_mode": "maskclip", "input_size": None, "scales": ()}
+"""What the CLIP grounder did before these options existed (specs written then do not name them)."""
 
 
 @dataclass(frozen=True)
@@ -193,6 +200,32 @@ def _options(cls: type) -> tuple[str, ...]:
 
 
 @dataclass(frozen=True)
+class ClipModelConfig:
+    """Which CLIP weights, on which device: the one thing the CLIP grounder (its ``model``, ``device`` and
+    ``allow_download`` options) and the CLIP text encoder have in common (both load it with
+    :func:`abm.grounding.clip.load_clip_model`).
+
+    Attributes:
+        model: hub name, local folder, ``"tiny"`` or ``"random:<preset>"`` (``None``: :data:`DEFAULT_MODEL`).
+        device: torch device (``None``: CUDA when available).
+        allow_download: let the weights be fetched from the network.
+    """
+
+    model: str | None = None
+    device: str | None = None
+    allow_download: bool = False
+
+    def with_clip(self, model: str | None, device: str | None = None) -> ClipModelConfig:
+        """Other weights and device (``None``: the current ones): the ``--clip-model`` / ``--clip-device`` flags."""
+        return dataclasses.replace(self, model=self.model if model is None else model,
+                                   device=self.device if device is None else device)
+
+    def options(self) -> dict[str, str]:
+        """``model`` / ``device`` where set (the ``clip_model`` / ``clip_device`` of a recipe)."""
+        return {name: str(value) for name, value in (("model", self.model), ("device", self.device)) if value}
+
+
+@dataclass(frozen=True)
 class GrounderConfig:
     """The base of every grounder configuration: a frozen dataclass per kind, whose fields are its options.
 
@@ -234,10 +267,21 @@ class GrounderConfig:
         flags); ``None`` for a kind that uses no CLIP (the default)."""
         return None
 
+    def clip_model(self) -> ClipModelConfig | None:
+        """The CLIP it grounds with (``None``, the default: none)."""
+        return None
+
     def clip_options(self) -> dict[str, str]:
         """The ``model`` / ``device`` of the CLIP it uses, where set (the inverse of :meth:`with_clip`; empty for a
         kind without CLIP)."""
-        return {}
+        clip = self.clip_model()
+        return {} if clip is None else clip.options()
+
+    def cache_spec(self, fingerprint: Callable[[str], str]) -> dict[str, Any]:
+        """The dict form that names everything its masks depend on, for grounding-cache keys
+        (:func:`abm.grounding.grounders.resolved_spec`; ``fingerprint``: a CLIP name -> its identity,
+        :func:`abm.grounding.clip.model_fingerprint`). The default: :meth:`to_dict`."""
+        return self.to_dict()
 
     def merged_onto(self, stored: GrounderConfig) -> GrounderConfig:
         """This configuration as an override of ``stored`` (a checkpoint's grounder): of the same kind it only
@@ -316,8 +360,30 @@ class ClipGrounderConfig(GrounderConfig):
         return dataclasses.replace(self, model=self.model if model is None else model,
                                    device=self.device if device is None else device, _given=self._given | given)
 
-    def clip_options(self) -> dict[str, str]:
-        return {name: str(value) for name, value in (("model", self.model), ("device", self.device)) if value}
+    def clip_model(self) -> ClipModelConfig:
+        return ClipModelConfig(self.model, self.device, self.allow_download)
+
+    def cache_spec(self, fingerprint: Callable[[str], str]) -> dict[str, Any]:
+        """:meth:`to_dict` with the model's fingerprint and the current defaults of the options it leaves out.
+
+        Only defaults that differ from :data:`LEGACY_CLIP_OPTIONS` are added (and the full proposal settings in
+        ``proposals`` mode), so a spec's key stays the same while the defaults do, and changes when they change.
+        The CLIP model is named by ``fingerprint``: a local folder by its content, so moving it keeps the key and
+        retraining it into the same folder changes it."""
+        out = self.to_dict()
+        model = str(out.get("model") or DEFAULT_MODEL)
+        identity = fingerprint(model)
+        if "model" in out or identity != model:
+            out["model"] = identity
+        current = {"mode": DEFAULT_CLIP_MODE, "dense_mode": DEFAULT_DENSE_MODE, "input_size": DEFAULT_INPUT_SIZE,
+                   "scales": DEFAULT_SCALES}
+        out.update({k: v for k, v in current.items() if k not in out and v != LEGACY_CLIP_OPTIONS[k]})
+        if out.get("mode") == "proposals":
+            given = dict(out.get("proposals") or {})
+            if "scoring" in out:
+                given["scoring"] = out.pop("scoring")
+            out["proposals"] = {**ProposalConfig().__dict__, **given}
+        return out
 
     def mask_field_config(self) -> MaskFieldConfig:
         return MaskFieldConfig(normalization=self.normalization, threshold=self.threshold, negatives=self.negatives,
@@ -345,10 +411,6 @@ class ClipGrounderConfig(GrounderConfig):
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ClipGrounderConfig:
         data = {k: v for k, v in data.items() if k != "kind"}
-        if isinstance(data.get("config"), MaskFieldConfig):  # make_grounder(config=...) of the Python API
-            mf = data.pop("config")
-            data = {**{k: getattr(mf, k) for k in ("normalization", "threshold", "negatives", "logit_scale",
-                                                    "fallback", "fallback_top_k")}, **data}
         allowed = tuple(f.name for f in dataclasses.fields(cls) if not f.name.startswith("_")) + ("scoring",)
         _unknown("clip", set(data) - set(allowed), allowed)
         given = set(data)
@@ -401,8 +463,14 @@ class TrackingGrounderConfig(GrounderConfig):
         inner = self.inner.with_clip(model, device) or ClipGrounderConfig().with_clip(model, device)
         return dataclasses.replace(self, inner=inner, _given=self._given | {"inner"})
 
-    def clip_options(self) -> dict[str, str]:
-        return self.inner.clip_options()
+    def clip_model(self) -> ClipModelConfig | None:
+        return self.inner.clip_model()
+
+    def cache_spec(self, fingerprint: Callable[[str], str]) -> dict[str, Any]:
+        out = self.to_dict()
+        if "inner" in out:
+            out["inner"] = self.inner.cache_spec(fingerprint)
+        return out
 
     def merged_onto(self, stored: GrounderConfig) -> GrounderConfig:
         """As :meth:`GrounderConfig.merged_onto`; tracking onto another kind tracks with ``stored`` when this names

@@ -12,7 +12,7 @@ All grounders share one call::
 * :class:`OracleGrounder` — simulator segmentation + object names: the points whose segmentation id is
   named ``target``. An upper bound, and the default where real CLIP weights are unavailable.
 
-Build them with :func:`make_grounder`.
+Build them from their typed configurations with :func:`abm.grounding.config.build_grounder`.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from abm.errors import ConfigError
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
-from abm.grounding.clip import DEFAULT_MODEL, ClipBackbone, load_clip, model_fingerprint
+from abm.grounding.clip import DEFAULT_MODEL, ClipBackbone, load_clip, load_clip_model, model_fingerprint
 from abm.grounding.config import (  # the defaults live with the typed configurations
     CLIP_MODES,
     DEFAULT_CLIP_MODE,
@@ -43,14 +43,13 @@ from abm.grounding.config import (  # the defaults live with the typed configura
     MaskFieldConfig,
     OracleGrounderConfig,
     ProposalConfig,
-    build_grounder,
     grounder_config_from_dict,
 )
 from abm.grounding.decision import normalize_name
 from abm.grounding.feature_cloud import lift_patch_features, lift_patch_index
-from abm.grounding.instruction import clip_prompt
 from abm.grounding.mask_field import MaskField, mask_field_from_features, negative_prompts
 from abm.grounding.proposals import object_proposals, with_base_points
+from abm.language.instruction import clip_prompt
 from abm.types import Observation
 
 
@@ -221,13 +220,16 @@ class ClipGrounder:
     @classmethod
     def from_config(cls, config: ClipGrounderConfig, **runtime: Any) -> ClipGrounder:
         """The grounder of a typed configuration (:data:`abm.grounding.config.GROUNDERS`' builder); ``runtime``
-        (``backbone=`` a loaded model, ``cache=`` a cache object) overrides the constructor's arguments."""
+        (``backbone=`` a loaded model, ``cache=`` a cache object) overrides the constructor's arguments. The backbone
+        is the configuration's :class:`~abm.grounding.config.ClipModelConfig` (:func:`load_clip_model`)."""
         kwargs: dict[str, Any] = dict(
-            model=config.model, device=config.device, config=config.mask_field_config(), cache=config.cache,
-            input_size=config.input_size, cache_features=config.cache_features,
-            allow_download=config.allow_download, dense_mode=config.dense_mode, mode=config.mode,
+            config=config.mask_field_config(), cache=config.cache, input_size=config.input_size,
+            cache_features=config.cache_features, dense_mode=config.dense_mode, mode=config.mode,
             proposals=config.proposals, scales=config.scales)
-        return cls(**{**kwargs, **runtime})
+        kwargs.update(runtime)
+        if kwargs.get("backbone") is None:
+            kwargs["backbone"] = load_clip_model(config.clip_model())
+        return cls(**kwargs)
 
     @property
     def model_name(self) -> str:
@@ -312,25 +314,6 @@ class ClipGrounder:
         for prompt in todo:
             self._text_memory[prompt] = self.backbone.text_features([prompt]).cpu().numpy()[0]
         return np.stack([self._text_memory[p] for p in prompts]) if prompts else np.zeros((0, 0), np.float32)
-
-    def skill_embeddings(self, texts: Sequence[str]) -> torch.Tensor:
-        """``(B, 77, D_text)`` float32 CPU token embeddings of the skill texts (cached per text)."""
-        if isinstance(texts, str):
-            texts = [texts]
-        rows: dict[str, np.ndarray] = {}
-        todo = []
-        for t in dict.fromkeys(texts):
-            hit = self.cache.get(content_key("skill", t, self.model_name))
-            if hit is not None:
-                rows[t] = hit["tokens"]
-            else:
-                todo.append(t)
-        if todo:
-            tokens = self.backbone.text_tokens(todo).cpu().numpy()
-            for t, row in zip(todo, tokens, strict=True):
-                rows[t] = row
-                self.cache.put(content_key("skill", t, self.model_name), {"tokens": row})
-        return torch.from_numpy(np.stack([rows[t] for t in texts]).astype(np.float32))
 
     # ---- grounding ---------------------------------------------------------------------------------
     def ground(
@@ -522,56 +505,9 @@ def candidate_crops(observation: Observation, cloud: PointCloud, candidates: Seq
     return crops, np.asarray(owner, np.int64), np.asarray(weight, np.float64)
 
 
-LEGACY_CLIP_OPTIONS: dict[str, Any] = {"mode": "field", "dense_mode": "maskclip", "input_size": None, "scales": ()}
-"""What the CLIP grounder did before these options existed (specs written then do not name them)."""
-
-
 def resolved_spec(spec: GrounderConfig | Mapping[str, Any]) -> dict[str, Any]:
-    """A grounder spec with the current defaults of the CLIP options it leaves out, for cache keys.
-
-    Only defaults that differ from :data:`LEGACY_CLIP_OPTIONS` are added (and the full proposal settings
-    in ``proposals`` mode), so a spec's key stays the same while the defaults do, and changes when they change.
-    The CLIP model is named by :func:`~abm.grounding.clip.model_fingerprint`: a local folder by its content,
-    so moving it keeps the key and retraining it into the same folder changes it.
-    """
-    out = spec.to_dict() if hasattr(spec, "to_dict") else dict(spec)
-    if out.get("kind") == "clip":
-        model = str(out.get("model") or DEFAULT_MODEL)
-        fingerprint = model_fingerprint(model)
-        if "model" in out or fingerprint != model:
-            out["model"] = fingerprint
-        current = {"mode": DEFAULT_CLIP_MODE, "dense_mode": DEFAULT_DENSE_MODE, "input_size": DEFAULT_INPUT_SIZE,
-                   "scales": DEFAULT_SCALES}
-        out.update({k: v for k, v in current.items() if k not in out and v != LEGACY_CLIP_OPTIONS[k]})
-        if out.get("mode") == "proposals":
-            given = out.get("proposals") or {}
-            given = given.__dict__ if isinstance(given, ProposalConfig) else dict(given)
-            if "scoring" in out:
-                given["scoring"] = out.pop("scoring")
-            out["proposals"] = {**ProposalConfig().__dict__, **given}
-    elif out.get("kind") == "tracking" and isinstance(out.get("inner"), Mapping):
-        out["inner"] = resolved_spec(out["inner"])
-    return out
-
-
-def make_grounder(kind: str = "oracle", **kwargs: Any) -> Grounder:
-    """Build a grounder by name.
-
-    ``make_grounder("oracle")``; ``make_grounder("clip", model="openai/clip-vit-large-patch14-336" | DIR |
-    "tiny", device="cpu", config=MaskFieldConfig(...), cache=DIR)``; ``make_grounder("tracking",
-    inner={"kind": "clip", ...}, radius=0.01)`` grounds once per episode with ``inner`` and then tracks
-    (:class:`abm.grounding.tracking.TrackingGrounder`). Keyword ``normalization`` and ``threshold`` are
-    accepted as shortcuts for the clip config.
-    """
-    if kind == "oracle" and kwargs:
-        raise TypeError(f"the oracle grounder takes no options, got {sorted(kwargs)}")
-    if kind == "clip" and "config" in kwargs and any(
-            k in kwargs for k in ("normalization", "threshold", "negatives", "logit_scale")):
-        raise TypeError("pass either config or its fields (normalization, threshold, ...), not both")
-    # objects (a loaded backbone, a cache object) go to the constructor; the options through the typed config
-    runtime = {k: kwargs.pop(k) for k in ("backbone",) if k in kwargs}
-    if isinstance(kwargs.get("cache"), GroundingCache):
-        runtime["cache"] = kwargs.pop("cache")
-    if kind == "tracking" and "inner" in kwargs and not isinstance(kwargs["inner"], (Mapping, str)):
-        kwargs["inner"] = kwargs["inner"].to_dict()
-    return build_grounder(grounder_config_from_dict({"kind": kind, **kwargs}), **runtime)
+    """A grounder's dict form naming everything its masks depend on, for cache keys: its kind's
+    :meth:`~abm.grounding.config.GrounderConfig.cache_spec` (the CLIP grounder's names its model by
+    :func:`~abm.grounding.clip.model_fingerprint` and the current defaults of the options it leaves out)."""
+    config = spec if isinstance(spec, GrounderConfig) else grounder_config_from_dict(spec)
+    return config.cache_spec(model_fingerprint)

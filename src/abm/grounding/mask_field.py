@@ -35,7 +35,7 @@ from abm.grounding.config import (  # the options and their defaults live with t
     NORMALIZATIONS,
     MaskFieldConfig,
 )
-from abm.grounding.instruction import clip_prompt
+from abm.language.instruction import clip_prompt
 from abm.render import binarize_mask, center_pixel_mask, soft_mask
 
 if TYPE_CHECKING:

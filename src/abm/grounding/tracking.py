@@ -111,7 +111,7 @@ class TrackingGrounder:
         """Forget the tracked target and destination (call at the start of every episode)."""
         self._tracks.clear()
 
-    def __getattr__(self, name: str) -> Any:  # point_features, skill_embeddings, ... of the inner grounder
+    def __getattr__(self, name: str) -> Any:  # point_features, text_features, ... of the inner grounder
         if name.startswith("_") or name == "inner":
             raise AttributeError(name)
         return getattr(self.inner, name)

@@ -8,8 +8,8 @@ checkpoint so :class:`~abm.policy.KeyframePolicy` can rebuild the same encoder:
   weight-free encoder: every lower-cased word maps to a fixed pseudo-random unit vector (seeded by a
   CRC32 of the word) plus a fixed position vector. It distinguishes instructions by their words, needs
   no download, and is what tests and CPU experiments use.
-* ``{"kind": "clip", ...grounder options}`` — CLIP text tokens through the grounding package's
-  ``ClipGrounder.skill_embeddings`` (the paper's choice), see :class:`ClipLanguageEncoder`.
+* ``{"kind": "clip", "model": ...}`` — CLIP text tokens of a CLIP model's text tower (the paper's choice), see
+  :class:`ClipLanguageEncoder`.
 
 Their typed configurations and the registry of kinds are :mod:`abm.policy.language_config` (light, for the
 command line); each encoder here is built from its configuration by ``from_config``.
@@ -27,7 +27,7 @@ import torch
 from numpy.typing import NDArray
 
 from abm.errors import ConfigError
-from abm.grounding.config import build_grounder
+from abm.grounding.clip import load_clip_model
 from abm.policy.language_config import ClipLanguageConfig, HashLanguageConfig
 
 _WORD = re.compile(r"[a-z0-9]+")
@@ -44,10 +44,10 @@ class LanguageEncoder(Protocol):
     def spec(self) -> dict[str, Any]: ...
 
 
-class SkillEmbedder(Protocol):
-    """What :class:`ClipLanguageEncoder` needs of a grounder (the CLIP grounder has it)."""
+class TextTower(Protocol):
+    """What :class:`ClipLanguageEncoder` needs of a CLIP (:class:`abm.grounding.clip.ClipBackbone` has it)."""
 
-    def skill_embeddings(self, texts: Sequence[str]) -> torch.Tensor: ...
+    def text_tokens(self, texts: Sequence[str]) -> torch.Tensor: ...
 
 
 class HashLanguageEncoder:
@@ -90,27 +90,33 @@ class HashLanguageEncoder:
 
 
 class ClipLanguageEncoder:
-    """CLIP text tokens of the grounding package's CLIP model (``skill_embeddings``).
+    """CLIP text tokens: the text tower's last hidden states ``(B, 77, D_text)`` (float32, CPU), memoised per text.
 
     Args:
-        grounder: an object with ``skill_embeddings(texts) -> (B, 77, D)``.
+        backbone: a CLIP with ``text_tokens(texts) -> (B, 77, D)`` (:class:`~abm.grounding.clip.ClipBackbone`).
         spec: the options it was built from (stored in checkpoints).
     """
 
-    def __init__(self, grounder: SkillEmbedder, spec: dict[str, Any]) -> None:
-        self.grounder = grounder
+    def __init__(self, backbone: TextTower, spec: dict[str, Any]) -> None:
+        self.backbone = backbone
         self._spec = dict(spec)
+        self._rows: dict[str, NDArray[np.float32]] = {}
         probe = self.encode(["x"])
         self.tokens, self.dim = int(probe.shape[1]), int(probe.shape[2])
 
     @classmethod
     def from_config(cls, config: ClipLanguageConfig) -> ClipLanguageEncoder:
-        """The text tower of the CLIP grounder its configuration names."""
-        return cls(build_grounder(config.clip), config.to_dict())
+        """The text tower of the CLIP model its configuration names."""
+        return cls(load_clip_model(config.clip), config.to_dict())
 
     def encode(self, texts: Sequence[str]) -> torch.Tensor:
-        with torch.no_grad():
-            return torch.as_tensor(self.grounder.skill_embeddings(list(texts))).float().cpu()
+        """``(B, tokens, dim)``; the texts not seen before are encoded in one batch, in order."""
+        todo = [t for t in dict.fromkeys(texts) if t not in self._rows]
+        if todo:
+            with torch.no_grad():
+                tokens = self.backbone.text_tokens(todo).cpu().numpy()
+            self._rows.update(zip(todo, tokens, strict=True))
+        return torch.from_numpy(np.stack([self._rows[t] for t in texts]).astype(np.float32))
 
     def spec(self) -> dict[str, Any]:
         return dict(self._spec)

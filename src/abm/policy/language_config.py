@@ -2,12 +2,13 @@
 and :class:`abm.train.config.TrainConfig` use it at ``abm --help``. The encoders are :mod:`abm.policy.language`.
 
 * :class:`HashLanguageConfig` — the weight-free hash encoder (``dim``, ``tokens``, ``seed``);
-* :class:`ClipLanguageConfig` — CLIP text tokens of the CLIP grounder's model (the options of a
-  :class:`~abm.grounding.config.ClipGrounderConfig`).
+* :class:`ClipLanguageConfig` — CLIP text tokens of a CLIP model (a :class:`~abm.grounding.config.ClipModelConfig`,
+  the one a CLIP grounder names too: :meth:`~abm.grounding.config.GrounderConfig.clip_model`).
 
 **Files.** A checkpoint's ``"language"`` entry is the dict form, ``{"kind": "hash", "dim": D, "tokens": L, "seed":
-s}`` or ``{"kind": "clip", ...the CLIP grounder's options}``; :func:`language_config_from_dict` reads every one abm
-wrote and ``to_dict()`` writes it back unchanged.
+s}`` or ``{"kind": "clip", "model": ..., "device": ...}``; :func:`language_config_from_dict` reads every one abm
+wrote, also the older CLIP form that held a whole CLIP grounder's options (of which the text tokens depend on the
+model alone), and ``to_dict()`` writes the CLIP model back.
 
 **Adding a language encoder**: a :class:`LanguageConfig` subclass here with its :func:`register_language` entry, and
 the encoder class (``tokens``, ``dim``, ``encode(texts)``, ``spec()``) with a ``from_config(config)`` constructor
@@ -22,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from abm.errors import ConfigError
-from abm.grounding.config import ClipGrounderConfig, GrounderConfig
+from abm.grounding.config import ClipGrounderConfig, ClipModelConfig, GrounderConfig
 from abm.registry import Registry, resolve
 
 if TYPE_CHECKING:
@@ -70,9 +71,14 @@ class LanguageConfig:
         ``None`` for a kind that uses no CLIP (the default)."""
         return None
 
+    def clip_model(self) -> ClipModelConfig | None:
+        """The CLIP whose text tower it uses (``None``, the default: none)."""
+        return None
+
     def clip_options(self) -> dict[str, str]:
         """The ``model`` / ``device`` of the CLIP it uses (``--clip-model`` / ``--clip-device``; empty for none)."""
-        return {}
+        clip = self.clip_model()
+        return {} if clip is None else clip.options()
 
 
 @dataclass(frozen=True)
@@ -97,29 +103,35 @@ class HashLanguageConfig(LanguageConfig):
 
 @dataclass(frozen=True)
 class ClipLanguageConfig(LanguageConfig):
-    """CLIP text tokens of a CLIP model (:class:`abm.policy.language.ClipLanguageEncoder`): the text tower of the
-    CLIP grounder that ``clip`` configures. Its dict form is that grounder's (``{"kind": "clip", "model": ...}``).
+    """CLIP text tokens of a CLIP model (:class:`abm.policy.language.ClipLanguageEncoder`). Its dict form is
+    ``{"kind": "clip"}`` with the model's ``model`` / ``device`` where set (and ``allow_download`` when true).
 
     Attributes:
-        clip: the CLIP grounder whose model encodes the texts.
+        clip: the CLIP model whose text tower encodes the texts (the CLIP grounder's by default:
+            :func:`default_language`).
     """
 
     kind: ClassVar[str] = "clip"
 
-    clip: ClipGrounderConfig = field(default_factory=ClipGrounderConfig)
+    clip: ClipModelConfig = field(default_factory=ClipModelConfig)
 
     def to_dict(self) -> dict[str, Any]:
-        return self.clip.to_dict()
+        out: dict[str, Any] = {"kind": self.kind, **self.clip.options()}
+        if self.clip.allow_download:
+            out["allow_download"] = True
+        return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ClipLanguageConfig:
-        return cls(ClipGrounderConfig.from_dict(data))
+        """The configuration of its dict form, or of the one older checkpoints hold: a whole CLIP grounder's options
+        (read as that grounder's, so an option no CLIP grounder takes is refused; only its model is kept)."""
+        return cls(ClipGrounderConfig.from_dict(data).clip_model())
 
     def with_clip(self, model: str | None, device: str | None = None) -> ClipLanguageConfig:
         return ClipLanguageConfig(self.clip.with_clip(model, device))
 
-    def clip_options(self) -> dict[str, str]:
-        return self.clip.clip_options()
+    def clip_model(self) -> ClipModelConfig:
+        return self.clip
 
 
 @dataclass(frozen=True)
@@ -162,7 +174,7 @@ def register_language(kind: LanguageKind) -> LanguageKind:
 register_language(LanguageKind(HashLanguageConfig, "abm.policy.language:HashLanguageEncoder.from_config",
                                "weight-free word hashes: no download; tells instructions apart by their words"))
 register_language(LanguageKind(ClipLanguageConfig, "abm.policy.language:ClipLanguageEncoder.from_config",
-                               "CLIP text tokens of the CLIP grounder's model (the paper's)"))
+                               "CLIP text tokens of a CLIP model, the CLIP grounder's by default (the paper's)"))
 
 
 def language_config_from_dict(data: Mapping[str, Any]) -> LanguageConfig:
@@ -192,11 +204,10 @@ def as_language_config(value: LanguageConfig | Mapping[str, Any] | str) -> Langu
 
 
 def default_language(grounder: GrounderConfig) -> LanguageConfig:
-    """The language encoder of a training run that names none: the text tower of its CLIP grounder (the same
-    model and options), else the hash encoder."""
-    if isinstance(grounder, ClipGrounderConfig):
-        return ClipLanguageConfig(grounder)
-    return HashLanguageConfig()
+    """The language encoder of a training run that names none: the text tower of the CLIP its grounder uses
+    (:meth:`~abm.grounding.config.GrounderConfig.clip_model`), else the hash encoder."""
+    clip = grounder.clip_model()
+    return HashLanguageConfig() if clip is None else ClipLanguageConfig(clip)
 
 
 def build_language_encoder(config: LanguageConfig | Mapping[str, Any] | str) -> LanguageEncoder:

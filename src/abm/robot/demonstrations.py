@@ -30,7 +30,7 @@ from abm.configuration import count
 from abm.data.episode_store import save_episode
 from abm.errors import ConfigError
 from abm.geometry.rotations import canonical_gripper_quat, matrix_to_quat
-from abm.grounding.conditioning import split_instruction
+from abm.language.roles import split_instruction
 from abm.robot.run import RobotConfig
 from abm.robot.ur import URArm
 from abm.types import Episode, KeyframeAction, Observation

@@ -28,17 +28,17 @@ import numpy as np
 
 from abm.errors import ConfigError, RefusedError
 from abm.files import load_yaml
-from abm.grounding.conditioning import split_roles
 from abm.grounding.decision import GroundingRecorder, TargetDecision, decide_target, normalize_name
-from abm.grounding.instruction import (
+from abm.grounding.mask_field import MaskField
+from abm.language.instruction import (
     InstructionError,
     MultiStepInstructionError,
     NotOneCommandError,
     decompose_instruction,
     require_instruction,
 )
-from abm.grounding.mask_field import MaskField
-from abm.grounding.resolve import Resolution, UnresolvedInstructionError, resolve_instruction
+from abm.language.resolve import Resolution, UnresolvedInstructionError, resolve_instruction
+from abm.language.roles import split_roles
 from abm.registry import Registry, resolve
 from abm.robot.devices import DryRunArm, ReplayCamera, SimRobot
 from abm.robot.kinds import ARM_KINDS, CAMERA_KINDS, Arm, Camera, DeviceKind
@@ -181,7 +181,7 @@ def _target_note(instruction: str) -> str:
 
 def resolve_for_policy(instruction: str, names: dict[int, str] | None) -> tuple[str, Resolution | None]:
     """``(the instruction the policy gets, the resolution)``: an instruction in plain words resolved onto the scene's
-    objects (:func:`abm.grounding.resolve.resolve_instruction`: "grab the yellow one" -> "put the yellow block on
+    objects (:func:`abm.language.resolve.resolve_instruction`: "grab the yellow one" -> "put the yellow block on
     the target"), so the names are checked and grounded as the scene spells them.
 
     The instruction is kept as given when the camera names no objects (``(instruction, None)``), when the
@@ -262,9 +262,9 @@ def run_robot(policy: KeyframePolicy, camera: Camera, arm: Arm, instruction: str
 
     Raises:
         InstructionError: the instruction is empty or whitespace-only, or names no object of the scene in words
-            :func:`abm.grounding.resolve.resolve_instruction` can resolve (nothing is moved).
+            :func:`abm.language.resolve.resolve_instruction` can resolve (nothing is moved).
         NotOneCommandError: the instruction is not one positive command about one object (a negation, condition,
-            alternative, exclusion or swapped roles; :mod:`abm.grounding.one_command`): one line quoting the words,
+            alternative, exclusion or swapped roles; :mod:`abm.language.one_command`): one line quoting the words,
             logged as a refused step 0; nothing is moved.
         NoTargetError: the target is not one object of the scene that the grounder found with confidence (a name
             the scene does not hold, several candidates, not found, unsure; not ``allow_no_target``); nothing is

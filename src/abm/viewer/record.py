@@ -25,10 +25,10 @@ from scipy.spatial.transform import Rotation
 from abm.configuration import CAMERA_RESOLUTION, MAX_KEYFRAMES
 from abm.errors import ConfigError
 from abm.geometry import Workspace
-from abm.grounding.conditioning import split_instruction
 from abm.grounding.config import GrounderConfig, build_grounder
 from abm.grounding.grounders import Grounder
 from abm.grounding.visualize import overlay_views
+from abm.language.roles import split_instruction
 from abm.policy.keyframe_policy import PolicyExplanation, explain_grounding
 from abm.render import OrthographicRenderer
 from abm.render.orthographic import VIEW_AXES

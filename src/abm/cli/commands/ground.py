@@ -8,7 +8,7 @@ sample scene (default). Writes to ``--out``:
 * ``views.png`` / ``view_<name>.png`` — the five virtual views with the center pixel marked, above the
   re-rendered binary mask;
 * ``summary.json`` — instruction, target, skill, prompt, point counts, mask centre, the scene's objects, and how
-  the instruction was resolved onto them (``resolved``: :func:`abm.grounding.resolve.resolve_instruction`, so
+  the instruction was resolved onto them (``resolved``: :func:`abm.language.resolve.resolve_instruction`, so
   "grab the yellow one" grounds the scene's ``yellow block``).
 
 A target ``abm run`` would refuse (:func:`abm.grounding.decision.decide_target`: a name the scene does not hold,
@@ -27,14 +27,14 @@ from abm.data.episode_store import load_episode
 from abm.errors import ConfigError, ExternalError, OutputError, RefusedError
 from abm.files import write_text_atomic
 from abm.geometry import Workspace, fuse_cameras
-from abm.grounding.config import GROUNDERS
+from abm.grounding.config import GROUNDERS, GrounderConfig, build_grounder, grounder_config_from_dict
 from abm.grounding.decision import decide_target
 from abm.grounding.default import default_grounder
-from abm.grounding.grounders import ClipGrounder, make_grounder
-from abm.grounding.instruction import InstructionError, decompose_instruction
+from abm.grounding.grounders import ClipGrounder
 from abm.grounding.mask_field import mask_views
-from abm.grounding.resolve import Resolution, UnresolvedInstructionError, resolve_instruction
 from abm.grounding.visualize import blend, colormap, gray, hstack, label, mark_pixels, to_uint8, upscale, vstack
+from abm.language.instruction import InstructionError, decompose_instruction
+from abm.language.resolve import Resolution, UnresolvedInstructionError, resolve_instruction
 from abm.render import OrthographicRenderer
 from abm.render.synthetic import synthetic_scene
 
@@ -97,6 +97,29 @@ def _topdown(cloud: Any, field: Any, workspace: Any, resolution: int = 256) -> n
     return hstack([label(rgb, "top: RGB (up = +x)"), label(heat, "heatmap"), label(mask, "mask")])
 
 
+def _grounder_config(args: argparse.Namespace) -> GrounderConfig:
+    """The typed configuration of ``--grounder`` and its options (those of a grounder that uses a CLIP: its
+    weights, device, cache, mask-field and proposal settings)."""
+    proposal_flags = ("mode", "dense_mode", "input_size", "scoring", "scales")
+    tuning = {k: v for k in proposal_flags if (v := getattr(args, k)) is not None}
+    if args.normalization:
+        tuning["normalization"] = args.normalization
+    if args.threshold is not None:
+        tuning["threshold"] = args.threshold
+    if not GROUNDERS[args.grounder].clip:
+        if any(k in tuning for k in proposal_flags):
+            raise ConfigError("--mode, --dense-mode, --input-size, --scales and --scoring apply to --grounder "
+                              f"{' or '.join(GROUNDERS.names(per_frame=True, clip=True))} only")
+        if tuning or args.clip_model:
+            raise ConfigError("--clip-model, --normalization and --threshold apply to --grounder "
+                              f"{' or '.join(GROUNDERS.names(per_frame=True, clip=True))} only")
+        return grounder_config_from_dict({"kind": args.grounder})
+    clip = {"device": args.device, "allow_download": args.allow_download, "cache": args.cache}
+    if args.clip_model:
+        clip["model"] = args.clip_model
+    return grounder_config_from_dict({"kind": args.grounder, **clip, **tuning})
+
+
 def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
@@ -115,34 +138,19 @@ def run(args: argparse.Namespace) -> int:
     workspace = Workspace()
     cloud = fuse_cameras(obs, workspace)
 
-    if args.clip_model and args.grounder in (None, "clip"):  # named: loading it says what is wrong, if anything
-        args.grounder = "clip"
+    if args.clip_model and (args.grounder is None or GROUNDERS[args.grounder].clip):  # named: loading it says
+        args.grounder = args.grounder or "clip"  # what is wrong, if anything
         print(f"abm ground: grounder: CLIP {args.clip_model} (--clip-model)")
     elif args.grounder is None or GROUNDERS[args.grounder].clip:  # no --grounder, or clip without --clip-model:
         # the order every command uses
         choice = default_grounder(args.clip_model, str(args.device), download=args.allow_download,
-                                  clip_only=args.grounder == "clip")
+                                  clip_only=args.grounder is not None)
         args.grounder, args.clip_model = choice.kind, choice.model
         print(choice.startup_line("ground"))
     else:
         print(f"abm ground: grounder: {args.grounder} (--grounder {args.grounder}: "
               f"{GROUNDERS[args.grounder].description})")
-    options: dict[str, Any] = {}
-    if args.grounder == "clip":
-        options = dict(device=args.device, allow_download=args.allow_download, cache=args.cache)
-        if args.clip_model:
-            options["model"] = args.clip_model
-        if args.normalization:
-            options["normalization"] = args.normalization
-        if args.threshold is not None:
-            options["threshold"] = args.threshold
-        options.update({k: v for k in ("mode", "dense_mode", "input_size", "scoring", "scales")
-                        if (v := getattr(args, k)) is not None})
-    elif any(getattr(args, k) is not None for k in ("mode", "dense_mode", "input_size", "scoring", "scales")):
-        raise ConfigError("--mode, --dense-mode, --input-size, --scales and --scoring apply to --grounder clip only")
-    elif args.normalization or args.threshold is not None or args.clip_model:
-        raise ConfigError("--clip-model, --normalization and --threshold apply to --grounder clip only")
-    grounder = make_grounder(args.grounder, **options)
+    grounder = build_grounder(_grounder_config(args))
     field = grounder.ground(obs, cloud, target, names)
     scene_objects = sorted(set(names.values()))
     decision = decide_target(field, target, names, grounder=args.grounder)  # the one abm run acts on
@@ -206,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _resolve(instruction: str, names: dict[int, str]) -> tuple[str, str, Resolution | None]:
     """``(target X, skill, resolution)``: the instruction resolved onto the scene's objects
-    (:func:`abm.grounding.resolve.resolve_instruction`, as ``abm run`` does), or, when that is refused but the
+    (:func:`abm.language.resolve.resolve_instruction`, as ``abm run`` does), or, when that is refused but the
     templates name an object, the templates' X as written (the decision then says what the scene lacks)."""
     try:
         resolution = resolve_instruction(instruction, names)

@@ -11,7 +11,7 @@ A task is one small class registered with :func:`register_task`. It declares:
   ``borrowed_distractors``: ``(task, count)`` objects taken from another task's split;
 * ``fixed_yaw``: yaw ranges (rad) of objects that must face the robot;
 * ``skills`` (optional): the instruction skills its templates use when the built-in ones
-  (``abm/grounding/templates.yaml``) do not know their wording, in that file's form;
+  (``abm/language/templates.yaml``) do not know their wording, in that file's form;
 * ``slots`` (optional): a second object slot listed in the split file beside the targets, YAML key ->
   catalog categories (put_in_container: ``{"containers": ("container",)}``), checked when splits load,
   and :meth:`Task.check_splits` for a task's own checks of the whole split file;
@@ -110,8 +110,8 @@ class Task(ABC):
     #: Second object slots: split-file key -> catalog categories of its objects (see abm.sim.splits).
     slots: ClassVar[dict[str, tuple[str, ...]]] = {}
     #: Skills of its own, when its instructions use a wording the built-in templates do not know: entries of
-    #: ``abm/grounding/templates.yaml``'s form (``skill``, ``patterns``, ``examples``, ``places``), added to the
-    #: instruction parser's (abm.grounding.instruction.load_templates).
+    #: ``abm/language/templates.yaml``'s form (``skill``, ``patterns``, ``examples``, ``places``), added to the
+    #: instruction parser's (abm.language.instruction.load_templates).
     skills: ClassVar[tuple[dict[str, Any], ...]] = ()
     #: Where the task brings what it moves (the policy's second mask, :mod:`abm.grounding.conditioning`): a scene
     #: object's catalog name (``"plate"``, the ``"target"`` pad, ``"wine rack"``, ``"shelf"``, ``"plant"``),

@@ -5,7 +5,7 @@ instruction"). Both vary per episode: X comes from the split's object list, Y fr
 ``containers`` list (a second slot of the split file, see :mod:`abm.sim.splits`). The scene holds Y, a
 second container of the same split as a distractor (so grounding Y matters), X and two other objects
 of X's list. Instructions parse with the two-target skill ``put X in Y`` of
-``abm/grounding/templates.yaml`` (the parser's ``target`` is X, its ``second`` Y). The plate is not a
+``abm/language/templates.yaml`` (the parser's ``target`` is X, its ``second`` Y). The plate is not a
 container here: "put the X in the plate" is place_food's more specific one-target skill.
 
 Roles: ``info["target"]`` and ``info["container"]`` are the object indices of X and Y, and

@@ -16,7 +16,7 @@ Parsing is deterministic and explainable, in three steps, all driven by ``templa
    for "it" ("pick up the red block and put it on the target" -> "put red block on target");
 3. *match* the skill patterns, whose verbs, prepositions and place names are synonym groups.
 
-What is not one positive command (a negation, condition, alternative or exclusion: :mod:`abm.grounding.one_command`;
+What is not one positive command (a negation, condition, alternative or exclusion: :mod:`abm.language.one_command`;
 or a skill's place as X, "put the plate in the ketchup") is refused first, in one line, by
 :class:`NotOneCommandError`. What cannot be one skill on one named object is refused with an
 :class:`InstructionError` naming the reason and listing accepted phrasings: several steps or objects
@@ -39,7 +39,7 @@ from typing import Any, NamedTuple, NoReturn, Protocol, runtime_checkable
 
 from abm.errors import ConfigError, RefusedError
 from abm.files import load_yaml, parse_yaml
-from abm.grounding.one_command import Trigger, find_trigger, refusal_message, swapped
+from abm.language.one_command import Trigger, find_trigger, refusal_message, swapped
 
 PLACEHOLDER = "X"
 SECOND_PLACEHOLDER = "Y"  # the second object of a two-target skill ("put X in Y": X is grasped, then placed in Y)
@@ -60,12 +60,12 @@ class NotOneCommandError(MultiStepInstructionError, RefusedError):
     """An instruction that is not one positive command about one object: a negation ("do not put ..."), a
     condition ("if ..."), an alternative ("the yellow or the green block"), an exclusion ("anything but ...") or
     swapped roles (the place named as the thing to carry: "put the target on the yellow block"). Its message is one
-    line quoting the words that triggered it (:mod:`abm.grounding.one_command`). A :class:`MultiStepInstructionError`
+    line quoting the words that triggered it (:mod:`abm.language.one_command`). A :class:`MultiStepInstructionError`
     so every reader that never rewrites or re-reads such a refusal (the resolver's later stages, a
-    :class:`RewritingParser`, :func:`abm.grounding.conditioning.split_roles`' scene-name fallback) passes it on.
+    :class:`RewritingParser`, :func:`abm.language.roles.split_roles`' scene-name fallback) passes it on.
 
     Attributes:
-        trigger: the :class:`~abm.grounding.one_command.Trigger`: kind, the words, the reason.
+        trigger: the :class:`~abm.language.one_command.Trigger`: kind, the words, the reason.
     """
 
     def __init__(self, instruction: str, trigger: Trigger) -> None:
@@ -75,7 +75,7 @@ class NotOneCommandError(MultiStepInstructionError, RefusedError):
 
 def check_one_command(instruction: str, names: Collection[str] = ()) -> None:
     """Refuse ``instruction`` unless it is one positive command (no negation, condition, alternative or exclusion;
-    :func:`abm.grounding.one_command.find_trigger`, whose words in ``names``, the scene's objects, do not count).
+    :func:`abm.language.one_command.find_trigger`, whose words in ``names``, the scene's objects, do not count).
 
     Raises:
         NotOneCommandError: one line quoting the words that triggered it.
@@ -182,7 +182,7 @@ class SkillTemplate:
         examples: instructions shown in refusal messages as accepted phrasings of this skill.
         synonyms: the synonym groups the patterns may use.
         places: the catalog objects the skill's text names as its place (the plate, the target pad): what a
-            mention of the place means, never its X (:mod:`abm.grounding.resolve`).
+            mention of the place means, never its X (:mod:`abm.language.resolve`).
     """
 
     skill: str
@@ -460,7 +460,7 @@ def parse_templates(data: dict[str, Any], base_synonyms: Synonyms | None = None)
 
 def _builtin_data() -> dict[str, Any]:
     """The parsed YAML of the built-in ``templates.yaml``."""
-    source = resources.files("abm.grounding").joinpath("templates.yaml")
+    source = resources.files("abm.language").joinpath("templates.yaml")
     data: dict[str, Any] = parse_yaml(source.read_text(encoding="utf-8"), str(source), "template file") or {}
     return data
 
@@ -496,7 +496,7 @@ def _with_benchmark_tasks(templates: TemplateSet) -> TemplateSet:
     tried first, and every skill naming the tasks that use it: each task of :data:`abm.sim.tasks.TASKS` whose own
     instruction templates parse to the skill. So a task names its skill nowhere but in its own module (a task whose
     instructions parse to no skill names none, and its tests say so)."""
-    from abm.sim.tasks import TASKS  # the benchmark's tasks (sim, beside grounding): read with the built-in templates
+    from abm.sim.tasks import TASKS  # the benchmark's tasks (sim, below language): with the built-in templates only
 
     declared = [dict(entry) for task in TASKS.values() for entry in task.skills]
     if declared:

@@ -3,7 +3,7 @@
 abm acts on an instruction only when it is one positive command about one object. Text that also says what *not*
 to do, or when, or offers a choice, reads as the opposite command once its objects are picked out ("do not put the
 yellow block on the target" names the yellow block and the target), so it is refused whole, and never read by a
-later, looser stage (:mod:`abm.grounding.resolve`). :func:`find_trigger` looks for, as whole words:
+later, looser stage (:mod:`abm.language.resolve`). :func:`find_trigger` looks for, as whole words:
 
 * **negations**: "not", "never", "don't" (any "...n't"), "no", "avoid", "refrain from", "stop";
 * **conditions**: "if", "unless", "when", "whenever", "while", "until", "once", "in case", "as long as", ...;
@@ -14,8 +14,8 @@ later, looser stage (:mod:`abm.grounding.resolve`). :func:`find_trigger` looks f
 
 Words that belong to a name of the scene's objects are skipped ("put the either box on the target" with an object
 called "either box"). Swapped roles (the place named as the thing to carry: "put the target on the yellow block")
-need the templates and the scene; :class:`abm.grounding.instruction.TemplateParser` and
-:func:`abm.grounding.resolve.resolve_instruction` check them and refuse them with :func:`refusal_message` too.
+need the templates and the scene; :class:`abm.language.instruction.TemplateParser` and
+:func:`abm.language.resolve.resolve_instruction` check them and refuse them with :func:`refusal_message` too.
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """Instructions in plain words: ``resolve_instruction(text, objects)`` -> the scene object, skill, task and confidence.
 
-The templates (:mod:`abm.grounding.instruction`) understand a fixed set of phrasings and return the object
+The templates (:mod:`abm.language.instruction`) understand a fixed set of phrasings and return the object
 description X as written ("yellow cube", "yellow one"), which the scene may not hold. :func:`resolve_instruction`
 maps an instruction onto one object of the scene (``objects``: the scene's object names) and one known skill,
 in three stages, each tried only when the one before gives no answer above the confidence threshold:
 
-1. **templates** (the fast path): :class:`~abm.grounding.instruction.TemplateParser` on the text as given;
+1. **templates** (the fast path): :class:`~abm.language.instruction.TemplateParser` on the text as given;
    its X (and Y) are then matched against the scene's objects (below), so "put the yellow cube on the target"
    gives the object ``"yellow block"``;
 2. **synonyms**: the same parser on the text with hand-written synonyms replaced by the templates' words
@@ -35,13 +35,13 @@ parse; otherwise the strength of the skill's cue (1 for a named place, 0.8 for a
 allows one skill only, shared between tied skills); an object's is its match score (the share of the
 description it explains) times its margin over the next candidate (full once the runner-up scores at most
 half as much). Below ``min_confidence`` (default :data:`RESOLVE_MIN_CONFIDENCE`) the instruction is refused
-with the template parser's helpful :class:`~abm.grounding.instruction.InstructionError` (an
+with the template parser's helpful :class:`~abm.language.instruction.InstructionError` (an
 :class:`UnresolvedInstructionError` naming the best guess). Several steps or several objects
-(:class:`~abm.grounding.instruction.MultiStepInstructionError`) are always refused, never merged.
+(:class:`~abm.language.instruction.MultiStepInstructionError`) are always refused, never merged.
 
 **One positive command.** Before any stage, an instruction that is not one positive command about one object is
-refused whole (:class:`~abm.grounding.instruction.NotOneCommandError`, one line quoting the words): a negation,
-condition, alternative or exclusion (:mod:`abm.grounding.one_command`; the scene's object names never count), and
+refused whole (:class:`~abm.language.instruction.NotOneCommandError`, one line quoting the words): a negation,
+condition, alternative or exclusion (:mod:`abm.language.one_command`; the scene's object names never count), and
 swapped roles, a place of the scene named as the thing to carry ("put the target on the yellow block"), which the
 template and word stages check on the description of X. No later stage reads such a text. A reading of confidence
 0 is never an answer, whatever ``min_confidence``; a refusal quotes the words it read as X and why they fit no
@@ -63,8 +63,7 @@ from functools import cache
 from typing import Any
 
 from abm.errors import ConfigError
-from abm.grounding.conditioning import destination_for
-from abm.grounding.instruction import (
+from abm.language.instruction import (
     CARRIED_PLACES,
     PLACEHOLDER,
     SECOND_PLACEHOLDER,
@@ -77,7 +76,8 @@ from abm.grounding.instruction import (
     default_parser,
     load_templates,
 )
-from abm.grounding.one_command import swapped
+from abm.language.one_command import swapped
+from abm.language.roles import destination_for
 from abm.sim.catalog import CATALOG
 from abm.sim.tasks import TASKS
 
@@ -525,7 +525,7 @@ class Resolution:
         """Where the skill brings X: the object its task declares (``Task.destination``: the target pad, the plate,
         the wine rack, the shelf, the plant; X itself for close X and the ring's peg; :attr:`second` for a
         two-target skill, the one concept of a place object beside X), ``None`` when it has none (take X off the
-        frypan) (:func:`abm.grounding.conditioning.destination_for`)."""
+        frypan) (:func:`abm.language.roles.destination_for`)."""
         return destination_for((self.task,) if self.task else self.tasks, self.targets)
 
     @property
