@@ -28,6 +28,7 @@ from abm.data.formats import DATASET_FORMATS, DatasetFormat, register_format
 from abm.grounding.config import (
     GROUNDERS,
     ClipGrounderConfig,
+    ClipModelConfig,
     GrounderConfig,
     GrounderKind,
     OracleGrounderConfig,
@@ -266,8 +267,8 @@ def still_task() -> Iterator[type]:
 
 def test_a_registered_task_is_known_without_naming_it_elsewhere(still_task, capsys) -> None:
     from abm.data.generate import expand_tasks, trainable_tasks
-    from abm.grounding.instruction import TemplateParser, load_templates
-    from abm.grounding.resolve import task_categories
+    from abm.language.instruction import TemplateParser, load_templates
+    from abm.language.resolve import task_categories
 
     assert expand_tasks("hold_still_test") == ["hold_still_test"] and "hold_still_test" in trainable_tasks()
     assert main(["tasks", "--task", "hold_still_test"]) == 0
@@ -384,7 +385,7 @@ def test_a_registered_camera_and_arm_are_built_from_a_robot_file(still_robot, tm
 def test_training_flags_make_the_typed_grounder_and_language() -> None:
     assert grounding_from_flags("clip", None, "m") == (ClipGrounderConfig(model="m"), None)
     grounder, language = grounding_from_flags("oracle", "clip", "m", "cpu")
-    assert grounder == OracleGrounderConfig() and language == ClipLanguageConfig(ClipGrounderConfig("m", "cpu"))
+    assert grounder == OracleGrounderConfig() and language == ClipLanguageConfig(ClipModelConfig("m", "cpu"))
     assert language.to_dict() == {"kind": "clip", "model": "m", "device": "cpu"}  # the checkpoint's spec
     for flags in (("oracle", None, "m"), ("oracle", "hash", "m")):
         with pytest.raises(ValueError, match="--clip-model/--clip-device need --grounder clip or --language clip"):
@@ -392,7 +393,8 @@ def test_training_flags_make_the_typed_grounder_and_language() -> None:
     assert grounder_from_flags("tracking", "m").to_dict() == {"kind": "tracking", "inner": {"kind": "clip",
                                                                                             "model": "m"}}
     cfg = TrainConfig(grounder=ClipGrounderConfig(model="m", threshold=0.4))
-    assert cfg.language is None and cfg.language_config == ClipLanguageConfig(cfg.grounder)  # the grounder's CLIP
+    assert cfg.language is None and cfg.language_config == ClipLanguageConfig(ClipModelConfig("m"))  # the grounder's
+    assert cfg.language_config.clip_model() == cfg.grounder.clip_model()  # one CLIP model, shared
     assert cfg.to_recipe()["grounder"] == "clip" and cfg.to_recipe()["clip_model"] == "m"
 
 
@@ -408,9 +410,11 @@ def test_the_flat_and_the_nested_form_read_the_same() -> None:
     assert changed_settings({**flat, "seed": 0}, cfg) == {}
     # rvt_clip's form: the oracle with the CLIP's options, read by the clip language encoder
     rvt = TrainConfig.from_dict({"grounder": "oracle", "grounder_options": {"model": "m"}, "language": "clip"})
-    assert rvt.grounder == OracleGrounderConfig() and rvt.language == ClipLanguageConfig(ClipGrounderConfig("m"))
+    assert rvt.grounder == OracleGrounderConfig() and rvt.language == ClipLanguageConfig(ClipModelConfig("m"))
     other = TrainConfig.from_dict({**flat, "grounder_options": {**flat["grounder_options"], "threshold": 0.5}})
-    assert set(changed_settings(flat, other)) == {"grounder", "language"}  # the language follows the grounder
+    assert set(changed_settings(flat, other)) == {"grounder"}  # the text tokens depend on the CLIP model alone
+    another = TrainConfig.from_dict({**flat, "grounder_options": {**flat["grounder_options"], "model": "other"}})
+    assert set(changed_settings(flat, another)) == {"grounder", "language"}  # the language follows the grounder's CLIP
 
 
 def _committed_runs() -> list[tuple[str, dict[str, Any], dict[str, Any] | None, dict[str, Any] | None]]:
