@@ -117,25 +117,25 @@ def test_records_averages_and_tables_fill_in_stages(tmp_path: Path) -> None:
     assert (cell["successes"], cell["episodes"], cell["grounder"]) == (35, 50, "clip")
     assert ctx.average("abm_clip", "seen") == 70.0
     assert ctx.average("abm_clip", "unseen") is None  # water_plants not evaluated yet
-    title, t1 = rep._per_task(ctx, _section(1))
+    title, t1 = rep.write_section(ctx, _section(1))
     assert title.startswith("**Table 1**")
     assert "| close_jar | – | – | – | – | 70 ± 0 (35/50) | 50 ± 0 (25/50) | – | – | – | – |" in t1
     assert "**70.0**" in t1 and "74.2" in t1  # ours beside the paper's
-    t2 = rep._per_run(ctx, _section(2))[1]
+    t2 = rep.write_section(ctx, _section(2))[1]
     assert "| ABM (CLIP mask field, CLIP skill text) | 20 ± 0 (10/50) | 20 ± 0 (10/50) | 20.0 | 53.2 |" in t2
-    assert "| center-pixel (abm_clip_hash) | – | – | – | 70.0 | 57.5 |" in rep._averages(ctx, _section(3))[1]
+    assert "| center-pixel (abm_clip_hash) | – | – | – | 70.0 | 57.5 |" in rep.write_section(ctx, _section(3))[1]
     _write_eval(layout, "abm_clip_hash", "seen", [_rate(t, "seen", [40.0, 40.0]) for t in TASKS])
     ctx = _ctx(layout)
-    assert "| center-pixel (abm_clip_hash) | 40.0 | – | – | 70.0 | 57.5 |" in rep._averages(ctx, _section(3))[1]
-    (goals,) = rep._targets(ctx, _kind("targets"))
+    assert "| center-pixel (abm_clip_hash) | 40.0 | – | – | 70.0 | 57.5 |" in rep.write_section(ctx, _section(3))[1]
+    (goals,) = rep.write_section(ctx, _kind("targets"))
     assert "abm_clip: seen ≥ 60 %: met (70.0); unseen ≥ 0.85 × seen: not evaluated yet" in goals
     assert "abm_clip_hash: seen ≥ 60 %: not met (40.0)" in goals
-    assert rep._spread(ctx, _kind("spread")) == []  # only once every fusion has both averages
+    assert rep.write_section(ctx, _kind("spread")) == []  # only once every fusion has both averages
     for run, rate in (("stack", 20.0), ("concat-rerendered", 30.0), ("concat-full", 50.0)):
         for split in ("seen", "unseen"):
             _write_eval(layout, run, split, [_rate(t, split, [rate, rate]) for t in TASKS])
     _write_eval(layout, "abm_clip_hash", "unseen", [_rate(t, "unseen", [10.0, 10.0]) for t in TASKS])
-    (spread,) = rep._spread(_ctx(layout), _kind("spread"))
+    (spread,) = rep.write_section(_ctx(layout), _kind("spread"))
     assert "span 20.0–50.0 % seen and 10.0–50.0 % unseen (the paper's: 70.0–72.8 and 54.7–57.5)" in spread
 
 
@@ -210,7 +210,7 @@ def test_the_timed_zoo_eval_enters_the_report_once_it_ran(tmp_path: Path) -> Non
     assert rep.collect(SPEC, layout).zoo_eval is None  # still running: no time yet
     (layout.zoo_eval / "seconds").write_text("545\n")
     ctx = rep.Context(SPEC, rep.collect(SPEC, layout), layout)
-    (text,) = rep._zoo_eval(ctx, _kind("zoo_eval"))
+    (text,) = rep.write_section(ctx, _kind("zoo_eval"))
     assert "took 9 min" in text and "| abm_clip | 60.0 (3/5) |" in text
     assert "(pick_block; 5 episodes per task and split)" in text
     assert "`abm zoo eval --tasks pick_block --episodes 5` reproduces it" in text
@@ -273,9 +273,10 @@ def test_caveats_appear_only_for_runs_with_cells(tmp_path: Path) -> None:
     runs["stack"] = replace(runs["stack"], caveat="Other.")
     spec = replace(SPEC, runs=runs)
     layout = _layout(tmp_path)
-    assert rep._caveats(rep.Context(spec, rep.Outcomes(cells={}), layout), _kind("caveats")) == []
+    assert rep.write_section(rep.Context(spec, rep.Outcomes(cells={}), layout), _kind("caveats")) == []
     cells = {("abm_clip", "close_jar", "seen"): _rate("close_jar", "seen", [50.0])}
-    assert rep._caveats(rep.Context(spec, rep.Outcomes(cells=cells), layout), _kind("caveats")) == ["Rerun pending."]
+    caveats = rep.write_section(rep.Context(spec, rep.Outcomes(cells=cells), layout), _kind("caveats"))
+    assert caveats == ["Rerun pending."]
     text = rep.compose(spec, layout, rep.Outcomes(cells=cells)).summary
     assert "Rerun pending." in text and "Other." not in text
 
@@ -341,19 +342,19 @@ def test_success_rows_name_runs_and_variants_and_leave_out_what_is_not_evaluated
             _write_eval(layout, run, split, rates)
         _write_eval(layout, "abm_oracle@clip", split, [_rate(t, split, [30.0]) for t in ("pick_block", "place_food")])
     ctx = _clip_ctx(layout)
-    title, table = rep._success_rows(ctx, _clip_section("success_rows"))
+    title, table = rep.write_section(ctx, _clip_section("success_rows"))
     rows = [line.split(" | ")[0] for line in table.splitlines()[2:]]
     assert rows == ["| abm_oracle", "| abm_clip", "| ifd_clip", "| abm_oracle → CLIP"]  # rvt runs not evaluated
     assert "| abm_clip | abm | mask from the benchmark CLIP" in table and "18/20" in table
     assert table.splitlines()[3].endswith("| 50 | 20 | 0.40 |")
     assert "| abm_oracle → CLIP | abm | trained on oracle masks, grounded by the benchmark CLIP" in table
-    (sentences,) = rep._sentences(ctx, _clip_section("sentences"))
+    (sentences,) = rep.write_section(ctx, _clip_section("sentences"))
     assert sentences.splitlines() == [
         "abm keeps 20 % / 70 % = 0.29 of the oracle's unseen success with the learned grounder (50 % / 90 % on seen "
         "objects).",
         "The oracle-trained policy grounded by CLIP only at evaluation reaches 30 % / 30 % (seen / unseen), the "
         "CLIP-trained one 50 % / 20 %."]  # no rvt sentence: rvt_hash and rvt_clip are not evaluated
-    assert rep._missing(ctx, _clip_section("missing")) == ["Not evaluated in this run: rvt_hash, rvt_clip."]
+    assert rep.write_section(ctx, _clip_section("missing")) == ["Not evaluated in this run: rvt_hash, rvt_clip."]
 
 
 def test_grounding_quality_rows_of_the_evaluated_tasks(tmp_path: Path) -> None:
@@ -364,7 +365,7 @@ def test_grounding_quality_rows_of_the_evaluated_tasks(tmp_path: Path) -> None:
                            {**record, "task": "close_jar"}]}  # not a task of this experiment
     (tmp_path / "docs/results").mkdir(parents=True)
     (tmp_path / "docs/results/grounding_quality.json").write_text(json.dumps(quality))
-    title, table = rep._grounding_quality(_clip_ctx(layout), _clip_section("grounding_quality"))
+    title, table = rep.write_section(_clip_ctx(layout), _clip_section("grounding_quality"))
     assert "`proposals (combined, no split)`" in title
     assert table.splitlines()[2:] == ["| pick_block | unseen | 10 | 0.81 | 90 % | 70 % |"]
 
@@ -376,7 +377,7 @@ def test_the_setup_states_what_the_spec_asks_in_its_order(tmp_path: Path) -> Non
                            "optimizer": "adamw", "lr": 0.001, "workspace_size": 0.6}}]
     cells = {("abm_clip", "pick_block", "seen"): {**_rate("pick_block", "seen", [50.0, 50.0, 50.0]), "episodes": 30}}
     ctx = rep.Context(CLIP_SPEC, rep.Outcomes(cells=cells, entries=entries, machines=["m1", "m2"]), layout)
-    (text,) = rep._setup(ctx, _clip_section("setup"))
+    (text,) = rep.write_section(ctx, _clip_section("setup"))
     assert text.startswith("Machines (every session that ran a stage): m1; m2. Data: 20 seen demonstrations per task "
                            "(pick_block, place_food). CLIP: the benchmark CLIP in `models/benchmark-clip` (`abm clip "
                            "train`: trained on simulator renders")  # no folder here: its size is not stated

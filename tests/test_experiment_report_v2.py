@@ -68,17 +68,17 @@ def test_spread_tables_show_each_average_with_its_standard_error_and_say_how(tmp
     cells = {**_cells("abm_clip", "seen", [60.0, 72.0, 84.0]), **_cells("abm_clip", "unseen", [40.0, 40.0, 40.0])}
     cells |= _cells("abm_clip", "compositional", [0.0, 20.0, 40.0], tasks=V2.split_tasks()["compositional"])
     ctx = _ctx(V2, cells, tmp_path)
-    title, table, note = rep._per_task(ctx, _section(V2, "per_task", 1))
+    title, table, note = rep.write_section(ctx, _section(V2, "per_task", 1))
     average = next(line for line in table.splitlines() if line.startswith("| **average**"))
     # repeat-wise averages 60, 72, 84: sample std 12, standard error 12 / sqrt(3) = 6.9
     assert "| **–** | **72.0** ± 6.9 | **40.0** ± 0.0 | **–** |" in average
     assert "| close_jar | – | – | – | – | 72 ± 10 (54/75) | 40 ± 0 (30/75) |" in table  # cells: mean ± std
     assert note.startswith("± in a cell: the standard deviation of the task's success over the three repeats; ± "
                            "after an average: its standard error") and "divided by √3" in note
-    _, t2, _ = rep._per_run(ctx, _section(V2, "per_run", 2))
+    _, t2, _ = rep.write_section(ctx, _section(V2, "per_run", 2))
     assert "| 20.0 ± 11.5 | 53.2 |" in t2  # 20 / sqrt(3)
     cells |= _cells("abm_clip_hash", "seen", [10.0, 20.0, 30.0])
-    _, t3, _ = rep._averages(_ctx(V2, cells, tmp_path), _section(V2, "averages", 3))
+    _, t3, _ = rep.write_section(_ctx(V2, cells, tmp_path), _section(V2, "averages", 3))
     assert "| center-pixel (abm_clip_hash) | 20.0 ± 5.8 | – | – | 70.0 | 57.5 |" in t3
 
 
@@ -86,9 +86,9 @@ def test_the_first_edition_renders_as_before_with_three_repeats(tmp_path: Path) 
     """``spread`` is off in paper_tables: its averages show no ± and no note follows its tables."""
     cells = _cells("abm_clip", "seen", [60.0, 72.0, 84.0])
     ctx = _ctx(V1, cells, tmp_path)
-    blocks = rep._per_task(ctx, _section(V1, "per_task", 1))
+    blocks = rep.write_section(ctx, _section(V1, "per_task", 1))
     assert len(blocks) == 2 and "| **average** | **–** | **–** | **–** | **–** | **72.0** | **–** |" in blocks[1]
-    assert len(rep._averages(ctx, _section(V1, "averages", 3))) == 2
+    assert len(rep.write_section(ctx, _section(V1, "averages", 3))) == 2
 
 
 # -------------------------------------------------------------------------------------------- seeds
@@ -97,7 +97,7 @@ def test_the_seed_spread_says_which_fusion_differences_exceed_it(tmp_path: Path)
     for run, seen, unseen in (("abm_clip_hash", 30.0, 20.0), ("abm_clip_hash_seed1", 26.0, 21.0),
                               ("stack", 40.0, 22.0), ("concat-rerendered", 31.0, 10.0), ("concat-full", 29.0, 20.5)):
         cells |= _cells(run, "seen", [seen] * 3) | _cells(run, "unseen", [unseen] * 3)
-    table, text = rep._seeds(_ctx(V2, cells, tmp_path), _section(V2, "seeds"))
+    table, text = rep.write_section(_ctx(V2, cells, tmp_path), _section(V2, "seeds"))
     assert table.splitlines()[0] == ("| run | other seed | seen avg | seen other seed | seen difference | unseen avg | "
                                      "unseen other seed | unseen difference |")
     assert table.splitlines()[2] == ("| center-pixel (abm_clip_hash) | abm_clip_hash_seed1 | 30.0 ± 0.0 | 26.0 ± 0.0 | "
@@ -110,7 +110,7 @@ def test_the_seed_spread_says_which_fusion_differences_exceed_it(tmp_path: Path)
             "concat-rerendered vs concat-full 10.5, concat-rerendered vs center-pixel (abm_clip_hash) 10.0.") in text
     # before the second seed is evaluated the spread is not claimed
     del cells[("abm_clip_hash_seed1", "close_jar", "seen")]
-    _, text = rep._seeds(_ctx(V2, cells, tmp_path), _section(V2, "seeds"))
+    _, text = rep.write_section(_ctx(V2, cells, tmp_path), _section(V2, "seeds"))
     assert "seen: the seed spread is not measured yet" in text and "unseen: seed spread 1.0 points" in text
 
 
@@ -146,7 +146,7 @@ def test_the_diagnosis_shows_keyframes_beside_chance_the_probe_and_failure_reaso
     cells = _cells("abm_clip", "seen", [20.0, 20.0, 20.0], failures=FAILED)
     cells[("abm_clip", "close_jar", "seen")]["failures"] = {"grasp missed": 50, "IK unreachable": 10}
     ctx = _ctx(V2, cells, tmp_path, summaries=SUMMARIES, probes=PROBES)
-    blocks = rep._diagnosis(ctx, _section(V2, "diagnosis"))
+    blocks = rep.write_section(ctx, _section(V2, "diagnosis"))
     assert blocks[0].startswith("Per model, what it gets wrong")
     seen = blocks[2].splitlines()
     assert seen[0] == "| model | approach | grasp | move | place |"  # kinds in keyframe order
@@ -161,52 +161,52 @@ def test_the_diagnosis_shows_keyframes_beside_chance_the_probe_and_failure_reaso
     failures = blocks[8].splitlines()
     assert failures[0] == "| model | split | failed / episodes | grasp missed | timeout | IK unreachable |"
     assert failures[2] == "| abm_clip | seen | 410 / 600 | 330 | 70 | 10 |"  # 7 tasks x 50 + 60, over 8 x 75
-    assert rep._diagnosis(_ctx(V2, {}, tmp_path), _section(V2, "diagnosis")) == [blocks[0]]  # nothing yet
+    assert rep.write_section(_ctx(V2, {}, tmp_path), _section(V2, "diagnosis")) == [blocks[0]]  # nothing yet
 
 
 def test_a_missed_target_says_what_the_diagnosis_shows(tmp_path: Path) -> None:
     cells = _cells("abm_clip", "seen", [70.0, 60.0, 80.0]) | _cells("abm_clip", "unseen", [20.0] * 3, failures=FAILED)
     cells |= _cells("abm_oracle", "seen", [90.0] * 3)
     ctx = _ctx(V2, cells, tmp_path, summaries=SUMMARIES, probes=PROBES)
-    (goals,) = rep._targets(ctx, _section(V2, "targets"))
+    (goals,) = rep.write_section(ctx, _section(V2, "targets"))
     assert "abm_clip: seen ≥ 60 %: met (70.0); unseen ≥ 0.85 × seen: not met (0.29)" in goals
     assert goals.startswith("Targets, abm with CLIP masks: ")  # no issue named in generated text
     # the explanation is a section of its own, written into the edition's page only
     section = _section(V2, "target_diagnosis")
     assert section.only == "document"
-    (why,) = rep._target_diagnosis(ctx, section)  # abm_oracle meets its target: one paragraph
+    (why,) = rep.write_section(ctx, section)  # abm_oracle meets its target: one paragraph
     assert why == ("Where a target is missed, the diagnosis shows: abm_clip (misses unseen ≥ 0.85 × seen): the "
                    "largest keyframe errors (seen objects) at move (25.0 cm, 5°) and place (9.0 cm, 8°); a rotation "
                    "no better than a random yaw's at approach (42° against 45°); the skill-text probe at the move "
                    "keyframe: place_wine's own text 26.3 cm from the expert's (not within 5 cm), pick_block's own "
                    "text 1.5 cm from the expert's (within 5 cm); its failed rollouts: grasp missed 320, timeout 80.")
-    (oracle,) = rep._targets(ctx, _section(V2, "targets", nth=1))
+    (oracle,) = rep.write_section(ctx, _section(V2, "targets", nth=1))
     assert oracle == "Target, abm with oracle masks: abm_oracle: seen ≥ 70 %: met (90.0)."
     # a run without any diagnosis says so
     cells |= _cells("abm_oracle", "seen", [50.0] * 3)
-    whys = rep._target_diagnosis(_ctx(V2, cells, tmp_path), section)
+    whys = rep.write_section(_ctx(V2, cells, tmp_path), section)
     assert whys[-1].endswith("abm_oracle (misses seen ≥ 70 %): no diagnosis of it yet.")
     # met targets need no explanation
     met = _cells("abm_oracle", "seen", [90.0] * 3)
-    assert rep._target_diagnosis(_ctx(V2, met, tmp_path), section) == []
+    assert rep.write_section(_ctx(V2, met, tmp_path), section) == []
 
 
 def test_a_target_missed_by_less_than_the_seed_spread_says_so(tmp_path: Path) -> None:
     cells = _cells("abm_clip", "seen", [58.0] * 3) | _cells("abm_oracle", "seen", [61.0] * 3)
     cells |= _cells("rvt_clip", "unseen", [40.0] * 3) | _cells("abm_clip", "unseen", [55.0] * 3)
     section = _section(V2, "targets")
-    (goals,) = rep._targets(_ctx(V2, cells, tmp_path), section)
+    (goals,) = rep.write_section(_ctx(V2, cells, tmp_path), section)
     assert "seen ≥ 60 %: not met (58.0);" in goals and "seed spread" not in goals  # no seed pair evaluated yet
     # center-pixel's two seeds 7 points apart on seen objects, 3 on unseen: the seed spread
     cells |= _cells("abm_clip_hash", "seen", [50.0] * 3) | _cells("abm_clip_hash_seed1", "seen", [57.0] * 3)
     cells |= _cells("abm_clip_hash", "unseen", [40.0] * 3) | _cells("abm_clip_hash_seed1", "unseen", [43.0] * 3)
     ctx = _ctx(V2, cells, tmp_path)
     assert rep.seed_spread(ctx) == {"seen": 7.0, "unseen": 3.0}
-    (goals,) = rep._targets(ctx, section)
+    (goals,) = rep.write_section(ctx, section)
     assert "abm_clip: seen ≥ 60 %: not met (58.0; 2.0 short, within the seed spread of 7.0 points);" in goals
     # unseen 55 against rvt's 40 + 20: 5 short, more than the unseen spread of 3: a measured miss
     assert "unseen ≥ rvt_clip unseen + 20: not met (55.0 vs 40.0);" in goals
-    (oracle,) = rep._targets(ctx, _section(V2, "targets", nth=1))
+    (oracle,) = rep.write_section(ctx, _section(V2, "targets", nth=1))
     assert "seen ≥ 70 %: not met (61.0; 9.0 short" not in oracle and "not met (61.0)." in oracle  # 9 > 7
 
 
@@ -274,7 +274,7 @@ def test_both_editions_share_the_zoo_and_abm_zoo_eval_takes_the_newest(tmp_path:
         e.update(train_minutes=60.0, steps=6000, recipe={"preset": "small+custom", "resolution": 64, "patch_size": 8,
                                                          "rotation_crop": 16, "batch": 8, "optimizer": "adamw",
                                                          "lr": 0.001})
-    (setup,) = rep._setup(rep.Context(V2, outcomes, v2), _section(V2, "setup"))
+    (setup,) = rep.write_section(rep.Context(V2, outcomes, v2), _section(V2, "setup"))
     assert "at 64² views, patch 8, a 16-pixel rotation crop, 6000 steps of batch 8" in setup
     assert "Training minutes: rvt_clip 60.0, abm_clip 60.0, abm_clip_hash 60.0." in setup  # run names, this edition
     # the first edition's report keeps the second edition's entries (and the order), and leaves the zoo's README
@@ -301,7 +301,7 @@ def test_the_headline_states_ours_beside_the_paper_once_every_number_is_measured
     for run, seen, unseen, composed in (("abm_clip", 60.0, 50.0, 70.0), ("rvt_clip", 40.0, 20.0, 10.0)):
         cells |= _cells(run, "seen", [seen] * 3) | _cells(run, "unseen", [unseen] * 3)
         cells |= _cells(run, "compositional", [composed] * 3, tasks=comp)
-    text, table = rep._headline(_ctx(V2, cells, tmp_path), section)
+    text, table = rep.write_section(_ctx(V2, cells, tmp_path), section)
     assert text.startswith("**Result:** on objects it never saw, abm succeeds in 50.0 % of the episodes and the rvt "
                            "baseline in 20.0 % (the paper: 57.5 % and 24.0 %); on the two compositional tasks no "
                            "model was trained on, 70.0 % against 10.0 % (the paper: 53.2 % and 21.6 %).")
@@ -312,7 +312,7 @@ def test_the_headline_states_ours_beside_the_paper_once_every_number_is_measured
                                   "| rvt (CLIP text), paper | 74.2 | 24.0 | 21.6 |"]
     # a number not measured yet: no sentence claims it, the table shows –
     del cells[("rvt_clip", comp[0], "compositional")]
-    (table,) = rep._headline(_ctx(V2, cells, tmp_path), section)
+    (table,) = rep.write_section(_ctx(V2, cells, tmp_path), section)
     assert "| rvt (CLIP text), ours | 40.0 | 20.0 | – |" in table
 
 
