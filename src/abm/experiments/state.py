@@ -108,6 +108,10 @@ class Layout:
     def log(self, job: str) -> Path:
         return self.out / "logs" / (job.replace("/", "_") + ".log")
 
+    def job_file(self, job: str) -> Path:
+        """The typed job (:mod:`abm.experiments.jobs`) its process runs, written as it starts."""
+        return self.out / "jobs" / (job.replace("/", "_") + ".json")
+
     @property
     def times(self) -> Path:
         return self.out / "times.txt"
