@@ -20,9 +20,10 @@ def _zoo(tmp_path: Path, names: tuple[str, ...] = ("abm_oracle", "rvt_clip")) ->
     for name in names:
         data = name.encode()
         (zoo / f"{name}.pt").write_bytes(data)
-        entries.append({"name": name, "file": f"{name}.pt", "method": name.split("_")[0],
-                        "grounder": "oracle" if name == "abm_oracle" else "clip",
-                        "size_bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
+        kind = "oracle" if name == "abm_oracle" else "clip"
+        entries.append({"name": name, "file": f"{name}.pt", "method": name.split("_")[0], "grounder": kind,
+                        "grounder_spec": {"kind": kind}, "size_bytes": len(data),
+                        "sha256": hashlib.sha256(data).hexdigest()})
     (zoo / "index.json").write_text(json.dumps(entries))
     return zoo
 
@@ -84,8 +85,8 @@ def test_pick_takes_the_newest_editions_compared_model_and_falls_back_to_the_fir
     entries.append({"name": "benchmark-clip", "file": "benchmark-clip/", "method": "clip"})
 
     def later(name: str, method: str, number: int, compared: bool) -> dict:
-        return {"name": f"{name}_v{number}", "method": method, "grounder": "clip", "edition": number,
-                "compared": compared}
+        return {"name": f"{name}_v{number}", "method": method, "grounder": "clip", "grounder_spec": {"kind": "clip"},
+                "edition": number, "compared": compared}
 
     # a second edition without its compared abm model yet: the first edition's abm_clip, not the new abm_clip_hash
     entries.append(later("abm_clip_hash", "abm", 2, False))

@@ -23,7 +23,6 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
     from abm.grounding.cache import GroundingCache, cloud_key, content_key, frame_key, image_key
     from abm.grounding.clip import (
         CLIP_PRESETS,
-        DEFAULT_MODEL,
         ClipBackbone,
         ClipWeightsNotFoundError,
         load_clip,
@@ -32,6 +31,7 @@ if TYPE_CHECKING:  # the exports; at run time each is imported on first use (abm
         tiny_clip,
     )
     from abm.grounding.config import (
+        DEFAULT_MODEL,
         DEFAULT_NEGATIVES,
         DEFAULT_NORMALIZATION,
         DEFAULT_THRESHOLD,

@@ -30,12 +30,13 @@ from numpy.typing import NDArray
 from abm.errors import ConfigError
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
-from abm.grounding.clip import DEFAULT_MODEL, ClipBackbone, load_clip, load_clip_model, model_fingerprint
+from abm.grounding.clip import ClipBackbone, load_clip, load_clip_model, model_fingerprint
 from abm.grounding.config import (  # the defaults live with the typed configurations
     CLIP_MODES,
     DEFAULT_CLIP_MODE,
     DEFAULT_DENSE_MODE,
     DEFAULT_INPUT_SIZE,
+    DEFAULT_MODEL,
     DEFAULT_SCALES,
     DENSE_MODES,
     ClipGrounderConfig,
