@@ -50,7 +50,7 @@ def spec() -> ExperimentSpec:
 
 @dataclass
 class QuickstartConfig:
-    """Sizes of the quickstart run (the ``abm quickstart`` flags; defaults: 22.7 min measured on 2 CPU cores).
+    """Sizes of the quickstart run (the ``abm quickstart`` flags; what the defaults measured: docs/evaluation.md).
 
     The training defaults come from the quickstart recipe (``configs/quickstart.yaml``, :data:`RECIPE`): the CPU
     recipe of the seen/unseen experiment (``abm experiment run seen_unseen``) cut to one task, with smaller views
@@ -103,7 +103,8 @@ class QuickstartConfig:
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "quickstart",
-        help="generate data, train abm and rvt, evaluate on seen/unseen objects, write a report (22.7 min on 2 cores)",
+        help="generate data, train abm and rvt, evaluate on seen/unseen objects, write a report (measured time: "
+             "docs/evaluation.md)",
         description=__doc__.split("\n\n")[0],
     )
     add_config_arguments(p, QuickstartConfig)
