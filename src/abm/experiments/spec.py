@@ -32,6 +32,7 @@ from abm.configuration import (
 )
 from abm.errors import ConfigError
 from abm.evaluation.settings import EXPERT_KEYFRAME_KINDS
+from abm.experiments.report.kinds import SECTIONS
 from abm.files import load_yaml
 from abm.grounding.config import GROUNDERS, grounder_config_from_dict
 from abm.policy.config import PolicyConfig
@@ -286,7 +287,7 @@ class Resources:
 
 @dataclass(frozen=True)
 class Section:
-    """One part of the report (see :data:`SECTION_KEYS` for what each kind takes).
+    """One part of the report (see :data:`abm.experiments.report.kinds.SECTIONS` for what each kind takes).
 
     Attributes:
         kind: what it writes (``setup``, ``per_task``, ``per_run``, ``averages``, ``spread``, ``targets``,
@@ -668,37 +669,6 @@ def _checked(reader: _Reader, key: str, cls: type, forbidden: Sequence[str] = ()
 
 
 # --------------------------------------------------------------------------------------------- sections
-#: the keys each report section kind takes (besides ``kind``)
-SECTION_KEYS: dict[str, tuple[str, ...]] = {
-    "setup": ("show",),
-    "per_task": ("title", "runs", "splits", "table", "paper", "column", "spread"),
-    "per_run": ("title", "runs", "splits", "table", "paper", "digits", "column", "spread"),
-    "averages": ("title", "runs", "splits", "table", "paper", "names", "column", "spread"),
-    "spread": ("of_table", "text"),
-    "targets": ("text", "runs", "checks", "digits", "explain"),
-    "target_diagnosis": (),
-    "headline": ("text", "runs", "splits", "paper", "names", "column", "digits"),
-    "caveats": (),
-    "weakest_keyframes": ("splits",),
-    "approach_yaw": ("splits", "task", "note"),
-    "zoo_eval": (),
-    "text": ("text",),
-    "heading": ("text",),
-    "detail": ("runs", "splits"),
-    "keyframe_accuracy": ("splits", "text"),
-    "figures": (),
-    "outcome_tables": ("splits",),
-    "success_rows": ("title", "runs", "splits", "column", "describe", "digits"),
-    "sentences": ("sentences",),
-    "missing": ("text", "runs"),
-    "keyframe_rows": ("title", "kinds"),
-    "keyframe_curve": ("title", "kinds"),
-    "keyframe_compare": ("title", "runs", "names", "kinds"),
-    "grounding_quality": ("title", "source", "config"),
-    "seeds": ("title", "of_table", "seeds", "splits", "digits"),
-    "diagnosis": ("title", "runs", "splits", "kinds"),
-    "loops": ("title", "runs", "splits", "column"),
-}
 #: what a ``setup`` paragraph can state (default: machines, recipe, minutes, stages, evaluation)
 SETUP_ITEMS = ("machines", "data", "clip", "recipe", "minutes", "speed", "stages", "evaluation", "keyframes")
 TARGET_KINDS = ("at_least", "ratio", "beats", "below", "keyframe_cm", "keyframe_deg", "loops")
@@ -706,8 +676,8 @@ FIGURE_KINDS = ("success", "losses", "keyframe_error")
 
 
 def _section(reader: _Reader, runs: Sequence[str]) -> Section:
-    kind = reader.choice("kind", list(SECTION_KEYS))
-    allowed = SECTION_KEYS[kind]
+    kind = reader.choice("kind", list(SECTIONS))
+    allowed = SECTIONS[kind].keys
     for key in reader.data:
         if key not in ("kind", "only") and key not in allowed:
             raise reader.error(f"a {kind!r} section takes {', '.join(allowed) or 'no other key'}", key)
