@@ -30,16 +30,16 @@ from numpy.typing import NDArray
 from abm.errors import ConfigError
 from abm.geometry import PointCloud
 from abm.grounding.cache import GroundingCache, cloud_key, content_key, image_key
-from abm.grounding.clip import ClipBackbone, load_clip, load_clip_model, model_fingerprint
+from abm.grounding.clip import ClipBackbone, load_clip_model, model_fingerprint
 from abm.grounding.config import (  # the defaults live with the typed configurations
     CLIP_MODES,
     DEFAULT_CLIP_MODE,
     DEFAULT_DENSE_MODE,
     DEFAULT_INPUT_SIZE,
-    DEFAULT_MODEL,
     DEFAULT_SCALES,
     DENSE_MODES,
     ClipGrounderConfig,
+    ClipModelConfig,
     GrounderConfig,
     MaskFieldConfig,
     OracleGrounderConfig,
@@ -157,14 +157,14 @@ class ClipGrounder:
 
     Args:
         backbone: a ready :class:`~abm.grounding.clip.ClipBackbone`; else one is loaded from ``model``.
-        model: hub name, local directory, ``"tiny"`` or ``"random:<preset>"`` (see :func:`load_clip`).
+        model: hub name, local directory, ``"tiny"`` or ``"random:<preset>"`` (:func:`~abm.grounding.clip.load_clip`).
         device: torch device for the backbone (default CUDA when available).
         config: normalisation / threshold settings (:class:`MaskFieldConfig`).
         cache: a :class:`GroundingCache`, a directory for one, or None for a memory-only cache.
         input_size: ``(H, W)`` (or one side) the camera images are resized to (default the model's native
             size); a larger input gives a finer patch grid (interpolated position embeddings).
         cache_features: also keep per-image patch features in the cache (memory and disk).
-        allow_download: let :func:`load_clip` try the network.
+        allow_download: let :func:`~abm.grounding.clip.load_clip` try the network.
         dense_mode: last block of the dense features (:data:`abm.grounding.config.DENSE_MODES`: ``maskclip``,
             ``clearclip``, ``sclip``, ``naclip``).
         mode: ``"field"`` (threshold the per-point heatmap) or ``"proposals"`` (score 3-D object candidates,
@@ -197,7 +197,8 @@ class ClipGrounder:
         if mode not in CLIP_MODES:
             raise ConfigError(f"mode must be one of {CLIP_MODES}, got {mode!r}")
         if backbone is None:
-            backbone = load_clip(model or DEFAULT_MODEL, device=device, allow_download=allow_download)
+            device_name = None if device is None else str(device)
+            backbone = load_clip_model(ClipModelConfig(model, device_name, allow_download))
         self.backbone = backbone
         self.config = config or MaskFieldConfig()
         self.cache = cache if isinstance(cache, GroundingCache) else GroundingCache(cache)
