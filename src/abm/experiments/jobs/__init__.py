@@ -7,17 +7,15 @@ writes each job to ``OUT/jobs/JOB.json`` (:meth:`TypedJob.write`) and hands it t
 node (:mod:`abm.experiments.scheduler`); that command line is what ``abm experiment status`` looks for among the
 live processes.
 
-========== ================== ==================================================================
-kind       job                calls (as the command does)
-========== ================== ==================================================================
-data       :class:`DataJob`   :func:`abm.data.stores.generate_tasks` (``abm data generate``)
-ground     :class:`GroundJob` :func:`abm.data.stores.ground_store` (``abm data ground``)
-train      :class:`TrainJob`  :func:`abm.train.loop.train` (``abm train``)
-export     :class:`ExportJob` :func:`abm.policy.export.export_model` (``abm export``)
-eval       :class:`EvalJob`   :func:`abm.evaluation.session.run_evaluation` (``abm eval``)
-zoo_eval   :class:`ZooEvalJob` :func:`abm.evaluation.session.evaluate_zoo` (``abm zoo eval``)
-diagnose   :class:`DiagnoseJob` a diagnosis request's ``run`` (:mod:`abm.evaluation.diagnose`)
-========== ================== ==================================================================
+Each kind calls what its ``abm`` command calls:
+
+* ``data`` (:class:`DataJob`): :func:`abm.data.stores.generate_tasks`, as ``abm data generate``;
+* ``ground`` (:class:`GroundJob`): :func:`abm.data.stores.ground_store`, as ``abm data ground``;
+* ``train`` (:class:`TrainJob`): :func:`abm.train.loop.train`, then the loss curve, as ``abm train``;
+* ``export`` (:class:`ExportJob`): :func:`abm.policy.export.export_model`, as ``abm export``;
+* ``eval`` (:class:`EvalJob`): :func:`abm.evaluation.session.run_evaluation`, as ``abm eval``;
+* ``zoo_eval`` (:class:`ZooEvalJob`): :func:`abm.evaluation.session.evaluate_zoo`, as ``abm zoo eval``;
+* ``diagnose`` (:class:`DiagnoseJob`): a diagnosis request's ``run`` (:mod:`abm.evaluation.diagnose`).
 
 Every job also names the ``abm`` command that does the same (:meth:`TypedJob.command`), which ``abm experiment run
 --dry-run`` prints and a person can run by hand; tests parse it with abm's own parser, so a renamed flag fails
@@ -37,6 +35,7 @@ from abm.data.stores import generate_tasks, ground_store
 from abm.errors import ConfigError
 from abm.evaluation.diagnose import from_dict as diagnosis_from_dict
 from abm.evaluation.diagnose.request import DiagnosisRequest
+from abm.evaluation.plots import run_loss_curves
 from abm.evaluation.session import EvalRequest, evaluate_zoo, run_evaluation
 from abm.evaluation.settings import ZOO_EVAL_EPISODES, ZOO_EVAL_MAX_STEPS, ZOO_EVAL_TASKS
 from abm.geometry import Workspace
@@ -90,8 +89,9 @@ class TypedJob:
         """Do the work (in this process), by the library function its ``abm`` command calls."""
         raise NotImplementedError
 
-    def command(self) -> list[str]:
-        """The words of the ``abm`` command that does the same (after ``abm``), for a person to read or run."""
+    def command(self) -> list[str] | None:
+        """The words of the ``abm`` command that does the same (after ``abm``), for a person to read or run
+        (``None``: no ``abm`` command does it)."""
         raise NotImplementedError
 
     def to_dict(self) -> dict[str, Any]:
@@ -109,13 +109,13 @@ class TypedJob:
         kind = values.pop("kind", cls.kind)
         names = {f.name for f in fields(cls)}  # type: ignore[arg-type]
         if kind != cls.kind or not set(values) <= names:
-            raise ConfigError(f"not a {cls.kind} job: kind {kind!r}, keys {', '.join(sorted(values))} (a {cls.kind} "
-                              f"job has {', '.join(sorted(names))})")
+            raise ConfigError(f"not a job of kind {cls.kind!r}: kind {kind!r}, keys {', '.join(sorted(values))} (it "
+                              f"has {', '.join(sorted(names))})")
         hints = get_type_hints(cls)
         try:
             return cls(**{k: _field_value(hints[k], v) for k, v in values.items()})
         except TypeError as err:  # a field missing
-            raise ConfigError(f"a {cls.kind} job: {err}") from None
+            raise ConfigError(f"a job of kind {cls.kind!r}: {err}") from None
 
     def write(self, path: Path) -> None:
         """Write the job to ``path`` (JSON; its folder made)."""
@@ -210,8 +210,9 @@ class GroundJob(TypedJob):
 @dataclass(frozen=True)
 class TrainJob(TypedJob):
     """One training (:func:`abm.train.loop.train` of ``config``; it resumes from the last checkpoint in its run
-    folder when ``config.resume``). ``recipe``: the same options as ``abm train --config`` reads them, written
-    beside for a person (the engine's ``OUT/recipes/RUN.yaml``)."""
+    folder when ``config.resume``), then its loss curve (``RUN/training_curve.png``), as ``abm train`` does.
+    ``recipe``: the same options as ``abm train --config`` reads them, written beside for a person (the engine's
+    ``OUT/recipes/RUN.yaml``)."""
 
     kind: ClassVar[str] = "train"
     config: TrainConfig
@@ -219,6 +220,7 @@ class TrainJob(TypedJob):
 
     def run(self) -> None:
         train(self.config)
+        run_loss_curves({self.config.method: self.config.out}, Path(self.config.out) / "training_curve.png")
 
     def command(self) -> list[str]:
         return ["train", "--config", self.recipe.as_posix(), "--out", Path(self.config.out).as_posix(),
@@ -299,12 +301,12 @@ class DiagnoseJob(TypedJob):
     def run(self) -> None:
         self.request.run()
 
-    def command(self) -> list[str]:
-        """A diagnosis has no ``abm`` command: its request as JSON (what the job file holds)."""
-        return ["diagnose", self.request.kind, json.dumps(self.request.to_dict())]
+    def command(self) -> None:
+        """A diagnosis has no ``abm`` command (``benchmarks/`` has a script for a person to run by hand)."""
+        return None
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Self:
         if data.get("kind", cls.kind) != cls.kind or set(data) - {"kind", "request"}:
-            raise ConfigError(f"not a diagnose job: {', '.join(sorted(data))}")
+            raise ConfigError(f"not a job of kind 'diagnose': keys {', '.join(sorted(data))} (it has kind, request)")
         return cls(diagnosis_from_dict(data["request"]))
