@@ -91,13 +91,14 @@ def test_abm_train_flags_build_the_train_config(tmp_path) -> None:
         ["train", "--method", "rvt", "--data", str(tmp_path), "--steps", "7", "--out", str(tmp_path / "r"),
          "--no-augment", "--cameras", "front", "top", "--set", "resolution=64", "--clip-model", "tiny",
          "--language", "clip"])
-    cfg = config_from_args(TrainConfig, args, policy_overrides=dict(args.overrides))
+    cfg = config_from_args(TrainConfig, args, policy=dict(args.overrides))
     assert (cfg.method, cfg.steps, cfg.augment, cfg.camera_names) == ("rvt", 7, False, ["front", "top"])
-    assert cfg.policy_overrides == {"resolution": 64} and cfg.splits == ["seen"] and cfg.progress
+    assert cfg.policy == PolicyConfig.from_preset("small", "rvt", resolution=64)
+    assert cfg.policy.preset_changes() == {"resolution": 64} and cfg.splits == ["seen"] and cfg.progress
 
 
 def test_policy_flags_are_overrides_of_the_preset(tmp_path, monkeypatch) -> None:
-    """Only the policy flags given reach policy_overrides (the preset supplies the rest)."""
+    """Only the policy flags given change the preset's policy (the preset supplies the rest)."""
     import abm.cli.commands.train as loop  # the command's `train` (abm.train.loop.train)
     from abm.cli import main
 
@@ -107,8 +108,9 @@ def test_policy_flags_are_overrides_of_the_preset(tmp_path, monkeypatch) -> None
     assert main(["train", "--method", "abm", "--synthetic", "1", "--steps", "1", "--out", str(tmp_path),
                  "--patch-size", "6", "--view-resolution", "48", "--workspace-center", "0.5", "0", "0.15",
                  "--set", "width=96"]) == 0
-    assert seen["cfg"].policy_overrides == {"patch_size": 6, "resolution": 48, "workspace_center": [0.5, 0.0, 0.15],
-                                            "width": 96}
+    assert seen["cfg"].policy == PolicyConfig.from_preset("small", "abm", patch_size=6, resolution=48, width=96,
+                                                          workspace_center=(0.5, 0.0, 0.15))
+    assert seen["cfg"].policy.preset == "small+custom"
 
 
 def test_train_config_file_with_flags_overriding_it(tmp_path, monkeypatch, capsys) -> None:
@@ -129,7 +131,7 @@ def test_train_config_file_with_flags_overriding_it(tmp_path, monkeypatch, capsy
                  "0.005", "--view-resolution", "60"]) == 0
     cfg = seen["cfg"]
     assert (cfg.method, cfg.steps, cfg.lr, cfg.checkpoint_every, cfg.augment) == ("rvt", 30, 0.005, 7, False)
-    assert cfg.policy_overrides == {"resolution": 60, "patch_size": 6, "workspace_center": [0.5, 0.0, 0.15]}
+    assert cfg.policy.preset_changes() == {"resolution": 60, "patch_size": 6, "workspace_center": [0.5, 0.0, 0.15]}
     # without --config, the defaults are the measured CPU recipe
     default = TrainConfig()
     assert (default.optimizer, default.lr, default.warmup, default.batch) == ("adamw", 1e-3, 50, 8)
@@ -138,7 +140,7 @@ def test_train_config_file_with_flags_overriding_it(tmp_path, monkeypatch, capsy
                  "--out", str(tmp_path / "q")]) == 0
     quick = QuickstartConfig()
     assert (seen["cfg"].steps, seen["cfg"].lr, seen["cfg"].optimizer) == (quick.steps, quick.lr, quick.optimizer)
-    assert seen["cfg"].policy_overrides == quick.policy_overrides
+    assert seen["cfg"].policy.preset_changes() == quick.policy.preset_changes()
     # unknown keys and missing files are usage errors naming the problem
     recipe.write_text("stepz: 3\n")
     with pytest.raises(SystemExit):
@@ -215,4 +217,4 @@ def test_recipe_values_pass_the_checks_of_their_flags(tmp_path, monkeypatch, cap
     recipe.write_text("lr: 1e-3\nsteps: 2\npolicy:\n  dropout: 0.5\n")  # YAML reads 1e-3 as text: still a number
     assert main(["train", "--config", str(recipe), "--method", "abm", "--synthetic", "1",
                  "--out", str(tmp_path / "ok")]) == 0
-    assert (ran[0].lr, ran[0].steps, ran[0].policy_overrides) == (1e-3, 2, {"dropout": 0.5})
+    assert (ran[0].lr, ran[0].steps, ran[0].policy.dropout, ran[0].policy.preset) == (1e-3, 2, 0.5, "small")

@@ -183,7 +183,7 @@ def test_eval_setup_errors_fail_before_any_rollout(tmp_path, capsys, monkeypatch
 
     run = tmp_path / "run"
     train(TrainConfig(method="abm", out=run, steps=1, batch=1, checkpoint_every=1, progress=False,
-                      policy_overrides=tiny_policy), synthetic_episodes(1, camera_resolution=32))
+                      policy=tiny_policy), synthetic_episodes(1, camera_resolution=32))
     base = ["eval", "--run", str(run), "--episodes", "1", "--repeats", "1", "--workers", "1",
             "--out", str(tmp_path / "ev")]
     assert cli_main(base + ["--split", "compositional", "--tasks", "pick_block"]) == 2
@@ -293,7 +293,7 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
 
     run = tmp_path / "run"
     train(TrainConfig(method="abm", out=run, tasks=["pick_block"], steps=1, batch=1, checkpoint_every=1,
-                      progress=False, policy_overrides=tiny_policy), synthetic_episodes(1, camera_resolution=32))
+                      progress=False, policy=tiny_policy), synthetic_episodes(1, camera_resolution=32))
 
     def fake(job, settings):
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed,

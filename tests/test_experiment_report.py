@@ -20,6 +20,7 @@ from abm.experiments import report as rep
 from abm.experiments.spec import load_spec
 from abm.experiments.stages import Engine
 from abm.experiments.state import Layout, keep, kept_pairs, restore, stage_minutes
+from abm.policy.config import PolicyConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SPEC = load_spec("paper_tables")
@@ -148,9 +149,9 @@ def test_zoo_index_describes_exported_models(tmp_path: Path) -> None:
     run.mkdir(parents=True)
     (run / "config.json").write_text(json.dumps({
         "train": {"tasks": list(TASKS), "data": "runs/paper/data", "steps": 5000, "batch": 8, "optimizer": "adamw",
-                  "warmup": 50, "weight_decay": 1e-4, "seed": 0},
-        "lr": 1e-3, "policy": {"resolution": 64, "patch_size": 8, "preset": "small+custom"},
-        "language": {"kind": "hash"}, "grounder": {"kind": "oracle"}}))
+                  "warmup": 50, "weight_decay": 1e-4, "seed": 0, "grounder": "oracle", "language": "hash",
+                  "policy_overrides": {"resolution": 64, "patch_size": 8}},  # a config.json of the first edition
+        "lr": 1e-3, "language": {"kind": "hash"}}))
     (run / "log.csv").write_text("step,lr,total,translation,rotation,gripper,collision,samples_per_s,elapsed_s\n"
                                  "10,0.001,1,1,1,1,1,6.5,60\n5000,0,0.2,0.1,0.1,0,0,6.9,7200\n")
     entries = rep.zoo_index(SPEC, layout)
@@ -395,9 +396,9 @@ def test_kept_run_summaries_come_from_the_run_folders_and_survive_them(tmp_path:
     run.mkdir(parents=True)
     (run / "config.json").write_text(json.dumps({
         "train": {"tasks": None, "data": "runs/seen_unseen/data", "steps": 4000, "batch": 8, "optimizer": "adamw",
-                  "warmup": 50, "weight_decay": 1e-4, "seed": 0},
-        "lr": 1e-3, "policy": {"resolution": 64, "patch_size": 8, "preset": "small+custom", "workspace_size": 1.0},
-        "language": {"kind": "hash"}, "grounder": {"kind": "oracle"}}))
+                  "warmup": 50, "weight_decay": 1e-4, "seed": 0, "language": {"kind": "hash"},
+                  "policy": PolicyConfig.from_preset("small", "abm", resolution=64).to_dict()},
+        "lr": 1e-3, "language": {"kind": "hash"}}))
     (run / "log.csv").write_text("step,total,translation,rotation,gripper,samples_per_s,elapsed_s\n" + "".join(
         f"{s},{9 / s},{5 / s},{3 / s},{1 / s},7.0,{s * 1.5}\n" for s in range(10, 4001, 10)))
     (entry,) = rep.kept_run_summaries(spec, layout)

@@ -44,10 +44,9 @@ def _write_spec(root: Path, data: dict, name: str = "tiny.yaml") -> Path:
 def test_a_run_s_recipe_is_checked_like_abm_train_before_any_job(tmp_path: Path,
                                                                   capsys: pytest.CaptureFixture[str]) -> None:
     bad = _with(training__policy={"resolution": 32, "patch_size": 6})
-    spec = load_spec(_write_spec(tmp_path, bad))
     with pytest.raises(SpecError, match=r"tiny\.yaml: runs\.abm_oracle \(the recipe quickstart with the spec's "
                                         r"overrides\): policy: patch_size 6 must divide the view resolution 32"):
-        Engine(spec, root=tmp_path)
+        load_spec(_write_spec(tmp_path, bad))  # when the spec loads
     steps = _with(runs__abm_oracle__train={"method": "abm", "lr": float("inf")})  # refused like --lr inf
     path = _write_spec(tmp_path, steps, "inf.yaml")
     assert main(["experiment", "run", str(path), "--root", str(tmp_path), "--dry-run"]) == 2

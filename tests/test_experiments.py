@@ -79,7 +79,11 @@ def test_every_builtin_spec_loads() -> None:
         assert spec.runs and (spec.evaluation.splits or spec.diagnose) and (spec.report.document or spec.report.readme)
     paper = load_spec("paper_tables")
     assert paper.evaluation.episodes == 25 and paper.evaluation.repeats == 2 and paper.resources.threads_each == 1
-    assert paper.runs["abm_clip_hash"].train == {"method": "abm", "grounder": "clip", "language": "hash"}
+    config = paper.runs["abm_clip_hash"].config  # the recipe with the spec's overrides and its CLIP, typed
+    assert (config.method, config.grounder.kind, config.language_config.kind, config.steps) == ("abm", "clip", "hash",
+                                                                                                5000)
+    assert config.grounder.clip_options() == {"model": "models/benchmark-clip"} and config.lr == 1e-3
+    assert (config.policy.resolution, config.policy.patch_size, config.policy.preset) == (64, 8, "small+custom")
     assert paper.runs["ifd_clip"].cache == "features" and paper.runs["stack"].cache == "masks"
     assert paper.runs["abm_oracle"].cache is None and not paper.runs["abm_oracle"].needs_clip
     assert paper.training_order()[0] == "abm_oracle" and paper.run_names()[0] == "rvt_clip"

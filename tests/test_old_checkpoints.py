@@ -26,6 +26,7 @@ from abm.grounding.config import (
     grounder_config_from_dict,
 )
 from abm.policy import KeyframePolicy
+from abm.policy.config import PolicyConfig
 from abm.train import TrainConfig, train
 from abm.train.synthetic import synthetic_episodes
 
@@ -113,8 +114,11 @@ def test_old_run_folders_resume(episode, tmp_path) -> None:
     same = {**json.loads((run / "config.json").read_text())["train"]["grounder_options"], "dense_mode": "maskclip"}
     summary = train(_saved_config(run, grounder_options=same), episodes)
     assert summary["steps"] == 2
-    assert json.loads((run / "config.json").read_text())["grounder"] == {**EXPECTED["clip"]["grounder"],
-                                                                           "dense_mode": "maskclip"}
+    resumed = TrainConfig.from_dict(json.loads((run / "config.json").read_text())["train"])  # now the nested form
+    assert resumed.grounder.to_dict() == {**EXPECTED["clip"]["grounder"], "dense_mode": "maskclip"}
+    ckpt = torch.load(run / "checkpoints/step_00000002.pt", weights_only=True)
+    assert TrainConfig.from_dict(ckpt["train_config"]) == resumed  # what config.json says, the checkpoint holds
+    assert resumed.policy == PolicyConfig.from_dict(ckpt["policy_config"])  # the network it trained
     run2 = _copy_run("run_clip", tmp_path / "b")
     other = {**json.loads((run2 / "config.json").read_text())["train"]["grounder_options"], "threshold": 0.5}
     with pytest.raises(ValueError, match="other settings"):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -20,6 +21,7 @@ from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
 from abm.experiments.stages import BLOCKED, DONE, LEFT, Engine, training_steps
 from abm.experiments.state import Layout, carry_unfinished, restore_training
 from abm.policy.checkpoint import save_checkpoint
+from abm.policy.config import PolicyConfig
 
 REPO = Path(__file__).resolve().parents[1]
 V1, V2 = load_spec("paper_tables"), load_spec("paper_tables_v2")
@@ -36,11 +38,11 @@ def _clone(tmp_path: Path) -> Path:
 
 def test_the_second_edition_has_the_first_editions_runs_data_and_tasks_plus_second_seeds() -> None:
     assert list(V2.runs) == [*V1.runs, "abm_clip_hash_seed1", "concat-rerendered_seed1"]
-    for name, run in V1.runs.items():
-        assert (V2.runs[name].train, V2.runs[name].label, V2.runs[name].grounding) == (run.train, run.label,
-                                                                                        run.grounding)
+    for name, run in V1.runs.items():  # the same runs, trained for longer with the zoom and the rotation crop
+        assert replace(V2.runs[name].config, steps=run.config.steps, policy=run.config.policy) == run.config
+        assert (V2.runs[name].label, V2.runs[name].grounding) == (run.label, run.grounding)
     for run in ("abm_clip_hash", "concat-rerendered"):  # center-pixel and the best fusion, seed 1
-        assert V2.runs[f"{run}_seed1"].train == {**V1.runs[run].train, "seed": 1}
+        assert V2.runs[f"{run}_seed1"].config == replace(V2.runs[run].config, seed=1)
     assert (V2.data, V2.training.tasks, V2.split_tasks()) == (V1.data, V1.training.tasks, V1.split_tasks())
     ev = V2.evaluation
     assert (ev.episodes, ev.repeats, ev.from_zoo, ev.zoo_eval) == (25, 3, True, ("abm_clip", "rvt_clip"))
@@ -72,7 +74,7 @@ def test_the_recipe_is_the_first_editions_plus_the_zoom_and_the_rotation_crop(tm
     assert recipe["policy"]["rotation_crop"] == 16 and recipe["policy"]["zoom_size"] == 0.3
     assert recipe["data"] == "runs/paper_v2/data"
     assert recipe["cache_dir"] == "runs/paper_v2/cache_masks"
-    assert "seed" not in engine.recipe("abm_clip_hash")  # the recipe's default seed, like the first edition
+    assert engine.recipe("abm_clip_hash")["seed"] == 0  # the recipe's default seed, like the first edition
 
 
 def test_a_dry_run_and_the_status_work_on_a_clone_with_nothing_under_runs(
@@ -218,9 +220,9 @@ def test_a_two_stage_run_is_described_with_its_zoom_and_its_kept_curve_averages_
     recipe = load_recipe("paper_tables_v2")
     (run / "config.json").write_text(json.dumps({
         "train": {"tasks": list(V2.data.tasks), "data": "runs/paper_v2/data", "steps": 6000, "batch": 8,
-                  "optimizer": "adamw", "warmup": 50, "weight_decay": 1e-4, "seed": 0},
-        "lr": 1e-3, "policy": {**recipe["policy"], "preset": "small+custom"},
-        "language": {"kind": "clip"}, "grounder": {"kind": "clip"}}))
+                  "optimizer": "adamw", "warmup": 50, "weight_decay": 1e-4, "seed": 0, "grounder": {"kind": "clip"},
+                  "policy": PolicyConfig.from_preset("small", "abm", **recipe["policy"]).to_dict()},
+        "lr": 1e-3, "language": {"kind": "clip"}}))
     # the logged losses cycle through three batches' values: the kept curve shows their mean
     header = "step,total,translation,rotation,gripper,collision,samples_per_s,elapsed_s,zoom_translation\n"
     (run / "log.csv").write_text(header + "".join(

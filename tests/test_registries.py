@@ -450,8 +450,7 @@ def test_every_committed_run_reads_as_what_it_trained(name: str, train: dict[str
     assert changed_settings(train, cfg) == {}  # resuming it with the same options changes nothing
     assert TrainConfig.from_dict(cfg.to_dict()) == cfg and changed_settings(cfg.to_dict(), cfg) == {}
     assert cfg.grounder.to_dict() == grounder  # the grounder the run saved
-    width = int(train["policy_overrides"].get("lang_dim", 512))
-    assert cfg.language_config.with_width(width).to_dict() == language  # the language encoder it built
+    assert cfg.language_config.with_width(cfg.policy.lang_dim).to_dict() == language  # the language encoder it built
     assert language_config_from_dict(language).to_dict() == language  # its spec read and written back
 
 

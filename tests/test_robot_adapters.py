@@ -345,7 +345,7 @@ def test_abm_run_on_realsense_and_ur(robot_yaml, tmp_path, capsys) -> None:
     from abm.train.synthetic import synthetic_episodes
 
     path, ur, _ = robot_yaml
-    train(TrainConfig(method="rvt", out=tmp_path / "run", steps=1, batch=2, policy_overrides=TINY_POLICY,
+    train(TrainConfig(method="rvt", out=tmp_path / "run", steps=1, batch=2, policy=TINY_POLICY,
                       progress=False), synthetic_episodes(2, 32))  # rvt: no grounding, so no segmentation needed
     common = ["run", "--robot", str(path), "--run", str(tmp_path / "run"), "--instruction",
               "put the red block on the target", "--steps", "2"]
@@ -427,10 +427,10 @@ def test_real_demonstrations_train_and_the_oracle_refuses_them(real_demo, tmp_pa
     # abm with the CLIP grounder (a random tiny CLIP here): grounding cache filled, then two steps
     summary = train(TrainConfig(method="abm", data=out, out=tmp_path / "clip", steps=2, batch=2,
                                 grounder=ClipGrounderConfig(model="tiny"), language="hash",
-                                policy_overrides=TINY_POLICY, progress=False))
+                                policy=TINY_POLICY, progress=False))
     assert summary["steps"] == 2 and np.isfinite(summary["final_loss"]["total"])
     with pytest.raises(ValueError, match="oracle grounder needs"):  # no segmentation, no object names
-        train(TrainConfig(method="abm", data=out, out=tmp_path / "abm", steps=1, batch=2, policy_overrides=TINY_POLICY,
+        train(TrainConfig(method="abm", data=out, out=tmp_path / "abm", steps=1, batch=2, policy=TINY_POLICY,
                           progress=False))
     with pytest.raises(ValueError, match="matches no skill template"):
         check_instruction("dance a little")

@@ -60,7 +60,7 @@ def _overfit(policy: KeyframePolicy, batch: dict, opt: torch.optim.Optimizer, lo
 
 def _cfg(tmp_path, **kw) -> TrainConfig:
     base = dict(method="abm", preset="small", out=tmp_path, steps=6, batch=2, checkpoint_every=2, log_every=1,
-                policy_overrides=dict(TINY), progress=False, warmup=2, lr=3e-3)
+                policy=dict(TINY), progress=False, warmup=2, lr=3e-3)
     base.update(kw)
     return TrainConfig(**base)
 
@@ -275,7 +275,7 @@ def test_grounding_is_an_explicit_cached_step(episodes, tmp_path, capsys) -> Non
     assert "of 0 keyframes computed" in capsys.readouterr().out  # resumable: nothing left to do
     summary = train(_cfg(tmp_path / "run", steps=1, data=data,
                          grounder={"kind": "clip", "model": "tiny", "device": "cpu"}, cache_dir=tmp_path / "cache",
-                         policy_overrides={**TINY, "lang_dim": 512}, language="hash"))
+                         policy={**TINY, "lang_dim": 512}, language="hash"))
     assert summary["steps"] == 1
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 6  # training used the entries made above
 
@@ -286,7 +286,7 @@ def test_overwrite_with_bad_options_keeps_the_old_run(episodes, abm_run) -> None
     with pytest.raises(ValueError, match="use --grounder clip"):
         train(_cfg(tmp_path, steps=1, method="ifd", overwrite=True), episodes)
     with pytest.raises(ValueError, match="outside the policy's workspace cube"):
-        train(_cfg(tmp_path, steps=1, overwrite=True, policy_overrides={**TINY, "workspace_size": 0.05}), episodes)
+        train(_cfg(tmp_path, steps=1, overwrite=True, policy={**TINY, "workspace_size": 0.05}), episodes)
     assert list_checkpoints(tmp_path) == before  # nothing was deleted: the options were checked first
 
 

@@ -74,7 +74,7 @@ def test_policy_scene_shows_what_the_policy_saw(episode, tmp_path) -> None:
     from abm.policy import KeyframePolicy
     from abm.train import TrainConfig, train
 
-    train(TrainConfig(method="abm", preset="small", out=tmp_path, steps=1, batch=1, policy_overrides=dict(TINY),
+    train(TrainConfig(method="abm", preset="small", out=tmp_path, steps=1, batch=1, policy=dict(TINY),
                       progress=False), [episode])
     policy = KeyframePolicy.from_checkpoint(tmp_path)
     scene = record_from_episode(episode, policy=policy, steps=[1])

@@ -23,6 +23,7 @@ from abm.configuration import CAMERA_RESOLUTION, add_config_arguments, load_reci
 from abm.experiments.spec import ExperimentSpec, load_spec
 from abm.policy.config import PolicyConfig
 from abm.policy.variants import VARIANTS
+from abm.train.config import preset_policy
 
 #: The quickstart's training recipe (``configs/quickstart.yaml``; also ``abm train --config quickstart``): steps,
 #: batch, optimiser, lr, warm-up, checkpoint interval, and under ``policy`` the small preset's changes: 48-pixel
@@ -66,7 +67,8 @@ class QuickstartConfig:
         optimizer: adamw (learns fastest in a short CPU run) or lamb (the paper's).
         lr: peak learning rate.
         warmup: linear warm-up steps.
-        policy_overrides: PolicyConfig fields changed from the small preset (``--set KEY=VALUE``).
+        policy: the network of every method (the small preset with the recipe's ``policy:`` changes, the policy
+            flags' and ``--set KEY=VALUE``'s; each method trains these changes of its own small preset).
         eval_episodes: evaluation episodes per task and split.
         max_steps: keyframes per evaluation episode.
         workers: parallel processes for data generation and evaluation.
@@ -89,7 +91,8 @@ class QuickstartConfig:
     optimizer: str = field(default_factory=lambda: recipe()["optimizer"], metadata={"choices": ["adamw", "lamb"]})
     lr: float = field(default_factory=lambda: recipe()["lr"])
     warmup: int = field(default_factory=lambda: recipe()["warmup"])
-    policy_overrides: dict[str, Any] = field(default_factory=lambda: dict(recipe()["policy"]), metadata={"cli": False})
+    policy: PolicyConfig = field(default_factory=lambda: preset_policy("small", "abm", recipe()["policy"]),
+                                 metadata={"cli": False})
     eval_episodes: int = field(default_factory=lambda: spec().evaluation.episodes)
     max_steps: int = field(default_factory=lambda: spec().evaluation.max_steps)
     workers: int = field(default_factory=lambda: spec().evaluation.workers)

@@ -16,9 +16,9 @@ import argparse
 import functools
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import Any, Protocol
 
 from abm.configuration import (
     CAMERA_RESOLUTION,
@@ -28,15 +28,17 @@ from abm.configuration import (
     WORKERS,
     builtin_or_file,
     check_overrides,
+    check_recipe,
+    load_recipe,
     recipe_value,
 )
 from abm.errors import ConfigError
 from abm.evaluation.settings import EXPERT_KEYFRAME_KINDS
 from abm.experiments.report.kinds import SECTIONS
 from abm.files import load_yaml
-from abm.grounding.config import GROUNDERS, grounder_config_from_dict
+from abm.grounding.config import GROUNDERS
 from abm.policy.config import PolicyConfig
-from abm.policy.language_config import LANGUAGES, default_language
+from abm.policy.language_config import LANGUAGES
 from abm.policy.variants import VARIANTS
 from abm.train.config import TrainConfig
 
@@ -81,56 +83,75 @@ class DataSpec:
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One training run: a name, what the report calls it, and its overrides of the training recipe.
+    """One training run: a name, what the report calls it, and what it trains.
 
     Attributes:
         name: the run's folder under OUT and its file in the zoo (``ZOO/NAME.pt``).
         label: its row label in the report's tables.
         grounding: what grounds its target, as the report and the zoo index say it (``oracle``,
             ``clip``, ``none (CLIP text)``, ...).
-        train: overrides of the training recipe (:class:`~abm.train.config.TrainConfig` fields: ``method``,
-            ``grounder``, ``language``, ``seed``, ...), applied after the spec's common ones.
-        policy: overrides of the policy configuration (:class:`~abm.policy.config.PolicyConfig` fields).
+        config: its training options: the recipe with the spec's common and the run's own ``train`` and ``policy``
+            overrides (:class:`~abm.train.config.TrainConfig` and its nested
+            :class:`~abm.policy.config.PolicyConfig`; a run that names no grounder trains with the oracle, the
+            TrainConfig default), the spec's CLIP in the grounder and language encoder that take one. The engine
+            sets the run folder, data, cache and resuming (:meth:`ExperimentSpec.train_config`).
         caveat: a sentence the report prints under the tables while the run has cells.
     """
 
     name: str
     label: str
     grounding: str
-    train: Mapping[str, Any]
-    policy: Mapping[str, Any] = field(default_factory=dict)
+    config: TrainConfig
     caveat: str = ""
 
     @property
     def method(self) -> str:
         """The policy variant (``abm``, ``rvt``, ``ifd``, an ablation)."""
-        return str(self.train["method"])
+        return self.config.method
 
     @property
     def grounder(self) -> str:
         """The training grounder's kind (``oracle`` or ``clip``: :data:`abm.grounding.config.GROUNDERS`)."""
-        return str(self.train.get("grounder", "oracle"))
+        return self.config.grounder.kind
 
     @property
     def language(self) -> str:
         """The language encoder's kind (``hash`` or ``clip``; by default the grounder's:
-        :func:`abm.policy.language_config.default_language`)."""
-        named = self.train.get("language")
-        return str(named) if named else default_language(grounder_config_from_dict({"kind": self.grounder})).kind
+        :attr:`abm.train.config.TrainConfig.language_config`)."""
+        return self.config.language_config.kind
 
     @property
     def needs_clip(self) -> bool:
         """Whether training or evaluating the run needs the benchmark CLIP (its grounder or language encoder
         takes CLIP weights)."""
-        return GROUNDERS[self.grounder].clip or LANGUAGES[self.language].clip
+        return needs_clip(self.config)
 
     @property
     def cache(self) -> str | None:
-        """The grounding cache the run trains from: ``features`` (ifd's CLIP point features), ``masks`` (the
-        CLIP mask field) or ``None`` (a grounder whose kind is not ``cached``, the oracle, needs none)."""
+        """The grounding cache the run trains from: ``features`` (the CLIP point features of a variant that fuses
+        them, :attr:`~abm.policy.variants.VariantSpec.clip_features`), ``masks`` (the CLIP mask field) or ``None``
+        (a grounder whose kind is not ``cached``, the oracle, needs none)."""
         if not GROUNDERS[self.grounder].cached:
             return None
-        return "features" if self.method == "ifd" else "masks"
+        return "features" if self.config.policy.spec.clip_features else "masks"
+
+
+def needs_clip(config: TrainConfig) -> bool:
+    """Whether the grounder or the language encoder of ``config`` takes CLIP weights."""
+    return GROUNDERS[config.grounder.kind].clip or LANGUAGES[config.language_config.kind].clip
+
+
+class RunPaths(Protocol):
+    """Where the engine puts a run's files (:class:`abm.experiments.state.Layout` is one)."""
+
+    @property
+    def data(self) -> Path: ...
+
+    def run_dir(self, run: str) -> Path: ...
+
+    def cache(self, kind: str) -> Path: ...
+
+    def show(self, path: Path) -> str: ...
 
 
 @dataclass(frozen=True)
@@ -138,18 +159,15 @@ class TrainingSpec:
     """What every run shares.
 
     Attributes:
-        recipe: the training recipe (``abm train --config``: a built-in name or a YAML file).
+        recipe: the training recipe (``abm train --config``: a built-in name or a YAML file, relative to the
+            working folder); read when the spec loads, into every run's :attr:`RunSpec.config`.
         tasks: the tasks every run trains on (default: all in the episode store).
         steps: optimiser steps of every run (default: the recipe's).
-        train: overrides of the recipe common to every run (TrainConfig fields).
-        policy: policy overrides common to every run (PolicyConfig fields).
     """
 
     recipe: str
     tasks: tuple[str, ...] | None = None
     steps: int | None = None
-    train: Mapping[str, Any] = field(default_factory=dict)
-    policy: Mapping[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -531,6 +549,19 @@ class ExperimentSpec:
         """The evaluation's tasks per split."""
         return {s.split: s.tasks for s in self.evaluation.splits}
 
+    def train_config(self, run: str, paths: RunPaths, clip_model: str | None = None) -> TrainConfig:
+        """What the engine trains for ``run``: :attr:`RunSpec.config` with the engine's settings: the run folder,
+        the episode store and the grounding cache (:attr:`RunSpec.cache`) of ``paths``, as the root-relative paths
+        the engine's jobs run under (``paths.show``), resuming from a checkpoint, no progress bar; ``clip_model``
+        (``abm quickstart``'s CLIP) replaces the spec's CLIP where the run takes one."""
+        spec_run = self.runs[run]
+        config = spec_run.config
+        if clip_model and spec_run.needs_clip:
+            config = config.with_clip(clip_model)
+        cache = paths.show(paths.cache(spec_run.cache)) if spec_run.cache else None
+        return replace(config, out=Path(paths.show(paths.run_dir(run))), data=Path(paths.show(paths.data)),
+                       cache_dir=Path(cache) if cache else None, resume=True, progress=False)
+
 
 ORACLE_MASK = "@oracle"  #: suffix of a diagnosis with the simulator's mask instead of the run's own
 
@@ -652,6 +683,25 @@ class _Reader:
 def _shown(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _recipe(reader: _Reader, name: str) -> dict[str, Any]:
+    """The values of the training recipe ``name`` (``reader``'s ``recipe``), each checked and converted as
+    ``abm train --config`` does (:func:`abm.configuration.check_recipe`), the policy's under ``policy``."""
+    parser = command_parser("train")
+    try:
+        checked = check_recipe(parser, load_recipe(name), f"recipe {name}")
+    except ConfigError as err:
+        raise reader.error(str(err), "recipe") from None
+    sections = parser.get_default("config_sections") or {}
+    values: dict[str, Any] = {}
+    for action, value in checked:
+        section = next((key for key, prefix in sections.items() if action.dest.startswith(prefix)), None)
+        if section is None:
+            values[action.dest] = value
+        else:
+            values.setdefault(section, {})[action.dest.removeprefix(sections[section])] = value
+    return values
 
 
 def _checked(reader: _Reader, key: str, cls: type, forbidden: Sequence[str] = ()) -> dict[str, Any]:
@@ -846,11 +896,15 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
     t = top.sub("training")
     training = TrainingSpec(recipe=t.path("recipe", None),
                             tasks=_tasks(t, "tasks", lists, trainable=True) if t.has("tasks") else None,
-                            steps=t.optional_integer("steps"),
-                            train=_checked(t, "train", TrainConfig, ENGINE_TRAIN_FIELDS + ("tasks", "steps")),
-                            policy=_checked(t, "policy", PolicyConfig, POLICY_FIXED))
+                            steps=t.optional_integer("steps"))
+    recipe = _recipe(t, training.recipe)
+    common = {**_checked(t, "train", TrainConfig, ENGINE_TRAIN_FIELDS + ("tasks", "steps")),
+              **({"steps": training.steps} if training.steps is not None else {}),
+              **({"tasks": list(training.tasks)} if training.tasks else {})}
+    common_policy = {**(recipe.pop("policy", None) or {}), **_checked(t, "policy", PolicyConfig, POLICY_FIXED)}
     t.done()
 
+    clip = top.path("clip", "", folder=True)
     runs: dict[str, RunSpec] = {}
     r = top.sub("runs")
     if not r.data:
@@ -859,14 +913,18 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
         if not isinstance(run_name, str) or not _NAME.match(run_name) or "@" in run_name:
             raise r.error(f"expected a plain run name (letters, digits, _ . -), got {run_name!r}")
         one = r.sub(run_name)
-        train = _checked(one, "train", TrainConfig, ENGINE_TRAIN_FIELDS + ("tasks", "steps"))
-        if "method" not in train and "method" not in training.train:
+        train = {**common, **_checked(one, "train", TrainConfig, ENGINE_TRAIN_FIELDS + ("tasks", "steps"))}
+        if "method" not in train:
             raise one.error("needs a method (train: {method: abm|rvt|ifd|...})", "train")
-        merged = {**training.train, **train}
+        policy = {**common_policy, **_checked(one, "policy", PolicyConfig, POLICY_FIXED)}
+        try:
+            config = TrainConfig.from_recipe({**recipe, **train, "policy": policy})
+            config = config.with_clip(clip) if clip and needs_clip(config) else config
+        except ValueError as err:
+            raise SpecError(f"{path}: runs.{run_name} (the recipe {training.recipe} with the spec's overrides): "
+                            f"{err}") from None
         runs[run_name] = RunSpec(name=run_name, label=one.text("label", run_name),
-                                 grounding=one.text("grounding", str(merged.get("grounder", "oracle"))),
-                                 train=merged,
-                                 policy={**training.policy, **_checked(one, "policy", PolicyConfig, POLICY_FIXED)},
+                                 grounding=one.text("grounding", config.grounder.kind), config=config,
                                  caveat=one.text("caveat", ""))
         one.done()
     r.used |= set(r.data)
@@ -968,7 +1026,7 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
         name=name, path=path, about=top.text("about", ""), out=top.path("out", f"runs/{name}", folder=True),
         kept=top.path("kept", f"docs/results/{name}", folder=True), data=data_spec, training=training, runs=runs,
         evaluation=evaluation, report=report, zoo=top.path("zoo", "", folder=True),
-        carry=top.path("carry", "", folder=True), clip=top.path("clip", "", folder=True),
+        carry=top.path("carry", "", folder=True), clip=clip,
         clip_command=top.text("clip_command", ""), diagnose=diagnose,
         resources=resources, zoo_suffix=top.text("zoo_suffix", ""), edition=top.integer("edition", 1))
     top.done()

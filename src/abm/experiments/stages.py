@@ -29,11 +29,10 @@ from typing import Any
 
 import yaml
 
-from abm.configuration import check_recipe, load_recipe
 from abm.errors import ConfigError
 from abm.experiments.report import keep_training_log, write_report, zoo_index
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Runner, Source
-from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, ExperimentSpec, SpecError, command_parser
+from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, ExperimentSpec
 from abm.experiments.state import (
     CarryError,
     Layout,
@@ -60,7 +59,6 @@ from abm.experiments.state import (
 from abm.files import FolderBusyError, FolderLock
 from abm.grounding.config import GROUNDERS
 from abm.policy.config import PolicyConfig
-from abm.train.config import TrainConfig
 
 LOG = logging.getLogger("abm")
 DONE, RUNNING, LEFT, BLOCKED, FAILED = "done", "running", "left", "blocked", "failed"
@@ -96,11 +94,9 @@ class Job:
 
 
 def training_steps(spec: ExperimentSpec) -> int:
-    """Optimiser steps of every run: the spec's, else its recipe's, else the training default."""
-    if spec.training.steps is not None:
-        return spec.training.steps
-    steps = load_recipe(spec.training.recipe).get("steps")
-    return int(steps) if steps is not None else TrainConfig().steps
+    """Optimiser steps of every run: the spec's, else its recipe's, else the training default (a spec's runs
+    cannot set their own: :data:`abm.experiments.spec.ENGINE_TRAIN_FIELDS`)."""
+    return next(iter(spec.runs.values())).config.steps
 
 
 _PROGRESS = re.compile(r"^\s*(\d+%\||[\w/ .-]*:\s*\d+%)|[█▏▎▍▌▋▊▉]")  # a progress bar's line
@@ -173,24 +169,6 @@ class Engine:
         self._open: set[str] = set()  # jobs started and not ended yet
         self._export_with_training = False  # export each training as it ends (run() with train and export)
         self._kept = dict(kept_pairs(spec, self.layout))
-        for run in spec.runs:
-            self.check_recipe(run)
-
-    def check_recipe(self, run: str) -> None:
-        """Refuse (:class:`SpecError`, naming the key) a run whose recipe ``abm train --config`` would refuse: every
-        value passes its flag's check (:func:`abm.configuration.check_recipe`), and the policy configuration its
-        own (a patch size that divides the views' resolution, ...), before any job runs."""
-        recipe = self.recipe(run)
-        where = f"{self.spec.path}: runs.{run} (the recipe {self.spec.training.recipe} with the spec's overrides)"
-        try:
-            check_recipe(command_parser("train"), recipe, where)
-        except ConfigError as err:
-            raise SpecError(str(err).removesuffix("; fix the value in the recipe")) from None
-        preset = str(recipe.get("preset", TrainConfig().preset))
-        try:
-            PolicyConfig.from_preset(preset, str(recipe["method"]), **(recipe.get("policy") or {}))
-        except (TypeError, ValueError) as err:
-            raise SpecError(f"{where}: policy: {err}") from None
 
     # ------------------------------------------------------------------------------------------- helpers
     def rel(self, path: Path) -> str:
@@ -269,27 +247,19 @@ class Engine:
             return []
         return ["--backend", "ray", *(["--ray-address", self.ray_address] if self.ray_address else [])]
 
-    def _policy(self) -> dict[str, Any]:
-        recipe = load_recipe(self._recipe_name())
-        return {**(recipe.get("policy") or {}), **self.spec.training.policy}
-
-    def _recipe_name(self) -> str | Path:
-        name = self.spec.training.recipe
-        return self.root / name if (self.root / name).is_file() else name
-
     def _ground(self) -> list[Job]:
         jobs = []
         tasks = self.spec.training.tasks or self.spec.data.tasks
-        policy = self._policy()
-        cube = []
-        if policy.get("workspace_center") is not None:
-            cube += ["--workspace-center", *(str(v) for v in policy["workspace_center"])]
-        if policy.get("workspace_size") is not None:
-            cube += ["--workspace-size", str(policy["workspace_size"])]
         for kind in ("masks", "features"):
             users = [r for r in self.selected if self.spec.runs[r].cache == kind]
             if not users:
                 continue
+            policy, default = self.spec.runs[users[0]].config.policy, PolicyConfig()
+            cube = []
+            if policy.workspace_center != default.workspace_center:
+                cube += ["--workspace-center", *(str(v) for v in policy.workspace_center)]
+            if policy.workspace_size != default.workspace_size:
+                cube += ["--workspace-size", str(policy.workspace_size)]
             cache = self.layout.cache(kind)
             argv = self.source.cli("data", "ground", "--data", self.rel(self.layout.data), "--cache", self.rel(cache),
                                    "--clip-model", self.clip_arg(),
@@ -305,24 +275,10 @@ class Engine:
         return jobs
 
     def recipe(self, run: str) -> dict[str, Any]:
-        """The run's whole recipe (``abm train --config``): the spec's recipe file, the run's overrides, and the
-        engine's data, tasks, steps, grounding cache and CLIP."""
-        spec_run = self.spec.runs[run]
-        base = load_recipe(self._recipe_name())
-        recipe = {k: v for k, v in base.items() if k != "policy"}
-        recipe.update(spec_run.train)
-        recipe.update({"data": self.rel(self.layout.data), "steps": self.steps})
-        tasks = self.spec.training.tasks
-        if tasks:
-            recipe["tasks"] = list(tasks)
-        if spec_run.cache:
-            recipe["cache_dir"] = self.rel(self.layout.cache(spec_run.cache))
-        if spec_run.needs_clip and self.clip_arg():
-            recipe["clip_model"] = self.clip_arg()
-        policy = {**(base.get("policy") or {}), **spec_run.policy}
-        if policy:
-            recipe["policy"] = policy
-        return recipe
+        """The run's whole recipe (``abm train --config``): what the spec trains for it
+        (:meth:`ExperimentSpec.train_config`) as a recipe, with its grounding cache."""
+        config = self.spec.train_config(run, self.layout, self.clip_model)
+        return {**config.to_recipe(), **({"cache_dir": str(config.cache_dir)} if config.cache_dir else {})}
 
     def _train(self) -> list[Job]:
         jobs = []

@@ -221,6 +221,14 @@ class PolicyConfig:
         out["workspace_center"] = list(self.workspace_center)
         return out
 
+    def preset_changes(self) -> dict[str, Any]:
+        """The fields (JSON form, in field order) where this config differs from its preset's for its variant
+        (:meth:`from_preset`; ``extra`` left out): what a recipe's ``policy:`` or ``--set`` gives to build it again."""
+        preset = self.preset.split("+")[0]
+        base = PolicyConfig.from_preset(preset, self.variant).to_dict() if preset in PRESETS else {}
+        return {k: v for k, v in self.to_dict().items()
+                if k not in ("variant", "preset", "extra") and (k not in base or v != base[k])}
+
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> PolicyConfig:
         """Inverse of :meth:`to_dict`; unknown keys raise a clear error."""

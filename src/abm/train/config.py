@@ -1,6 +1,11 @@
 """The options of one training run: :class:`TrainConfig`, which also defines the ``abm train`` flags
 (:mod:`abm.configuration`) and is saved with every run (``config.json``) and checkpoint.
 
+The network's configuration is a typed :class:`~abm.policy.config.PolicyConfig` nested in it (``policy``): on the
+command line its fields are the policy flags and ``--set KEY=VALUE``, in recipes and specs the ``policy:`` mapping,
+both changes of the ``--preset``'s configuration for the ``--method``. Runs written before it was nested saved those
+changes as a flat ``policy_overrides`` mapping, which :meth:`TrainConfig.from_dict` reads too.
+
 The grounder and the language encoder are typed configurations nested in it
 (:class:`~abm.grounding.config.GrounderConfig`, :class:`~abm.policy.language_config.LanguageConfig`); on the command
 line and in recipes they are ``--grounder KIND``, ``--language KIND`` and the CLIP's ``--clip-model`` /
@@ -26,6 +31,7 @@ from abm.grounding.config import (
     as_grounder_config,
     grounder_config_from_dict,
 )
+from abm.policy.config import PolicyConfig
 from abm.policy.language_config import (
     LANGUAGES,
     LanguageConfig,
@@ -86,7 +92,13 @@ class TrainConfig:
         overwrite: replace a run already in ``out`` (without it, and without ``resume``, a folder that
             holds a run is refused, so no run is lost).
         augment: SE(3) augmentation of the scene and the action.
-        policy_overrides: ``PolicyConfig`` field overrides (``abm train --set resolution=64``).
+        policy: the network's configuration (:class:`~abm.policy.config.PolicyConfig`): the ``preset``'s for the
+            ``method`` with the changes of the policy flags (``--view-resolution 64``, ``--set KEY=VALUE``), a
+            recipe's ``policy:`` or a spec's; given as a mapping of such changes, it is built from the preset
+            (:func:`preset_policy`). Its variant is ``method``, its preset ``preset`` (``+custom`` when sizes
+            changed). ``lang_dim`` is the width of a language encoder whose width is free (the hash encoder's); the
+            run's network takes its language encoder's width and the grounder's feature width (``ifd``) when
+            it is built, and what ``config.json`` and the checkpoints hold is that network's configuration.
         cache_dir: grounding / CLIP feature cache (default ``out/cache``).
         camera_names: cameras to fuse (default all).
         progress: a progress bar on a terminal (plain periodic lines when the output is a file or pipe).
@@ -128,7 +140,7 @@ class TrainConfig:
     accept_changed_config: bool = False
     overwrite: bool = False
     augment: bool = field(default=True, metadata={"off_help": "no SE(3) augmentation of the scene and the action"})
-    policy_overrides: dict[str, Any] = field(default_factory=dict, metadata={"cli": False})
+    policy: PolicyConfig = field(default_factory=PolicyConfig, metadata={"cli": False})
     cache_dir: Path | None = None
     camera_names: list[str] | None = field(default=None, metadata={"flag": "--cameras"})
     progress: bool = field(default=True, metadata={
@@ -145,6 +157,14 @@ class TrainConfig:
         language: object = self.language
         if language is not None and not isinstance(language, LanguageConfig):
             self.language = as_language_config(language)  # type: ignore[arg-type]
+        policy: object = self.policy
+        if isinstance(policy, Mapping):  # changes of the preset (recipes, specs, old runs' policy_overrides)
+            self.policy = preset_policy(self.preset, self.method, policy)
+        elif policy == PolicyConfig() and (self.method, self.preset) != ("abm", "small"):
+            self.policy = preset_policy(self.preset, self.method, {})  # the field's default: the preset's
+        elif (self.policy.variant, self.policy.preset.split("+")[0]) != (self.method, self.preset):
+            raise ConfigError(f"policy: a {self.policy.variant} network of the {self.policy.preset} preset, but "
+                              f"method {self.method} and preset {self.preset}: give the same (or leave policy out)")
 
     @property
     def language_config(self) -> LanguageConfig:
@@ -158,6 +178,7 @@ class TrainConfig:
         data: dict[str, Any] = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         data["grounder"] = self.grounder.to_dict()
         data["language"] = None if self.language is None else self.language.to_dict()
+        data["policy"] = self.policy.to_dict()
         loaded: dict[str, Any] = json.loads(json.dumps(data, default=str))
         return loaded
 
@@ -165,13 +186,18 @@ class TrainConfig:
     def from_dict(cls, data: Mapping[str, Any]) -> TrainConfig:
         """The options of a ``config.json``'s ``train`` or a checkpoint's ``train_config``, of any abm version: the
         nested form, or the flat one written before the grounder was typed (``grounder`` a kind name with its
-        options in ``grounder_options``, ``language`` a kind name, whose ``clip`` read the grounder's options).
-        Keys of options abm no longer has are left out.
+        options in ``grounder_options``, ``language`` a kind name, whose ``clip`` read the grounder's options) and
+        before the policy was (``policy_overrides``: the changes of the preset). Keys of options abm no longer has
+        are left out.
 
         Raises:
-            ValueError: a grounder or language encoder that does not read (unknown kind or options).
+            ValueError: a grounder, language encoder or policy that does not read (unknown kind, options or
+                fields).
         """
         values = dict(data)
+        changes = values.pop("policy_overrides", None) or {}
+        policy = values.get("policy")
+        values["policy"] = PolicyConfig.from_dict(dict(policy)) if isinstance(policy, Mapping) else changes
         options = values.pop("grounder_options", None) or {}
         grounder = values.get("grounder", "oracle")
         if isinstance(grounder, str):  # the flat form: the options were the CLIP's (unused by the oracle)
@@ -181,19 +207,47 @@ class TrainConfig:
         if isinstance(language, str):  # the flat form: the clip encoder read the grounder's options
             values["language"] = language_config_from_dict({"kind": language,
                                                             **(options if language == "clip" else {})})
-        hints = typing.get_type_hints(cls)
         known = {f.name for f in dataclasses.fields(cls)}
-        for name in known & set(values):
-            if Path in typing.get_args(hints[name]) + (hints[name],) and isinstance(values[name], str):
-                values[name] = Path(values[name])
-        return cls(**{k: v for k, v in values.items() if k in known})
+        return cls(**_paths({k: v for k, v in values.items() if k in known}))
+
+    @classmethod
+    def from_recipe(cls, recipe: Mapping[str, Any], **fields: Any) -> TrainConfig:
+        """The options of a recipe (:meth:`to_recipe`'s form, what ``abm train --config`` reads: option names, the
+        grounder and language encoder as kinds with the CLIP as ``clip_model`` / ``clip_device``, the policy's
+        changes of the preset under ``policy``), with ``fields`` (options in that form too) replacing its values.
+        The values are taken as they are: a recipe file's are checked first (:func:`abm.configuration.check_recipe`).
+
+        Raises:
+            ConfigError: an option abm train does not have, a grounder or language encoder that does not read,
+                or a policy its checks refuse.
+        """
+        values = {key.replace("-", "_"): value for key, value in {**recipe, **fields}.items()}
+        clip = {name: values.pop(f"clip_{name}", None) for name in ("model", "device")}
+        kinds = values.pop("grounder", None) or "oracle", values.pop("language", None)
+        grounder, language = grounding_from_flags(*kinds, clip["model"], clip["device"])
+        unknown = sorted(set(values) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise ConfigError(f"unknown option(s) {', '.join(unknown)}")
+        return cls(**_paths(values), grounder=grounder, language=language)
+
+    def with_clip(self, model: str) -> TrainConfig:
+        """These options with the CLIP weights ``model`` in the grounder and the language encoder that use a CLIP
+        (``--clip-model``: :func:`grounding_from_flags`; their other options, which no flag sets, return to their
+        defaults).
+
+        Raises:
+            ConfigError: neither uses a CLIP.
+        """
+        grounder, language = grounding_from_flags(self.grounder.kind, None if self.language is None
+                                                  else self.language.kind, model)
+        return dataclasses.replace(self, grounder=grounder, language=language)
 
     def to_recipe(self) -> dict[str, Any]:
         """These options as a recipe (``abm train --config FILE``), that is as the flags that set them: every set
         option but the run controls (:data:`RUN_CONTROL`: the run folder, resuming, logging, checks, caches), the
         grounder and language encoder as their kinds with the CLIP as ``clip_model`` / ``clip_device`` (other
-        grounder options have no flag, and are left out), policy overrides under ``policy``. Every run writes its
-        own to ``RUN/recipe.yaml``."""
+        grounder options have no flag, and are left out), the policy's changes of the preset under ``policy``
+        (:meth:`~abm.policy.config.PolicyConfig.preset_changes`). Every run writes its own to ``RUN/recipe.yaml``."""
         data = self.to_dict()
         recipe: dict[str, Any] = {}
         for key, value in data.items():
@@ -201,13 +255,38 @@ class TrainConfig:
                 recipe[key] = self.grounder.kind
             elif key == "language" and self.language is not None:
                 recipe[key] = self.language.kind
-            elif value is not None and key not in (*RUN_CONTROL, "language", "policy_overrides"):
+            elif value is not None and key not in (*RUN_CONTROL, "language", "policy"):
                 recipe[key] = value
         clip = {**self.language_config.clip_options(), **self.grounder.clip_options()}
         recipe.update({f"clip_{k}": v for k, v in clip.items()})
-        if data["policy_overrides"]:
-            recipe["policy"] = data["policy_overrides"]
+        changes = self.policy.preset_changes()
+        if changes:
+            recipe["policy"] = changes
         return recipe
+
+
+def _paths(values: dict[str, Any]) -> dict[str, Any]:
+    """``values`` of :class:`TrainConfig` fields with the text of its path fields as paths."""
+    hints = typing.get_type_hints(TrainConfig)
+    return {name: Path(value) if isinstance(value, str) and Path in (hints[name], *typing.get_args(hints[name]))
+            else value for name, value in values.items()}
+
+
+def preset_policy(preset: str, method: str, changes: Mapping[str, Any]) -> PolicyConfig:
+    """The :class:`~abm.policy.config.PolicyConfig` of ``preset`` for the variant ``method`` with the fields
+    ``changes`` names set (:meth:`~abm.policy.config.PolicyConfig.from_preset`).
+
+    Raises:
+        ConfigError: a field the policy does not have, or values its checks refuse (a patch that does not divide
+            the view resolution, ...).
+    """
+    unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(PolicyConfig)})
+    if unknown:
+        raise ConfigError(f"policy: unknown field(s) {', '.join(unknown)}")
+    try:
+        return PolicyConfig.from_preset(preset, method, **changes)
+    except (TypeError, ValueError) as err:  # PolicyConfig's checks of the values it is given
+        raise ConfigError(f"policy: {err}") from None
 
 
 def grounding_from_flags(grounder: str, language: str | None = None, clip_model: str | None = None,

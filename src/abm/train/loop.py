@@ -26,7 +26,7 @@ import random
 import shutil
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -153,16 +153,11 @@ def parameter_digest(model: torch.nn.Module) -> str:
     return h.hexdigest()
 
 
-def build_policy_config(cfg: TrainConfig, lang_dim: int, ifd_dim: int | None) -> PolicyConfig:
-    """The run's :class:`PolicyConfig`: preset + variant, language width from the encoder, overrides."""
-    overrides = dict(cfg.policy_overrides)
-    overrides.setdefault("lang_dim", lang_dim)
-    if ifd_dim is not None:
-        overrides.setdefault("ifd_feature_dim", ifd_dim)
-    try:
-        return PolicyConfig.from_preset(cfg.preset, cfg.method, **overrides)
-    except ValueError as err:  # PolicyConfig's checks of the values it is given (--set, the recipe)
-        raise ConfigError(str(err)) from err
+def build_policy_config(cfg: TrainConfig, lang_dim: int, feature_dim: int | None) -> PolicyConfig:
+    """The run's network: :attr:`TrainConfig.policy` with the language encoder's width ``lang_dim`` and, for a
+    variant fed CLIP point features, the grounder's feature width ``feature_dim``."""
+    policy = replace(cfg.policy, lang_dim=lang_dim)
+    return policy if feature_dim is None else replace(policy, ifd_feature_dim=feature_dim)
 
 
 def language_spec(cfg: TrainConfig, lang_dim: int) -> dict[str, Any]:
@@ -357,20 +352,20 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         np.random.seed(cfg.seed)  # noqa: NPY002 - global RNG of third-party code
         random.seed(cfg.seed)
-        base_lang = int(cfg.policy_overrides.get("lang_dim", 512))
-        self.language_spec = ckpt["language"] if ckpt is not None else language_spec(cfg, base_lang)
+        self.language_spec = ckpt["language"] if ckpt is not None else language_spec(cfg, cfg.policy.lang_dim)
         encoder = build_language_encoder(self.language_spec)
         self.grounder_config = gconfig = cfg.grounder
         if not GROUNDERS[gconfig.kind].per_frame:
             raise ConfigError(f"grounder {gconfig.kind!r} carries state from one step of an episode to the next: "
                               f"train with one that grounds each frame ({', '.join(GROUNDERS.names(per_frame=True))})")
-        ifd_dim = None
-        if cfg.method == "ifd":
+        feature_dim = None
+        if cfg.policy.spec.clip_features:
             if not isinstance(gconfig, ClipGrounderConfig):
-                raise ConfigError("method 'ifd' re-renders CLIP features: use --grounder clip")
+                raise ConfigError(f"method {cfg.method!r} re-renders CLIP features: use --grounder clip")
             g = build_grounder(gconfig)
-            ifd_dim = getattr(g, "feature_dim", None) or getattr(getattr(g, "backbone", None), "embed_dim", None)
-        self.policy_config = build_policy_config(cfg, encoder.dim, ifd_dim)
+            feature_dim = getattr(g, "feature_dim", None) or getattr(getattr(g, "backbone", None), "embed_dim", None)
+        self.policy_config = build_policy_config(cfg, encoder.dim, feature_dim)
+        self.trained = replace(cfg, policy=self.policy_config)  # what config.json and checkpoints hold
         if ckpt is not None:
             try:
                 check_compatible(PolicyConfig.from_dict(ckpt["policy_config"]), self.policy_config, ckpt["path"])
@@ -412,9 +407,8 @@ class Trainer:
                 self.policy, device_ids=[device.index] if device.type == "cuda" else None)
         if dinfo.main:
             write_text_atomic(self.run / "config.json", json.dumps(
-                {"train": cfg.to_dict(), "policy": self.policy_config.to_dict(), "language": self.language_spec,
-                 "grounder": gconfig.to_dict(), "world_size": world, "lr": self.lr, "warmup": self.warmup,
-                 **({"changed_on_resume": self.changed} if self.changed else {})}, indent=2))
+                {"train": self.trained.to_dict(), "language": self.language_spec, "world_size": world, "lr": self.lr,
+                 "warmup": self.warmup, **({"changed_on_resume": self.changed} if self.changed else {})}, indent=2))
             import yaml
 
             (self.run / "recipe.yaml").write_text(  # the run's options as a file: abm train --config RUN/recipe.yaml
@@ -475,7 +469,7 @@ class Trainer:
         return {
             **self.policy.checkpoint_payload(), "optimizer": self.optimizer.state_dict(),
             "scheduler": self.scheduler.state_dict(), "rng": _rng_state(), "step": step,
-            "train_config": self.cfg.to_dict(), "world_size": self.dinfo.world_size,
+            "train_config": self.trained.to_dict(), "world_size": self.dinfo.world_size,
             "elapsed_s": self.elapsed_s(),  # training time over all resumes
         }
 

@@ -13,7 +13,7 @@ from abm.cli.quickstart import SPEC, QuickstartConfig, recipe
 from abm.cli.train import POLICY_DEST
 from abm.configuration import config_from_args, overrides_from_args
 from abm.data.episode_store import EpisodeStore
-from abm.errors import ConfigError, ExternalError
+from abm.errors import ExternalError
 from abm.evaluation.html_report import write_html_report
 from abm.evaluation.plots import run_loss_curves, success_chart
 from abm.evaluation.report import views_figure
@@ -21,6 +21,7 @@ from abm.evaluation.results import EpisodeOutcome, OutcomeLog, SuccessRate, aggr
 from abm.evaluation.runner import crash_summary, write_tables
 from abm.experiments.spec import EvalSplit, ExperimentSpec, Resources, RunSpec, load_spec
 from abm.experiments.stages import Engine
+from abm.grounding.config import as_grounder_config
 from abm.grounding.default import (  # noqa: F401  (benchmark_clip_dir: also quickstart's name for it)
     BENCHMARK_CLIP_ENV,
     benchmark_clip_dir,
@@ -28,7 +29,7 @@ from abm.grounding.default import (  # noqa: F401  (benchmark_clip_dir: also qui
     hub_reachable,
 )
 from abm.policy import KeyframePolicy
-from abm.policy.config import PolicyConfig
+from abm.train.config import preset_policy
 
 
 def choose_grounder(cfg: QuickstartConfig) -> tuple[str, dict[str, str], str]:
@@ -52,10 +53,12 @@ def quickstart_spec(cfg: QuickstartConfig, grounder: str) -> ExperimentSpec:
     and the machine has a core per method (on a CPU this beats training them in turn)."""
     base = load_spec(SPEC)
     tasks = tuple(cfg.tasks)
-    train = {"batch": cfg.batch, "lr": cfg.lr, "optimizer": cfg.optimizer, "warmup": min(cfg.warmup, cfg.steps // 4),
-             "checkpoint_every": max(50, cfg.steps // 4), "device": cfg.device, "grounder": grounder, "seed": cfg.seed}
-    runs = {m: RunSpec(name=m, label=m, grounding=grounder, train={"method": m, **train},
-                       policy=dict(cfg.policy_overrides)) for m in cfg.methods}
+    base_config = next(iter(base.runs.values())).config  # the quickstart recipe, with the command's values
+    train = replace(base_config, batch=cfg.batch, lr=cfg.lr, optimizer=cfg.optimizer, warmup=min(cfg.warmup, cfg.steps // 4),
+                    checkpoint_every=max(50, cfg.steps // 4), device=cfg.device, seed=cfg.seed, tasks=list(tasks),
+                    steps=cfg.steps, grounder=as_grounder_config(grounder))
+    runs = {m: RunSpec(name=m, label=m, grounding=grounder, config=replace(
+        train, method=m, policy=preset_policy(train.preset, m, cfg.policy.preset_changes()))) for m in cfg.methods}
     cores = os.cpu_count() or 1
     parallel = cfg.device == "cpu" and len(runs) > 1 and cores >= len(runs)
     resources = Resources(trainings_at_a_time=len(runs) if parallel else 1,
@@ -73,10 +76,6 @@ def quickstart_spec(cfg: QuickstartConfig, grounder: str) -> ExperimentSpec:
 def run_quickstart(cfg: QuickstartConfig) -> Path:
     """Run the quickstart spec's stages (:mod:`abm.experiments`: data, grounding, training, evaluation; every
     stage resumes), then write the report folder; returns it."""
-    try:  # bad policy settings fail before any work
-        PolicyConfig.from_preset("small", "abm", **cfg.policy_overrides)
-    except ValueError as err:  # PolicyConfig's checks of the values it is given
-        raise ConfigError(str(err)) from err
     start = time.perf_counter()
     grounder, options, grounder_text = choose_grounder(cfg)
     spec = quickstart_spec(cfg, grounder)
@@ -86,7 +85,7 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     side = " side by side, one process each" if spec.resources.trainings_at_a_time > 1 else ""
     steps = [(["data"], f"demonstrations: {cfg.episodes} per task, seen objects -> {layout.data}"),
              (["ground", "train"], f"training {', '.join(cfg.methods)} (small preset, {cfg.steps} steps, "
-              f"{cfg.policy_overrides}){side} -> {cfg.out}"),
+              f"{cfg.policy.preset_changes()}){side} -> {cfg.out}"),
              (["eval"], f"evaluating {', '.join(cfg.methods)} on seen and unseen objects ({cfg.eval_episodes} "
               "episodes per task)")]
     for i, (stages, what) in enumerate(steps, 1):
@@ -145,7 +144,7 @@ def write_report(report: Path, runs: dict[str, Path], eval_dirs: list[Path], dat
     lines = [
         "# abm quickstart report", "",
         f"Tasks: {', '.join(cfg.tasks)}; {cfg.episodes} demonstrations per task (seen objects); "
-        f"`small` preset with {cfg.policy_overrides}, {cfg.steps} steps, batch {cfg.batch}, {cfg.optimizer} "
+        f"`small` preset with {cfg.policy.preset_changes()}, {cfg.steps} steps, batch {cfg.batch}, {cfg.optimizer} "
         f"lr {cfg.lr}; grounder: {grounder}; "
         f"{cfg.eval_episodes} evaluation episodes per task and split (max {cfg.max_steps} keyframes).", "",
         "## Success rate (%)", "", *([combined_table(rates), "", "Per split:", ""] if rates else []),
@@ -161,6 +160,7 @@ def write_report(report: Path, runs: dict[str, Path], eval_dirs: list[Path], dat
 
 
 def run(args: argparse.Namespace) -> int:
-    overrides = {**recipe()["policy"], **overrides_from_args(args, POLICY_DEST), **dict(args.overrides)}
-    run_quickstart(config_from_args(QuickstartConfig, args, policy_overrides=overrides))
+    changes = {**recipe()["policy"], **overrides_from_args(args, POLICY_DEST), **dict(args.overrides)}
+    # bad policy settings fail here, before any work
+    run_quickstart(config_from_args(QuickstartConfig, args, policy=preset_policy("small", "abm", changes)))
     return 0

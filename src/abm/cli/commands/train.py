@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.grounder is None:
         args.grounder, args.clip_model = train_grounder(args)
     grounder, language = grounding_from_flags(args.grounder, args.language, args.clip_model, args.clip_device)
-    cfg = config_from_args(TrainConfig, args, policy_overrides={**overrides_from_args(args, POLICY_DEST), **overrides},
+    cfg = config_from_args(TrainConfig, args, policy={**overrides_from_args(args, POLICY_DEST), **overrides},
                            grounder=grounder, language=language)
     if cfg.val_data is not None and cfg.data is not None:
         overlap = held_out_overlap(cfg.data, cfg.val_data)

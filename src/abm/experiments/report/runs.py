@@ -8,6 +8,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from abm.train.config import TrainConfig
+
 
 def training_summary(run_dir: Path) -> dict[str, float] | None:
     """Steps, minutes and mean samples/s of a run folder's log (``None`` before its first row)."""
@@ -36,25 +38,29 @@ def minutes_at_steps(run_dir: Path, steps: Sequence[int]) -> dict[str, float]:
 
 def describe_run(run_dir: Path) -> dict[str, Any]:
     """What only a run folder knows (``config.json``, ``log.csv``): tasks, data, steps, recipe, language,
-    grounder and training minutes; ``{}`` when the folder is gone (a fresh clone)."""
+    grounder and training minutes; ``{}`` when the folder is gone (a fresh clone). The options are read as
+    training saved them (:meth:`abm.train.config.TrainConfig.from_dict`, any abm version's form); the learning
+    rate is the one the run used (``config.json``'s ``lr``: the option, or the rate it derived)."""
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
         return {}
     cfg = json.loads(cfg_path.read_text())
-    train = cfg["train"]
+    train = TrainConfig.from_dict(cfg["train"])
+    policy = train.policy
     entry: dict[str, Any] = {
-        "tasks": train["tasks"], "data": str(train["data"]), "steps": train["steps"],
-        "recipe": {k: train[k] for k in ("batch", "optimizer", "warmup", "weight_decay", "seed")}
-        | {"lr": cfg["lr"], "resolution": cfg["policy"]["resolution"], "patch_size": cfg["policy"]["patch_size"],
-           "preset": cfg["policy"]["preset"]},
-        "language": cfg["language"].get("kind"), "grounder_spec": cfg["grounder"],
+        "tasks": train.tasks, "data": str(train.data), "steps": train.steps,
+        "recipe": {"batch": train.batch, "optimizer": train.optimizer, "warmup": train.warmup,
+                   "weight_decay": train.weight_decay, "seed": train.seed, "lr": cfg["lr"],
+                   "resolution": policy.resolution, "patch_size": policy.patch_size, "preset": policy.preset},
+        "language": train.language_config.kind, "grounder_spec": train.grounder.to_dict(),
     }
-    if cfg["policy"].get("workspace_size", 1.0) != 1.0:  # not the default 1 m cube: say so
-        entry["recipe"]["workspace_size"] = cfg["policy"]["workspace_size"]
-    if cfg["policy"].get("rotation_crop"):  # the rotation head also reads a crop (PolicyConfig.rotation_crop)
-        entry["recipe"]["rotation_crop"] = cfg["policy"]["rotation_crop"]
-    if cfg["policy"].get("zoom_size"):  # a zoomed second stage (PolicyConfig.zoom_size)
-        entry["recipe"] |= {k: cfg["policy"][k] for k in ("zoom_size", "zoom_resolution", "zoom_patch_size")}
+    if policy.workspace_size != 1.0:  # not the default 1 m cube: say so
+        entry["recipe"]["workspace_size"] = policy.workspace_size
+    if policy.rotation_crop:  # the rotation head also reads a crop (PolicyConfig.rotation_crop)
+        entry["recipe"]["rotation_crop"] = policy.rotation_crop
+    if policy.zoom_size:  # a zoomed second stage (PolicyConfig.zoom_size)
+        entry["recipe"] |= {"zoom_size": policy.zoom_size, "zoom_resolution": policy.zoom_resolution,
+                            "zoom_patch_size": policy.zoom_patch_size}
     trained = training_summary(run_dir)
     if trained is not None:
         entry["train_minutes"] = round(trained["elapsed_min"], 1)
