@@ -38,11 +38,12 @@ import numpy as np
 import torch
 
 from abm.geometry import Workspace, fuse_cameras
-from abm.grounding import ClipGrounder, OracleGrounder, clip_prompt, decompose_instruction, load_clip
+from abm.grounding import ClipGrounder, OracleGrounder, load_clip
 from abm.grounding.config import DEFAULT_NEGATIVES
 from abm.grounding.grounders import target_point_mask
 from abm.grounding.mask_field import negative_prompts, normalize_heatmap, threshold_heatmap
 from abm.grounding.metrics import score_mask
+from abm.language import clip_prompt, decompose_instruction
 
 THRESHOLDS: dict[str, tuple[float, ...]] = {
     "raw": (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8),
