@@ -206,6 +206,11 @@ def test_ground_command_bad_inputs_are_one_line_errors(tmp_path, capsys):
         assert main(["ground", "--out", str(tmp_path / "g"), "--device", "cuda"]) == 2
         assert "CUDA is not available" in capsys.readouterr().err
     assert not (tmp_path / "g").exists()
+    for flags, named in ((["--mode", "field"], "--mode, --dense-mode"), (["--threshold", "0.5"], "--clip-model, "),
+                         (["--clip-model", "tiny"], "--clip-model, ")):  # CLIP options of a grounder without CLIP
+        assert main(["ground", "--out", str(tmp_path / "o"), "--grounder", "oracle", *flags]) == 2
+        err = capsys.readouterr().err
+        assert named in err and "apply to --grounder clip only" in err and not (tmp_path / "o").exists()
 
 
 def test_ground_command_on_an_episode_file(tmp_path):
