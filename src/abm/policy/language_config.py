@@ -124,8 +124,19 @@ class ClipLanguageConfig(LanguageConfig):
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ClipLanguageConfig:
         """The configuration of its dict form, or of the one older checkpoints hold: a whole CLIP grounder's options
-        (read as that grounder's, so an option no CLIP grounder takes is refused; only its model is kept)."""
-        return cls(ClipGrounderConfig.from_dict(data).clip_model())
+        (read as that grounder's, so an option no CLIP grounder takes is refused; only its model is kept).
+
+        Raises:
+            ConfigError: an option that is neither the CLIP model's nor a CLIP grounder's (the message lists them).
+        """
+        options = {k: v for k, v in data.items() if k != "kind"}
+        if set(options) <= {f.name for f in dataclasses.fields(ClipModelConfig)}:
+            return cls(ClipModelConfig(**options))
+        try:
+            return cls(ClipGrounderConfig.from_dict(data).clip_model())
+        except ConfigError as err:
+            raise ConfigError(f"the 'clip' language encoder takes the CLIP model's options (model, device, "
+                              f"allow_download; older checkpoints: a CLIP grounder's): {err}") from None
 
     def with_clip(self, model: str | None, device: str | None = None) -> ClipLanguageConfig:
         return ClipLanguageConfig(self.clip.with_clip(model, device))
