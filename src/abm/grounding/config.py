@@ -300,12 +300,12 @@ class OracleGrounderConfig(GrounderConfig):
 
 @dataclass(frozen=True)
 class ClipGrounderConfig(GrounderConfig):
-    """The CLIP grounder (:class:`abm.grounding.grounders.ClipGrounder`).
+    """The CLIP grounder (:class:`abm.grounding.grounders.ClipGrounder`). Its ``model``, ``device`` and
+    ``allow_download`` are its CLIP, a :class:`ClipModelConfig` (:meth:`clip_model`, where they are explained); they
+    stay options of their own here, so the dict form files hold is the flat one abm always wrote.
 
     Attributes:
-        model: hub name, local folder, ``"tiny"`` or ``"random:<preset>"`` (``None``:
-            ``abm.grounding.clip.DEFAULT_MODEL``).
-        device: torch device of the backbone (``None``: CUDA when available).
+        model / device / allow_download: its CLIP (:class:`ClipModelConfig`).
         mode: ``"proposals"`` (score 3-D object candidates) or ``"field"`` (threshold the per-point heatmap).
         dense_mode: last block of the dense features (``maskclip``, ``clearclip``, ``sclip``, ``naclip``).
         input_size: camera images are resized to this side or ``(H, W)`` (``None``: the model's native size).
@@ -317,7 +317,6 @@ class ClipGrounderConfig(GrounderConfig):
             ``scoring`` key in the dict form).
         cache: folder of the grounding cache (``None``: memory only).
         cache_features: also keep per-image patch features in the cache.
-        allow_download: let the weights be fetched from the network.
     """
 
     kind: ClassVar[str] = "clip"
