@@ -11,7 +11,8 @@ With ``--cases`` (observations cached by ``benchmarks/grounding_cases.py``: the 
 task, split and seed of ABM-Bench) it compares grounding *configurations* (:data:`CONFIGS`: per-point field
 with each dense-feature option and input size, 3-D proposals with each scoring), per task and split:
 point IoU, precision, recall, hit rate, top-1 point and seconds per observation. It writes every record
-to ``--out`` and the generated tables between the ``grounding_quality`` markers of ``--doc``.
+to ``--out`` and the generated tables between the ``grounding_quality`` markers of ``--doc`` (written by
+:mod:`abm.experiments.report.pages.grounding_configs`).
 
 Scenes: the built-in synthetic scene (every block in turn is the target; split "synthetic") and, when
 ``abm.sim`` provides ``make_env``, the first observation of each simulated task and split (the target is
@@ -26,15 +27,21 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from collections import defaultdict
 from collections.abc import Iterator
 from typing import Any
 
+from abm.experiments.report.pages.grounding_configs import block, fmt, markdown, nan_mean, write_block
 from abm.geometry import Workspace, fuse_cameras
-from abm.grounding import ClipGrounder, MaskFieldConfig, OracleGrounder, load_clip, target_point_mask
+from abm.grounding import (
+    ClipGrounder,
+    MaskFieldConfig,
+    OracleGrounder,
+    decompose_instruction,
+    load_clip,
+    target_point_mask,
+)
 from abm.grounding.metrics import score_mask, summarize
-from abm.language import decompose_instruction
 from abm.render.synthetic import synthetic_scene
 
 SIM_TASKS = ("place_food", "pick_block", "put_in_shelf", "place_wine", "water_plants", "close_jar", "insert_peg",
@@ -102,18 +109,9 @@ def _split_cases(make_env: Any, task: str, split: str, seeds: int, resolution: i
     return "ok"
 
 
-def fmt(value: float, digits: int = 3) -> str:
-    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
-
-
 # --------------------------------------------------------------------------------------------------
 # Configuration sweep on cached ABM-Bench observations (issue 26)
 # --------------------------------------------------------------------------------------------------
-PAPER_TASKS = ("close_jar", "insert_peg", "pick_block", "place_food", "place_wine", "put_in_shelf", "take_off_pan",
-               "water_plants")
-CONTAINED_TASKS = ("take_off_pan",)  # the target lies in another object (the frypan) in the first observation
-SUPPORT_TASKS = ("place_food", "place_wine", "put_in_shelf")  # a plate / rack / shelf stands in the scene
-
 FIELD = {"mode": "field", "normalization": "softmax", "threshold": 0.7}
 CONFIGS: dict[str, dict[str, Any]] = {
     "oracle": {"kind": "oracle"},
@@ -173,11 +171,6 @@ def sweep(cases: list[tuple[Any, dict[str, Any]]], grounders: dict[str, Any]) ->
     return rows
 
 
-def _mean(values: list[float]) -> float:
-    vals = [v for v in values if not math.isnan(v)]
-    return sum(vals) / len(vals) if vals else math.nan
-
-
 METRICS = ("iou", "precision", "recall", "hit", "top1", "seconds")
 
 
@@ -188,61 +181,11 @@ def records(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         groups[(r["config"], r["task"], r["split"])].append(r)
     out = []
     for (config, task, split), items in groups.items():
-        means = {m: _mean([r[m] for r in items]) for m in METRICS}
+        means = {m: nan_mean([r[m] for r in items]) for m in METRICS}
         out.append({"config": config, "task": task, "split": split, "iou": means["iou"], "hit_rate": means["hit"],
                     "top1": means["top1"], "n": len(items), "precision": means["precision"],
                     "recall": means["recall"], "seconds": means["seconds"]})
     return out
-
-
-def group_mean(recs: list[dict[str, Any]], config: str, key: str, tasks: tuple[str, ...] | None = None,
-               split: str | None = None) -> float:
-    """Mean over task/split records (each task/split pair weighs the same) of one config."""
-    return _mean([r[key] for r in recs if r["config"] == config and (tasks is None or r["task"] in tasks)
-                  and (split is None or r["split"] == split)])
-
-
-def markdown(recs: list[dict[str, Any]], configs: list[str]) -> str:
-    """The generated tables: summary per config, then unseen per task."""
-    lines = ["| config | unseen, 8 paper tasks: IoU | hit rate | top-1 | precision | recall | all 21 task/splits: "
-             "IoU | hit rate | top-1 | in the frypan (take_off_pan): IoU / hit | beside a plate/rack/shelf: "
-             "IoU / hit | s / obs |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for c in configs:
-        u = {k: group_mean(recs, c, k, PAPER_TASKS, "unseen") for k in ("iou", "hit_rate", "top1", "precision",
-                                                                         "recall")}
-        a = {k: group_mean(recs, c, k) for k in ("iou", "hit_rate", "top1")}
-        pan = [group_mean(recs, c, k, CONTAINED_TASKS) for k in ("iou", "hit_rate")]
-        sup = [group_mean(recs, c, k, SUPPORT_TASKS) for k in ("iou", "hit_rate")]
-        lines.append(f"| {c} | {fmt(u['iou'])} | {fmt(u['hit_rate'], 2)} | {fmt(u['top1'], 2)} | "
-                     f"{fmt(u['precision'])} | {fmt(u['recall'])} | {fmt(a['iou'])} | {fmt(a['hit_rate'], 2)} | "
-                     f"{fmt(a['top1'], 2)} | {fmt(pan[0], 2)} / {fmt(pan[1], 2)} | {fmt(sup[0], 2)} / "
-                     f"{fmt(sup[1], 2)} | {fmt(group_mean(recs, c, 'seconds'), 2)} |")
-    lines += ["", "Unseen split, per task (IoU / hit rate):", "",
-              "| config | " + " | ".join(PAPER_TASKS) + " |", "|---|" + "---|" * len(PAPER_TASKS)]
-    for c in configs:
-        cells = []
-        for t in PAPER_TASKS:
-            iou_, hit = (group_mean(recs, c, k, (t,), "unseen") for k in ("iou", "hit_rate"))
-            cells.append(f"{fmt(iou_, 2)} / {fmt(hit, 2)}")
-        lines.append(f"| {c} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-DOC_BEGIN = "<!-- grounding_quality:begin (generated by benchmarks/grounding_quality.py --cases; do not edit) -->"
-DOC_END = "<!-- grounding_quality:end -->"
-
-
-def write_doc(path: Any, table: str) -> bool:
-    """Replace the text between the markers of ``path``; False when the markers are missing."""
-    from pathlib import Path
-
-    text = Path(path).read_text(encoding="utf-8")
-    if DOC_BEGIN not in text or DOC_END not in text:
-        return False
-    head, rest = text.split(DOC_BEGIN, 1)
-    _old, tail = rest.split(DOC_END, 1)
-    Path(path).write_text(head + DOC_BEGIN + "\n" + table + DOC_END + tail, encoding="utf-8")
-    return True
 
 
 def run_sweep(args: argparse.Namespace) -> None:
@@ -282,7 +225,8 @@ def run_sweep(args: argparse.Namespace) -> None:
 
 
 def publish(metas: list[dict[str, Any]], recs: list[dict[str, Any]], order: list[str], out: Any, doc: Any) -> None:
-    """Print the tables; write the records (``out``) and the tables with how they were made (``doc``)."""
+    """Print the tables; write the records (``out``) and the tables with how they were made (``doc``,
+    :mod:`abm.experiments.report.pages.grounding_configs`)."""
     from pathlib import Path
 
     table = markdown(recs, order)
@@ -294,9 +238,8 @@ def publish(metas: list[dict[str, Any]], recs: list[dict[str, Any]], order: list
         path.write_text(json.dumps({"meta": meta, "records": recs}, indent=1) + "\n", encoding="utf-8")
         print(f"wrote {path}")
     if doc:
-        note = "".join(f"*Generated by `{m['command']}` ({m['cases']} cached observations, model `{m['model']}`, "
-                       f"{m['machine']}, {m['minutes']} min).*\n" for m in metas) + "\n"
-        print("updated" if write_doc(doc, note + table) else "markers not found in", doc)
+        write_block(Path(doc), block(metas, recs, order))
+        print("updated", doc)
 
 
 def merge(paths: list[str], out: Any, doc: Any) -> None:

@@ -10,7 +10,7 @@ of the same arm and step:
   ``{arm, step, task, split, successes, episodes}``.
 
 ``--tables`` prints the probe's three tables (yaw fit per step and arm, keyframe accuracy and rollouts at ``--step``)
-as markdown, as docs/results/zoom_probe.md shows them.
+as markdown, as docs/results/zoom_probe.md shows them (:mod:`abm.experiments.report.pages.zoom_probe`).
 
 Usage: python benchmarks/probe_record.py --probe docs/results/zoom_probe.json --arm two-stage+crop --step 3000
            [--accuracy acc.json] [--rollouts runs/.../eval_summary.json]
@@ -23,6 +23,8 @@ import argparse
 import json
 from pathlib import Path
 from typing import Any
+
+from abm.experiments.report.pages.zoom_probe import markdown_tables
 
 
 def accuracy_rows(summary: list[dict[str, Any]], arm: str, step: int) -> list[dict[str, Any]]:
@@ -48,51 +50,6 @@ def replace_rows(probe: dict[str, Any], key: str, rows: list[dict[str, Any]]) ->
     """Replace ``probe[key]``'s rows of the rows' arm and step by ``rows``."""
     arms = {(r["arm"], r["step"]) for r in rows}
     probe[key] = [r for r in probe.get(key, []) if (r["arm"], r.get("step")) not in arms] + rows
-
-
-FIT_KINDS = ("all", "approach", "grasp", "move", "place")
-
-
-def markdown_tables(probe: dict[str, Any], step: int) -> str:
-    """The fit table (every step and arm, augmentation on, over both tasks), and the keyframe accuracy (median yaw °
-    / position cm) and rollout tables of every arm at ``step``."""
-    order = ("single-stage", "two-stage", "single-stage+crop", "two-stage+crop")
-    arms = sorted(dict.fromkeys(r["arm"] for r in probe["fit"]), key=lambda a: (a not in order, order.index(a)
-                                                                               if a in order else 0, a))
-    out = ["| step | arm | " + " | ".join("all keyframes" if k == "all" else k for k in FIT_KINDS) + " |",
-           "|---|---|" + "---|" * len(FIT_KINDS)]
-    for s in sorted({r["step"] for r in probe["fit"]}):
-        for arm in arms:
-            ce = {r["keyframe"]: r["yaw_ce"] for r in probe["fit"]
-                  if r["arm"] == arm and r["step"] == s and r["augment"] and r["task"] == "all"}
-            if ce:
-                out.append(f"| {s} | {arm} | " + " | ".join(f"{ce[k]:.2f}" for k in FIT_KINDS) + " |")
-    acc = {(r["arm"], r["task"], r["split"], r["keyframe"]): r for r in probe["accuracy"] if r["step"] == step}
-    ro = {(r["arm"], r["task"], r["split"]): r for r in probe["rollouts"] if r["step"] == step}
-    tasks = list(dict.fromkeys(r["task"] for r in probe["rollouts"]))
-    head = " | ".join(f"{a} ({step})" for a in arms)
-    out += ["", f"| task | split | keyframe | {head} |", "|---|---|---|" + "---|" * len(arms)]
-    for task in tasks:
-        for split in ("seen", "unseen"):
-            for kind in ("approach", "grasp", "move", "place"):
-                found = [acc.get((a, task, split, kind)) for a in arms]
-                cells = [f"{r['yaw_error_deg']:.0f} / {r['position_error_cm']:.1f}" if r else "–" for r in found]
-                out.append(f"| {task} | {split} | {kind} | " + " | ".join(cells) + " |")
-    out += ["", f"| task | split | {head} |", "|---|---|" + "---|" * len(arms)]
-    for split in ("seen", "unseen"):
-        for task in tasks:
-            out.append(f"| {task} | {split} | " + " | ".join(
-                str(ro[(a, task, split)]["successes"]) if (a, task, split) in ro else "–" for a in arms) + " |")
-    averages = []
-    for a in arms:
-        parts = []
-        for split in ("seen", "unseen"):
-            rows = [ro[(a, t, split)] for t in tasks if (a, t, split) in ro]
-            parts.append(f"{100 * sum(r['successes'] for r in rows) / sum(r['episodes'] for r in rows):.0f}"
-                         if rows else "–")
-        averages.append(" / ".join(parts))
-    out.append("| **average %** | seen / unseen | " + " | ".join(averages) + " |")
-    return "\n".join(out)
 
 
 def main() -> None:

@@ -13,6 +13,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 grounding_quality = pytest.importorskip("grounding_quality")
 grounding_cases = pytest.importorskip("grounding_cases")
+from abm.errors import DataError  # noqa: E402  (after the benchmarks folder is on the path)
+from abm.experiments.report.pages import grounding_configs  # noqa: E402
 
 
 def test_cached_case_round_trips(tmp_path):
@@ -51,16 +53,17 @@ def test_sweep_on_a_cached_case_and_records(tmp_path):
     assert recs["oracle"]["n"] == 2 and recs["oracle"]["iou"] == 0.5 and recs["oracle"]["hit_rate"] == 0.5
     assert set(recs["oracle"]) >= {"config", "task", "split", "iou", "hit_rate", "top1", "n"}
     json.dumps(list(recs.values()))
-    table = grounding_quality.markdown(list(recs.values()), list(grounders))
+    table = grounding_configs.markdown(list(recs.values()), list(grounders))
     assert "| oracle | 0.500 | 0.50 |" in table
 
     doc = tmp_path / "doc.md"
-    doc.write_text(f"before\n{grounding_quality.DOC_BEGIN}\nold\n{grounding_quality.DOC_END}\nafter\n")
-    assert grounding_quality.write_doc(doc, table)
+    doc.write_text(f"before\n{grounding_configs.DOC_BEGIN}\nold\n{grounding_configs.DOC_END}\nafter\n")
+    grounding_configs.write_block(doc, table)
     text = doc.read_text()
     assert text.startswith("before\n") and text.endswith("after\n") and "old" not in text and table in text
     (tmp_path / "plain.md").write_text("no markers\n")
-    assert not grounding_quality.write_doc(tmp_path / "plain.md", table)
+    with pytest.raises(DataError, match="plain.md has no <!-- grounding_quality:begin"):
+        grounding_configs.write_block(tmp_path / "plain.md", table)
 
 
 def test_merge_joins_parallel_sweeps(tmp_path):
@@ -71,7 +74,7 @@ def test_merge_joins_parallel_sweeps(tmp_path):
         grounding_quality.publish([{**meta, "configs": {name: {}}}], [dict(rec, config=name)], [name],
                                   tmp_path / f"{name}.json", None)
     doc = tmp_path / "doc.md"
-    doc.write_text(f"{grounding_quality.DOC_BEGIN}\n{grounding_quality.DOC_END}\n")
+    doc.write_text(f"{grounding_configs.DOC_BEGIN}\n{grounding_configs.DOC_END}\n")
     grounding_quality.merge([str(tmp_path / "a.json"), str(tmp_path / "b.json")], tmp_path / "all.json", doc)
     data = json.loads((tmp_path / "all.json").read_text())
     assert [r["config"] for r in data["records"]] == ["a", "b"] and len(data["meta"]["parts"]) == 2

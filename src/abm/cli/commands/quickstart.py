@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -12,13 +11,10 @@ from pathlib import Path
 from abm.cli.quickstart import SPEC, QuickstartConfig, recipe
 from abm.cli.train import POLICY_DEST
 from abm.configuration import config_from_args, overrides_from_args
-from abm.data.episode_store import EpisodeStore
 from abm.errors import ExternalError
-from abm.evaluation.html_report import write_html_report
-from abm.evaluation.plots import run_loss_curves, success_chart
-from abm.evaluation.report import views_figure
-from abm.evaluation.results import EpisodeOutcome, OutcomeLog, SuccessRate, aggregate, combined_table
+from abm.evaluation.results import OutcomeLog, aggregate, combined_table
 from abm.evaluation.runner import crash_summary, write_tables
+from abm.experiments.report.pages.quickstart import QuickstartSettings, write_quickstart_report
 from abm.experiments.spec import EvalSplit, ExperimentSpec, Resources, RunSpec, load_spec
 from abm.experiments.stages import Engine
 from abm.grounding.config import as_grounder_config
@@ -28,7 +24,6 @@ from abm.grounding.default import (  # noqa: F401  (benchmark_clip_dir: also qui
     default_grounder,
     hub_reachable,
 )
-from abm.policy import KeyframePolicy
 from abm.train.config import preset_policy
 
 
@@ -75,7 +70,8 @@ def quickstart_spec(cfg: QuickstartConfig, grounder: str) -> ExperimentSpec:
 
 def run_quickstart(cfg: QuickstartConfig) -> Path:
     """Run the quickstart spec's stages (:mod:`abm.experiments`: data, grounding, training, evaluation; every
-    stage resumes), then write the report folder; returns it."""
+    stage resumes), then write the report folder
+    (:func:`abm.experiments.report.pages.quickstart.write_quickstart_report`); returns it."""
     start = time.perf_counter()
     grounder, options, grounder_text = choose_grounder(cfg)
     spec = quickstart_spec(cfg, grounder)
@@ -102,7 +98,8 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     rates = aggregate(outcomes)
     table = combined_table(rates)
     write_tables(rates, report)
-    write_report(report, runs, folders, layout.data, cfg, grounder_text, rates, outcomes)
+    write_quickstart_report(report, runs, folders, layout.data, report_settings(cfg, grounder_text), rates,
+                            outcomes)
     print(table)
     print(f"done in {(time.perf_counter() - start) / 60:.1f} min; report: {report}/README.md")
     crashes = crash_summary(outcomes)
@@ -111,52 +108,12 @@ def run_quickstart(cfg: QuickstartConfig) -> Path:
     return report
 
 
-def write_report(report: Path, runs: dict[str, Path], eval_dirs: list[Path], data: Path, cfg: QuickstartConfig,
-                 grounder: str, rates: list[SuccessRate] | None = None,
-                 outcomes: list[EpisodeOutcome] | None = None) -> None:
-    """Table, curves, example views and GIFs in one folder with a README that links them (``eval_dirs``: the
-    evaluation folders, one per run and split; ``rates``: the success rates, for the combined seen / unseen
-    table; ``outcomes``: the episodes behind them, default every outcome logged in ``eval_dirs``)."""
-    report.mkdir(parents=True, exist_ok=True)
-    run_loss_curves(runs, report / "training_curves.png")
-    figures = []
-    if "abm" in runs:
-        store = EpisodeStore(data)
-        index = store.select(tasks=[cfg.tasks[0]])[0]
-        episode = store.load(index)
-        obs, _ = episode.steps[0]
-        policy = KeyframePolicy.from_checkpoint(runs["abm"], device="cpu")
-        seen = policy.explain(obs, episode.instruction, episode.object_names)  # what the network saw
-        mask = None if seen.view_mask is None else seen.view_mask[:, None]
-        views_figure(seen.view_images, mask, seen.view_names, report / "virtual_views.png")
-        figures.append(f"![virtual views]({'virtual_views.png'})\n\n*{episode.instruction}*: the five virtual "
-                       "views (top) and the target's centre-pixel mask in magenta (bottom).")
-    gifs = sorted(g for folder in eval_dirs for g in folder.glob("gifs/*.gif"))
-    overlays = [p for folder in eval_dirs for p in folder.glob("gifs/*_views.png")]
-    for picture in [*gifs, *overlays]:  # rollouts and their heatmap overlays
-        shutil.copy(picture, report / picture.name)
-    if outcomes is None:
-        outcomes = [o for folder in eval_dirs if (folder / "outcomes.jsonl").is_file()
-                    for o in OutcomeLog(folder / "outcomes.jsonl").read()]
-    if outcomes:
-        success_chart(aggregate(outcomes), report / "success.png")
-    write_html_report(outcomes, report / "report.html", report, "abm quickstart")
-    lines = [
-        "# abm quickstart report", "",
-        f"Tasks: {', '.join(cfg.tasks)}; {cfg.episodes} demonstrations per task (seen objects); "
-        f"`small` preset with {cfg.policy.preset_changes()}, {cfg.steps} steps, batch {cfg.batch}, {cfg.optimizer} "
-        f"lr {cfg.lr}; grounder: {grounder}; "
-        f"{cfg.eval_episodes} evaluation episodes per task and split (max {cfg.max_steps} keyframes).", "",
-        "## Success rate (%)", "", *([combined_table(rates), "", "Per split:", ""] if rates else []),
-        (report / "results.md").read_text(), "",
-        *(["![success rate per task and split; error bars: std over repeats](success.png)", ""]
-          if (report / "success.png").is_file() else []),
-        "## Training curves", "", "![training curves](training_curves.png)", "",
-        "## What the policy sees", "", *figures, "",
-        "## Rollouts", "", "Failure reasons and the GIFs side by side: [report.html](report.html)", "",
-        *[f"![{g.stem}]({g.name})" for g in gifs], "",
-    ]
-    (report / "README.md").write_text("\n".join(lines))
+def report_settings(cfg: QuickstartConfig, grounder: str) -> QuickstartSettings:
+    """What the report's first paragraph states of the run (``grounder``: the grounder as described to the
+    reader)."""
+    return QuickstartSettings(tasks=cfg.tasks, episodes=cfg.episodes, policy_changes=str(cfg.policy.preset_changes()),
+                              steps=cfg.steps, batch=cfg.batch, optimizer=cfg.optimizer, lr=cfg.lr, grounder=grounder,
+                              eval_episodes=cfg.eval_episodes, max_steps=cfg.max_steps)
 
 
 def run(args: argparse.Namespace) -> int:

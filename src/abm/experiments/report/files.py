@@ -19,7 +19,15 @@ from abm.files import is_inside
 
 def replace_block(text: str, name: str, body: str, source: str = "README") -> str:
     """``text`` with what stands between ``<!-- NAME:start -->`` and ``<!-- NAME:end -->`` replaced by ``body``."""
-    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    return replace_between(text, f"<!-- {name}:start -->", f"<!-- {name}:end -->", body, source)
+
+
+def replace_between(text: str, start: str, end: str, body: str, source: str) -> str:
+    """``text`` with what stands between the markers ``start`` and ``end`` replaced by a newline and ``body``.
+
+    Raises:
+        DataError: ``text`` (the file ``source``) lacks a marker.
+    """
     if start not in text or end not in text:
         raise DataError(f"{source} has no {start} ... {end} block to replace")
     head, rest = text.split(start, 1)
