@@ -210,7 +210,7 @@ def test_water_plants_predicate_needs_tilt():
 
 def test_every_task_instruction_parses_to_a_skill_of_that_task():
     """The tasks' templates and the parser's skills (language/templates.yaml) cannot drift apart."""
-    from abm.grounding import TemplateParser
+    from abm.language import TemplateParser
     from abm.sim.splits import load_splits
 
     parser, splits = TemplateParser(), load_splits()
