@@ -204,9 +204,9 @@ class TrainConfig:
             values["grounder"] = (OracleGrounderConfig() if grounder == "oracle"
                                   else grounder_config_from_dict({"kind": grounder, **options}))
         language = values.get("language")
-        if isinstance(language, str):  # the flat form: the clip encoder read the grounder's options
+        if isinstance(language, str):  # the flat form: an encoder with a CLIP read the grounder's options
             values["language"] = language_config_from_dict({"kind": language,
-                                                            **(options if language == "clip" else {})})
+                                                            **(options if LANGUAGES[language].clip else {})})
         known = {f.name for f in dataclasses.fields(cls)}
         return cls(**_paths({k: v for k, v in values.items() if k in known}))
 
