@@ -48,15 +48,10 @@ def test_the_probe_spec_has_an_expert_move_arm_evaluated_from_v2s_model(tmp_path
     save_checkpoint(model / "step_00003000.pt", {"step": 3000})  # v2 trained: its arm can run
     jobs = {j.id: j for j in engine.plan("eval")}
     job = jobs["eval/expert-move/seen"]
-    argv = job.argv
-    assert argv[argv.index("--expert-keyframes") + 1] == "move" and "--grounder" not in argv
-    assert argv[argv.index("--run") + 1] == argv_of(jobs["eval/v2/seen"])
-    assert argv[argv.index("--out") + 1] == "runs/destination_probe/eval/expert-move/seen"
-    assert "--expert-keyframes" not in jobs["eval/v2/seen"].argv
-
-
-def argv_of(job) -> str:
-    return job.argv[job.argv.index("--run") + 1]
+    arm, plain = job.work.request, jobs["eval/v2/seen"].work.request
+    assert arm.settings.expert_keyframes == "move" and arm.settings.grounder is None
+    assert arm.runs == plain.runs and arm.out == Path("runs/destination_probe/eval/expert-move/seen")
+    assert plain.settings.expert_keyframes is None
 
 
 @pytest.mark.parametrize(("variant", "message"), [

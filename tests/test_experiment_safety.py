@@ -253,7 +253,7 @@ def test_a_job_s_live_pid_in_the_job_log_counts_only_if_that_process_runs_the_jo
         tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     spec = load_spec(_write_spec(tmp_path, _one_run()))
     sleep = [sys.executable, "-c", "import time; time.sleep(60)"]
-    for argv, started in (([*sleep, "--out", "runs/tiny/abm_oracle"], False), (sleep, True)):
+    for argv, started in (([*sleep, "runs/tiny/jobs/train_abm_oracle.json"], False), (sleep, True)):
         runner = FakeRunner(tmp_path)
         engine = Engine(spec, root=tmp_path, runner=runner)
         with subprocess.Popen(argv) as orphan:  # the training a killed engine left, or an unrelated process

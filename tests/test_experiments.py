@@ -18,6 +18,7 @@ from abm.cli import main
 from abm.errors import ConfigError
 from abm.evaluation.results import EpisodeOutcome
 from abm.experiments import scheduler
+from abm.experiments.jobs import DataJob, ExportJob, TrainJob
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Source
 from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
 from abm.experiments.stages import BLOCKED, DONE, LEFT, Engine
@@ -162,14 +163,15 @@ def test_stages_plan_what_is_left_from_the_files_on_disk(tmp_path: Path) -> None
     layout = engine.layout
     (data,) = engine.plan("data")
     assert data.state == LEFT and data.note == "0/2 demonstrations"
-    i = data.argv.index("data")
-    assert data.argv[i:i + 12] == ["data", "generate", "--task", "pick_block,place_food", "--split", "seen",
-                                   "--episodes", "1", "--out", "runs/tiny/data", "--workers", "1"]
+    assert data.work == DataJob(("pick_block", "place_food"), "seen", 1, Path("runs/tiny/data"), workers=1,
+                                resolution=64)
     train = {j.id: j for j in engine.plan("train")}
     assert train["train/abm_oracle"].state == LEFT and train["train/abm_oracle"].threads == 1
     assert train["train/rvt_clip"].state == BLOCKED and "no benchmark CLIP" in train["train/rvt_clip"].note
-    assert train["train/abm_oracle"].argv[-7:] == ["train", "--config", "runs/tiny/recipes/abm_oracle.yaml", "--out",
-                                                   "runs/tiny/abm_oracle", "--resume", "--no-progress"]
+    work = train["train/abm_oracle"].work  # its typed config: the spec's run, the engine's run folder, resumed
+    assert isinstance(work, TrainJob) and work.recipe == Path("runs/tiny/recipes/abm_oracle.yaml")
+    assert (work.config.out, work.config.resume, work.config.progress) == (Path("runs/tiny/abm_oracle"), True, False)
+    assert (work.config.steps, work.config.batch, work.config.data) == (3, 2, Path("runs/tiny/data"))
     recipe = engine.recipe("abm_oracle")  # the recipe file, the common and the run's overrides, the engine's paths
     assert (recipe["steps"], recipe["batch"], recipe["method"], recipe["data"]) == (3, 2, "abm", "runs/tiny/data")
     assert recipe["policy"]["resolution"] == 32 and recipe["policy"]["workspace_size"] == 0.6  # quickstart's cube
@@ -182,12 +184,14 @@ def test_stages_plan_what_is_left_from_the_files_on_disk(tmp_path: Path) -> None
     _touch_checkpoint(layout, "abm_oracle", 3)
     assert _states(engine.plan("train"))["train/abm_oracle"] == DONE
     (export,) = [j for j in engine.plan("export") if j.id == "export/abm_oracle"]
-    assert export.state == LEFT and export.argv[-6:] == ["--run", "runs/tiny/abm_oracle", "--out",
-                                                         "models/abm_oracle.pt", "--dtype", "bfloat16"]
+    assert export.state == LEFT and export.work == ExportJob(Path("runs/tiny/abm_oracle"), Path("models/abm_oracle.pt"),
+                                                             "bfloat16")
     (tmp_path / "models").mkdir()
     (tmp_path / "models/abm_oracle.pt").write_bytes(b"model")
     (ev,) = [j for j in engine.plan("eval") if j.id == "eval/abm_oracle/seen"]
-    assert ev.state == LEFT and ev.argv[ev.argv.index("--run") + 1] == "models/abm_oracle.pt"
+    assert ev.state == LEFT and ev.work.request.runs == (Path("models/abm_oracle.pt"),)
+    assert (ev.work.request.tasks, ev.work.request.splits, ev.work.request.out) == (
+        ("pick_block", "place_food"), ("seen",), Path("runs/tiny/eval/abm_oracle/seen"))
     # a committed result counts as done before it is restored (status on a fresh clone)
     (tmp_path / "docs/results/tiny").mkdir(parents=True)
     (tmp_path / "docs/results/tiny/abm_oracle_seen.json").write_text("[]")
@@ -214,15 +218,14 @@ class FakeRunner:
             if cmd.job == self.stop:
                 raise KeyboardInterrupt  # Ctrl-C or SIGTERM while the job runs
             self.ran.append(cmd.job)
-            argv = cmd.argv
             if cmd.job.startswith("train/") and cmd.job != self.fail:
-                out = self.root / argv[argv.index("--out") + 1] / "checkpoints"
+                out = self.root / cmd.work.config.out / "checkpoints"
                 out.mkdir(parents=True, exist_ok=True)
                 save_checkpoint(out / "step_00000003.pt", {"step": 3})
             elif cmd.job.startswith("eval/"):
-                out = self.root / argv[argv.index("--out") + 1]
+                out = self.root / cmd.work.request.out
                 out.mkdir(parents=True, exist_ok=True)
-                task = argv[argv.index("--tasks") + 1]
+                task = cmd.work.request.tasks[0]
                 (out / "results.json").write_text(json.dumps([{
                     "method": "abm", "task": task, "split": "seen", "per_repeat": [100.0], "episodes": 1,
                     "errors": 0, "mean": 100.0, "std": 0.0}]))
@@ -293,7 +296,7 @@ def _fake_export(tmp_path: Path, ran: list[str]):
         for cmd in commands:
             if on_start:
                 on_start(cmd, None)
-            target = tmp_path / cmd.argv[cmd.argv.index("--out") + 1]
+            target = tmp_path / cmd.work.out
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_bytes(b"model")
             ran.append(cmd.job)
@@ -343,7 +346,7 @@ def test_a_finished_training_not_exported_yet_is_carried_and_exported_on_a_fresh
 
                 def before(cmd=cmd, original=original) -> None:
                     original()
-                    found = (tmp_path / cmd.argv[cmd.argv.index("--out") + 1] / "checkpoints").glob("*.pt")
+                    found = (tmp_path / cmd.work.config.out / "checkpoints").glob("*.pt")
                     restored[cmd.job] = sorted((p.name, checkpoint_step(p)) for p in found)
                 cmd.before = before
             return super().run(commands, source, slots, on_start)
@@ -542,11 +545,10 @@ def test_a_source_tree_goes_first_on_the_jobs_path(tmp_path: Path) -> None:
     source = Source.at(tree)
     assert source.env(3)["PYTHONPATH"].split(":")[0] == str(tree.resolve() / "src")
     assert source.env(3)["OMP_NUM_THREADS"] == "3"
-    assert source.script("keyframe_accuracy.py")[1] == str(tree.resolve() / "benchmarks/keyframe_accuracy.py")
+    assert source.job("runs/x/jobs/train_a.json") == [sys.executable, "-m", "abm.experiments.jobs",
+                                                      "runs/x/jobs/train_a.json"]
     with pytest.raises(ValueError, match="not an abm checkout"):
         Source.at(tmp_path / "nowhere")
-    with pytest.raises(ValueError, match="in the repository checkout only"):
-        Source(None).script("keyframe_accuracy.py")
     assert scheduler.Source.here().tree is not None  # the tests run from a checkout
 
 

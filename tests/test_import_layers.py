@@ -36,7 +36,7 @@ LAYERS = [
     ("train",),
     ("evaluation", "robot", "viewer", "zoo", "gym"),  # gym: the tasks as gymnasium environments
     ("clip_training",),  # uses sim, grounding and render; only the command line, tests and benchmarks use it
-    ("experiments",),  # the experiment engine: runs the command line as subprocesses, writes the reports
+    ("experiments",),  # the experiment engine: typed jobs in their own processes, the reports
     ("cli",),
 ]
 RANK = {name: i for i, names in enumerate(LAYERS) for name in names}

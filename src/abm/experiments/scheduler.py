@@ -1,14 +1,16 @@
-"""Run an experiment's commands: N at a time × T threads each, as local subprocesses or on a Ray cluster.
+"""Run an experiment's jobs: N at a time × T threads each, as local subprocesses or on a Ray cluster.
 
-Every job is a command line (``python -m abm.cli train ...``) run from a :class:`Source` tree: the checkout
-whose ``src/`` goes first on ``PYTHONPATH`` (and whose ``benchmarks/`` holds the measurement scripts), so a
-worktree pinned at a commit trains exactly that code while the checkout moves on. Its output goes to a log
-file; the engine reads results from the files the job writes, never from its output.
+Every job is a typed job (:mod:`abm.experiments.jobs`) written to a file and run by its own process,
+``python -m abm.experiments.jobs JOB.json`` (:meth:`Source.job`), from a :class:`Source` tree: the checkout whose
+``src/`` goes first on ``PYTHONPATH``, so a worktree pinned at a commit trains exactly that code while the
+checkout moves on. Its output goes to a log file; the engine reads results from the files the job writes, never
+from its output.
 
 Locally (:class:`LocalRunner`) a job starts as soon as a slot frees; the last job left alone gets every
 slot's threads. With Ray (:class:`RayRunner`) every job goes through :class:`abm.ray_pool.RayActorPool`: one
 actor per slot, each asking Ray for ``threads`` CPUs and running one command at a time on whichever node Ray
-placed it (the working folder must be the same shared path on every node).
+placed it (the working folder must be the same shared path on every node). The runners run any command line
+(:class:`Command`); the engine's are the job processes.
 """
 
 from __future__ import annotations
@@ -22,11 +24,14 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import abm
 from abm import ray_pool
 from abm.errors import ConfigError
+
+if TYPE_CHECKING:
+    from abm.experiments.jobs import TypedJob
 
 log = logging.getLogger("abm")
 POLL_S = 0.5  #: how often the local runner looks at its processes (seconds)
@@ -38,17 +43,16 @@ class Source:
     """The code the jobs run.
 
     Attributes:
-        tree: a checkout (holds ``src/abm``); ``None``: the installed package, no benchmark scripts.
+        tree: a checkout (holds ``src/abm``); ``None``: the installed package.
     """
 
     tree: Path | None
 
     @classmethod
     def here(cls) -> Source:
-        """The checkout this process imported abm from, if it is one (``src/abm`` beside ``benchmarks/``)."""
+        """The checkout this process imported abm from, if it is one (``src/abm``), else the installed package."""
         package = Path(abm.__file__).resolve().parent
-        tree = package.parent.parent
-        return cls(tree if package.parent.name == "src" and (tree / "benchmarks").is_dir() else None)
+        return cls(package.parent.parent if package.parent.name == "src" else None)
 
     @classmethod
     def at(cls, tree: Path) -> Source:
@@ -57,16 +61,11 @@ class Source:
             raise ConfigError(f"--source {tree}: not an abm checkout (no src/abm/__init__.py)")
         return cls(tree.resolve())
 
-    def cli(self, *args: str) -> list[str]:
-        """``python -m abm.cli ARGS`` with this interpreter."""
-        return [sys.executable, "-m", "abm.cli", *args]
-
-    def script(self, name: str, *args: str) -> list[str]:
-        """``python benchmarks/NAME ARGS`` of this tree."""
-        if self.tree is None:
-            raise ConfigError(f"benchmarks/{name} is in the repository checkout only; run from a checkout or give "
-                              "--source DIR")
-        return [sys.executable, str(self.tree / "benchmarks" / name), *args]
+    @staticmethod
+    def job(file: str) -> list[str]:
+        """The process of a job written to ``file``: ``python -m abm.experiments.jobs FILE`` with this interpreter
+        (:func:`abm.experiments.stages.runs_job` finds a running job by its file on that command line)."""
+        return [sys.executable, "-m", "abm.experiments.jobs", file]
 
     def env(self, threads: int | None = None) -> dict[str, str]:
         """The environment of a job: this tree's ``src`` first on ``PYTHONPATH``, ``threads`` torch threads."""
@@ -86,12 +85,13 @@ class Command:
 
     Attributes:
         job: its id (``train/abm_oracle``).
-        argv: the command.
+        argv: the command (an engine's job: its process, :meth:`Source.job`).
         log: where its output goes (appended).
         threads: torch threads (``None``: the environment's).
         cwd: its working folder (the experiment's root).
         before: called right before it starts (in the engine's process; on Ray, when it is submitted).
         after: called with the exit code once it ended (in the engine's process).
+        work: the typed job the command runs (``None``: another command).
     """
 
     job: str
@@ -101,6 +101,7 @@ class Command:
     threads: int | None = None
     after: Callable[[int], None] | None = field(default=None, repr=False)
     before: Callable[[], None] | None = field(default=None, repr=False)
+    work: TypedJob | None = None
 
 
 class Runner(Protocol):

@@ -2,10 +2,12 @@
 
 Each stage is a list of :class:`Job` s planned from the spec and the files on disk: a job whose outputs exist
 is done and never runs again (a resumed run, a rerun, a fresh clone after :func:`~abm.experiments.state.restore`);
-a job that cannot run yet says why (no benchmark CLIP, not trained yet). Trainings run N at a time × T threads
-(:mod:`abm.experiments.scheduler`), each continuing from its last checkpoint (``abm train --resume``) or, on a
-fresh clone, from the committed carry, and is exported the moment it ends when the run has the export stage
-too; evaluations skip finished episodes (``abm eval`` resumes by itself).
+a job that cannot run yet says why (no benchmark CLIP, not trained yet). What a job does is a typed job
+(:mod:`abm.experiments.jobs`) that its own process runs (``python -m abm.experiments.jobs OUT/jobs/JOB.json``):
+the engine builds no command line. Trainings run N at a time × T threads (:mod:`abm.experiments.scheduler`), each
+continuing from its last checkpoint (its config resumes) or, on a fresh clone, from the committed carry, and is
+exported the moment it ends when the run has the export stage too; evaluations skip finished episodes (an
+evaluation resumes by itself).
 
 ::
 
@@ -21,6 +23,7 @@ import logging
 import os
 import re
 import socket
+import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -30,6 +33,21 @@ from typing import Any
 import yaml
 
 from abm.errors import ConfigError
+from abm.evaluation.diagnose.keyframe_accuracy import KeyframeAccuracy
+from abm.evaluation.diagnose.request import DiagnosisRequest
+from abm.evaluation.diagnose.skill_text import SkillTextProbe
+from abm.evaluation.session import EvalRequest
+from abm.evaluation.settings import EvalSettings
+from abm.experiments.jobs import (
+    DataJob,
+    DiagnoseJob,
+    EvalJob,
+    ExportJob,
+    GroundJob,
+    TrainJob,
+    TypedJob,
+    ZooEvalJob,
+)
 from abm.experiments.report import keep_training_log, write_report, zoo_index
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Runner, Source
 from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, ExperimentSpec
@@ -71,19 +89,20 @@ class Job:
     Attributes:
         id: ``STAGE/NAME[/SPLIT]`` (``train/abm_oracle``, ``eval/abm_clip/seen``).
         stage: its stage.
-        argv: its command (``None``: done in the engine's process).
+        work: what it does, as a typed job (:mod:`abm.experiments.jobs`) its own process runs (``None``: done in
+            the engine's process, or blocked before it can be said).
         state: ``done``, ``left``, ``blocked`` (cannot run yet: see ``note``), ``running`` or ``failed``.
         note: progress or the reason it is blocked.
         threads: torch threads (trainings).
         folder: the folder it writes (a live lock on it means it is running).
-        before: called right before it starts (restores carried state, writes its recipe).
+        before: called right before it starts (restores carried state, writes the run's recipe).
         after: called with its exit code once it ended.
         minutes: how long it ran (done) or runs (running), when known.
     """
 
     id: str
     stage: str
-    argv: list[str] | None = None
+    work: TypedJob | None = None
     state: str = LEFT
     note: str = ""
     threads: int | None = None
@@ -116,16 +135,24 @@ def last_line(log: Path, tail_bytes: int = 65536) -> str:
     return said[-1][:300] if said else ""
 
 
-def runs_job(pid: int, job: Job) -> bool:
-    """Whether process ``pid`` runs ``job``'s command (its ``--out`` among its arguments, read from
-    ``/proc/PID/cmdline``), so a pid the system gave again to another process is not taken for the job; without
-    ``/proc``, a live pid is taken for it."""
+def runs_job(pid: int, job_file: str) -> bool:
+    """Whether process ``pid`` runs the job written to ``job_file`` (as the job's command line names it,
+    ``python -m abm.experiments.jobs JOB_FILE``: :meth:`Source.job`; read from ``/proc/PID/cmdline``), so a pid the
+    system gave again to another process is not taken for the job; without ``/proc``, a live pid is taken for it."""
     try:
         argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode("utf-8", "replace").split("\0")
     except OSError:
         return True
-    out = job.argv[job.argv.index("--out") + 1] if job.argv and "--out" in job.argv[:-1] else None
-    return out is None or any(arg == out for arg in argv)
+    return job_file in argv
+
+
+def shown(work: TypedJob | None) -> str:
+    """A job as ``abm experiment run --dry-run`` prints it: the ``abm`` command that does the same (run by this
+    interpreter), else the job itself (JSON)."""
+    if work is None:
+        return ""
+    words = work.command()
+    return " ".join([sys.executable, "-m", "abm.cli", *words]) if words else json.dumps(work.to_dict())
 
 
 class Engine:
@@ -230,10 +257,9 @@ class Engine:
                 for t in d.tasks}
         short = {t: n for t, n in have.items() if n < d.episodes}
         needed = any(not self.trained(r) for r in self.selected)
-        argv = self.source.cli("data", "generate", "--task", ",".join(d.tasks), "--split", d.split, "--episodes",
-                               str(d.episodes), "--out", self.rel(folder), "--workers", str(d.workers), "--seed",
-                               str(d.seed), "--resolution", str(d.resolution), *self._backend_flags())
-        job = Job("data", "data", argv, folder=None)
+        work = DataJob(tuple(d.tasks), d.split, d.episodes, Path(self.rel(folder)), workers=d.workers,
+                            seed=d.seed, resolution=d.resolution, backend=self.backend, ray_address=self.ray_address)
+        job = Job("data", "data", work, folder=None)
         if not short:
             job.state, job.note = DONE, f"{sum(have.values())} demonstrations"
         elif not needed:
@@ -241,11 +267,6 @@ class Engine:
         else:
             job.note = f"{sum(min(n, d.episodes) for n in have.values())}/{d.episodes * len(d.tasks)} demonstrations"
         return [job]
-
-    def _backend_flags(self) -> list[str]:
-        if self.backend != "ray":
-            return []
-        return ["--backend", "ray", *(["--ray-address", self.ray_address] if self.ray_address else [])]
 
     def _ground(self) -> list[Job]:
         jobs = []
@@ -255,16 +276,14 @@ class Engine:
             if not users:
                 continue
             policy, default = self.spec.runs[users[0]].config.policy, PolicyConfig()
-            cube = []
-            if policy.workspace_center != default.workspace_center:
-                cube += ["--workspace-center", *(str(v) for v in policy.workspace_center)]
-            if policy.workspace_size != default.workspace_size:
-                cube += ["--workspace-size", str(policy.workspace_size)]
             cache = self.layout.cache(kind)
-            argv = self.source.cli("data", "ground", "--data", self.rel(self.layout.data), "--cache", self.rel(cache),
-                                   "--clip-model", self.clip_arg(),
-                                   *(["--features"] if kind == "features" else []), "--tasks", *tasks, *cube)
-            job = Job(f"ground/{kind}", "ground", argv, folder=cache)
+            work = GroundJob(
+                Path(self.rel(self.layout.data)), Path(self.rel(cache)), self.clip_arg(), tuple(tasks),
+                features=kind == "features",
+                workspace_center=policy.workspace_center if policy.workspace_center != default.workspace_center
+                else None,
+                workspace_size=policy.workspace_size if policy.workspace_size != default.workspace_size else None)
+            job = Job(f"ground/{kind}", "ground", work, folder=cache)
             if all(self.trained(r) for r in users):
                 job.state, job.note = DONE, "not needed: its runs are trained"
             elif self._ran(job) and cache.is_dir():
@@ -287,9 +306,9 @@ class Engine:
                 continue
             folder = self.layout.run_dir(run)
             recipe_file = self.layout.recipe(run)
-            job = Job(f"train/{run}", "train", self.source.cli(
-                "train", "--config", self.rel(recipe_file), "--out", self.rel(folder), "--resume", "--no-progress"),
-                threads=self.slots("train")[1], folder=folder)
+            work = TrainJob(self.spec.train_config(run, self.layout, self.clip_model), Path(self.rel(recipe_file)))
+            job = Job(f"train/{run}", "train", work,
+                      threads=self.slots("train")[1], folder=folder)
             step = last_logged_step(folder)
             if self.trained(run):
                 job.state = DONE
@@ -330,9 +349,8 @@ class Engine:
         jobs = []
         for run in self.selected:
             target = self.layout.zoo_file(run)
-            job = Job(f"export/{run}", "export", self.source.cli(
-                "export", "--run", self.rel(self.layout.run_dir(run)), "--out", self.rel(target), "--dtype",
-                "bfloat16"))
+            job = Job(f"export/{run}", "export", ExportJob(Path(self.rel(self.layout.run_dir(run))),
+                                                                Path(self.rel(target)), "bfloat16"))
             if target.is_file():
                 job.state = DONE
             elif not self.trained(run):
@@ -370,20 +388,17 @@ class Engine:
                     continue
                 folder = self.layout.eval_dir(name, split.split)
                 model = self.model(base)
-                argv = self.source.cli(
-                    "eval", "--run", self.rel(model) if model else "?", "--tasks", *split.tasks, "--split",
-                    split.split, "--episodes", str(ev.episodes), "--repeats", str(ev.repeats), "--workers",
-                    str(ev.workers), "--max-steps", str(ev.max_steps), "--resolution", str(self.spec.data.resolution),
-                    "--out", self.rel(folder), *(["--gifs", str(ev.gifs)] if ev.gifs else []),
-                    *(["--device", ev.device] if ev.device != "cpu" else []))
                 variant_clip = bool(variant and variant.grounder and GROUNDERS[variant.grounder].clip)
-                if variant is not None and variant.grounder:
-                    argv += ["--grounder", variant.grounder]
-                    if variant_clip and self.clip_arg():
-                        argv += ["--clip-model", self.clip_arg()]
-                if variant is not None and variant.expert_keyframes:
-                    argv += ["--expert-keyframes", variant.expert_keyframes]
-                job = Job(f"eval/{name}/{split.split}", "eval", argv, folder=folder)
+                settings = EvalSettings(
+                    device=ev.device, grounder=variant.grounder or None if variant is not None else None,
+                    resolution=self.spec.data.resolution, max_steps=ev.max_steps,
+                    clip_model=self.clip_arg() if variant_clip and self.clip_arg() else None,
+                    expert_keyframes=variant.expert_keyframes or None if variant is not None else None)
+                request = EvalRequest((Path(self.rel(model)),) if model else (), tasks=tuple(split.tasks),
+                                      splits=(split.split,), episodes=ev.episodes, repeats=ev.repeats,
+                                      workers=ev.workers, gifs=ev.gifs, out=Path(self.rel(folder)), settings=settings)
+                job = Job(f"eval/{name}/{split.split}", "eval", EvalJob(request) if model else None,
+                          folder=folder)
                 if self.have(folder / "results.json"):
                     job.state = DONE
                 elif model is None:
@@ -412,8 +427,8 @@ class Engine:
     def _zoo_eval(self) -> Job:
         folder = self.layout.zoo_eval
         assert self.layout.zoo is not None
-        job = Job("eval/zoo", "eval", self.source.cli("zoo", "eval", "--zoo", self.rel(self.layout.zoo), "--out",
-                                                      self.rel(folder)), folder=folder / "seen")
+        job = Job("eval/zoo", "eval", ZooEvalJob(Path(self.rel(self.layout.zoo)), Path(self.rel(folder))),
+                  folder=folder / "seen")
         missing = [r for r in self.spec.evaluation.zoo_eval if not self.exported(r)]
         if self.have(folder / "seconds"):
             job.state = DONE
@@ -434,7 +449,7 @@ class Engine:
         d = self.spec.diagnose
         if d is None:
             return []
-        jobs = []
+        found = []
         tasks = d.tasks or self.spec.training.tasks or self.spec.data.tasks
         for name in self.spec.diagnoses():
             base = name.removesuffix(ORACLE_MASK)
@@ -442,47 +457,36 @@ class Engine:
                 continue
             model = self.layout.run_dir(base) if d.steps and self.trained(base) else self.model(base)
             oracle = name.endswith(ORACLE_MASK)
-            jobs.append(self._script_job(
-                f"diagnose/{name}", "keyframe_accuracy.py", model, self.layout.diagnosis(name),
-                ["--tasks", *tasks, "--splits", *d.splits, "--episodes", str(d.episodes), "--resolution",
-                 str(self.spec.data.resolution), *(["--steps", *map(str, d.steps)] if d.steps else []),
-                 *(["--kinds", *d.kinds] if d.kinds else []), *(["--grounder", "oracle"] if oracle else [])],
-                clip=self.needs_clip(base) and not oracle))
+            out = self.layout.diagnosis(name)
+            request = KeyframeAccuracy(
+                (Path(self.rel(model)),), tuple(tasks), Path(self.rel(out)), splits=tuple(d.splits),
+                episodes=d.episodes, resolution=self.spec.data.resolution, steps=tuple(d.steps),
+                grounder="oracle" if oracle else None) if model else None
+            found.append(self._diagnosis_job(f"diagnose/{name}", request, out,
+                                             clip=self.needs_clip(base) and not oracle))
         probe, skill_tasks = d.skill_text, self.spec.training.tasks or self.spec.data.tasks
         for run, task in self.spec.probes():  # the skill-text probe: each probed run on each task
             if probe is None or run not in self.selected:
                 continue
-            jobs.append(self._script_job(
-                f"diagnose/skill_text/{run}/{task}", "skill_text_probe.py", self.model(run),
-                self.layout.skill_text(run, task),
-                ["--task", task, "--kind", probe.kind, "--split", probe.split, "--episodes", str(probe.episodes),
-                 "--resolution", str(self.spec.data.resolution), "--skill-tasks", *skill_tasks],
-                clip=self.needs_clip(run)))
-        return jobs
+            model, out = self.model(run), self.layout.skill_text(run, task)
+            probed = SkillTextProbe(Path(self.rel(model)), task, tuple(skill_tasks), Path(self.rel(out)),
+                                    keyframe=probe.kind, split=probe.split, episodes=probe.episodes,
+                                    resolution=self.spec.data.resolution) if model else None
+            found.append(self._diagnosis_job(f"diagnose/skill_text/{run}/{task}", probed, out,
+                                             clip=self.needs_clip(run)))
+        return found
 
-    def _script_job(self, job_id: str, script: str, model: Path | None, out: Path, args: list[str],
-                    clip: bool) -> Job:
-        """A diagnosis job: ``benchmarks/SCRIPT --run MODEL ARGS --out OUT``; done once OUT is there (or kept),
-        blocked until its model is trained or exported, without the benchmark CLIP it needs (``clip``), or
-        without the checkout's scripts."""
-        try:
-            argv: list[str] | None = self.source.script(script, "--run", self.rel(model) if model else "?", *args,
-                                                        "--out", self.rel(out))
-            blocked = ""
-        except ValueError as err:
-            argv, blocked = None, str(err)
-        job = Job(job_id, "diagnose", argv)
+    def _diagnosis_job(self, job_id: str, request: DiagnosisRequest | None, out: Path, clip: bool) -> Job:
+        """A diagnosis job (``request``: ``None`` until its model is trained or exported); done once ``out`` is
+        there (or kept), blocked until its model is there, or without the benchmark CLIP it needs (``clip``)."""
+        job = Job(job_id, "diagnose", DiagnoseJob(request) if request is not None else None)
         if self.have(out):
             job.state = DONE
-        elif model is None:
+        elif request is None:
             job.state = BLOCKED
             job.note = "not exported yet" if self.spec.evaluation.from_zoo else "not trained yet"
         elif clip and not self.has_clip():
             job.state, job.note = BLOCKED, "no benchmark CLIP"
-        elif blocked:
-            job.state, job.note = BLOCKED, blocked
-        else:
-            job.before = lambda: out.parent.mkdir(parents=True, exist_ok=True)
         return job
 
     def _report(self) -> list[Job]:
@@ -503,7 +507,8 @@ class Engine:
     def _commands(self, jobs: Iterable[Job]) -> list[Command]:
         commands = []
         for job in jobs:
-            assert job.argv is not None
+            assert job.work is not None
+            file = self.layout.job_file(job.id)
 
             def after(code: int, job: Job = job) -> None:
                 self._open.discard(job.id)
@@ -512,8 +517,14 @@ class Engine:
                     job.after(code)
                 job.state = DONE if code == 0 else FAILED
 
-            commands.append(Command(job.id, job.argv, self.layout.log(job.id), self.root, job.threads, after,
-                                    job.before))
+            def before(job: Job = job, file: Path = file) -> None:
+                if job.before is not None:
+                    job.before()
+                assert job.work is not None
+                job.work.write(file)
+
+            commands.append(Command(job.id, self.source.job(self.rel(file)), self.layout.log(job.id), self.root,
+                                    job.threads, after, before, job.work))
         return commands
 
     def _start(self, command: Command, pid: int | None) -> None:
@@ -571,7 +582,7 @@ class Engine:
         events = self._events.get(job.id, [])
         starts = [e for e in events if e["event"] == "start"]
         if self._live(starts, [e for e in events if e["event"] == "end"]) and starts[-1]["pid"] != os.getpid() \
-                and runs_job(starts[-1]["pid"], job):
+                and runs_job(starts[-1]["pid"], self.rel(self.layout.job_file(job.id))):
             return f"pid {starts[-1]['pid']}"
         return None
 
@@ -642,7 +653,7 @@ class Engine:
         LOG.info("%s: %d job(s)", stage, len(todo))
         if dry_run:
             for job in todo:
-                LOG.info("  %s: %s", job.id, " ".join(job.argv or []))
+                LOG.info("  %s: %s", job.id, shown(job.work))
             return True
         stamp(self.layout, f"{stage}_start")
         record_machine(self.layout)
