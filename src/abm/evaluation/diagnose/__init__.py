@@ -75,3 +75,9 @@ register_diagnosis("keyframe_accuracy", DiagnosisKind(
 register_diagnosis("skill_text", DiagnosisKind(
     "abm.evaluation.diagnose.skill_text:SkillTextProbe",
     "whether a mask policy's keyframe moves when its skill text changes"))
+register_diagnosis("rotation_fit", DiagnosisKind(
+    "abm.evaluation.diagnose.rotation_fit:RotationFit",
+    "cross-entropy of a policy's rotation bins on its own training keyframes, beside chance and the prior"))
+register_diagnosis("failure_reasons", DiagnosisKind(
+    "abm.evaluation.diagnose.failure_reasons:FailureReasons",
+    "why closed-loop rollouts stop: each step's motion status against the expert's keyframe, per kind"))
