@@ -12,8 +12,8 @@ is scored against the expert's label:
 
 Rows are grouped by keyframe kind (approach, grasp, lift, move, place, retreat, pour), so one can see
 which part of a task a checkpoint has learned. It is the quick check of a checkpoint before rollouts
-(``benchmarks/keyframe_accuracy.py``). :func:`skill_text_probe` asks whether a mask policy's keyframe
-follows its skill text (``benchmarks/skill_text_probe.py``).
+(the ``keyframe_accuracy`` diagnosis, :mod:`abm.evaluation.diagnose.keyframe_accuracy`). :func:`skill_text_probe`
+asks whether a mask policy's keyframe follows its skill text (the ``skill_text`` diagnosis).
 """
 
 from __future__ import annotations

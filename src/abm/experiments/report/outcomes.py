@@ -27,7 +27,7 @@ class Outcomes:
         stages: minutes per stage, every session added up.
         machines: every machine that ran a stage.
         zoo_eval: the timed ``abm zoo eval``: its table and seconds, or ``None`` before it ran.
-        probes: the skill-text probes (``benchmarks/skill_text_probe.py``'s JSON) by (run, task).
+        probes: the skill-text probes (the ``skill_text`` diagnosis' JSON) by (run, task).
         index: the whole zoo index the report writes (with other specs' entries), or ``None`` without a zoo.
         loops: grasp <-> lift loops per (run or variant, task, split): (episodes that loop, episodes)
             (:func:`abm.experiments.arm_records.loop_counts`).
