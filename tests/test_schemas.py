@@ -37,7 +37,7 @@ DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # x, y, z, w: gripper pointing down
     ("arm: {kind: robot}\n", "arm.kind: expected one of ['dry-run', 'sim', 'ur'], got 'robot'"),
     ("arm: {kind: ur, host: h, speed: .nan}\n", "arm.speed: expected a finite number > 0, got nan"),
     ("arm: {kind: ur, host: h, tcp_offset: [0, 0, 0.1]}\n", "arm.tcp_offset: expected a list of 6 finite numbers"),
-    ("arm: {kind: sim, task: pick_block, seed: -1}\n", "arm.seed: expected a whole number >= 0"),
+    ("arm: {kind: sim, task: pick_block, seed: -1}\n", "arm.seed: expected a whole number from 0 to 9223372036854775807, got -1"),
     ("arm: {kind: sim, seed: 1}\n", "arm: missing required keys ['task']"),
     ("cameras: {kind: replay}\n", "cameras: missing required keys ['path']"),
     ("cameras: {kind: replay, path: rec, fps: 30}\n", "cameras: unknown keys ['fps'] (expected: ['path'])"),

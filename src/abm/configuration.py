@@ -41,6 +41,7 @@ from typing import Any
 
 from abm.errors import ConfigError
 from abm.files import load_yaml
+from abm.schema import Check, Mismatch, Reader, boolean, mismatch
 
 # Defaults shared by several commands, defined once here (this module is imported by every command).
 CAMERA_RESOLUTION = 128  #: camera image side (px) of demonstrations, evaluation, the quickstart and rollouts
@@ -127,43 +128,63 @@ def field_type(f: dataclasses.Field[Any], kind: Any) -> Any:
     return float_range(low, high)
 
 
+def settable_fields(cls: type) -> dict[str, dataclasses.Field[Any]]:
+    """The fields of the config dataclass ``cls`` a flag, ``--set`` or a file sets (not ``cli=False``)."""
+    return {f.name: f for f in dataclasses.fields(cls) if f.metadata.get("cli", True)}
+
+
+def field_check(cls: type, name: str) -> Check:
+    """The values of the field ``name`` of the config dataclass ``cls`` as a check of :mod:`abm.schema`, the checks
+    of its flag: type, range (:func:`field_type`), choices, a list's length; ``None`` where the field may be."""
+    f = settable_fields(cls)[name]
+    kind, nargs, optional = _base_type(typing.get_type_hints(cls)[name])
+    choices = field_choices(f)
+
+    def item(value: Any) -> Any:
+        if kind in (int, float):
+            if isinstance(value, bool) or not isinstance(value, int | float) or (kind is int and
+                                                                                 not isinstance(value, int)):
+                raise mismatch("a whole number" if kind is int else "a number", value)
+            try:
+                return field_type(f, kind)(str(value))
+            except argparse.ArgumentTypeError as err:
+                raise Mismatch(str(err)) from None
+        if choices is not None and isinstance(value, str) and value not in choices:
+            raise mismatch(f"one of {', '.join(map(str, choices))}", value)
+        if kind in (str, Path) and not isinstance(value, str):
+            raise mismatch("a path" if kind is Path else "text", value)
+        return value
+
+    def check(value: Any) -> Any:
+        if value is None and optional:
+            return None
+        if kind is bool:
+            return boolean(value)
+        if nargs is None:
+            return item(value)
+        if not isinstance(value, list) or (isinstance(nargs, int) and len(value) != nargs) or not value:
+            raise mismatch(f"a list of {nargs} values" if isinstance(nargs, int) else "a list of values", value)
+        return [item(v) for v in value]
+
+    return check
+
+
 def check_overrides(cls: type, overrides: dict[str, Any], option: str = "--set") -> dict[str, Any]:
-    """``KEY=VALUE`` overrides of the config dataclass ``cls``, checked like its flags (type, range, choices).
+    """``KEY=VALUE`` overrides of the config dataclass ``cls``, checked like its flags (:func:`field_check`).
 
     Raises:
         ConfigError: an unknown key (the message lists the known ones) or a value of the wrong type or range, or
             not among the field's choices.
     """
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.metadata.get("cli", True)}
+    fields = settable_fields(cls)
     out: dict[str, Any] = {}
     for key, value in overrides.items():
         if key not in fields:
             raise ConfigError(f"{option} {key}=...: {cls.__name__} has no settable field {key!r}; known: "
                               f"{', '.join(sorted(fields))}")
-        kind, nargs, optional = _base_type(hints[key])
-        if value is None and optional:
-            out[key] = value
-            continue
         try:
-            if kind is bool:
-                if not isinstance(value, bool):
-                    raise argparse.ArgumentTypeError("expected true or false")
-                out[key] = value
-            elif kind in (int, float) and nargs is None:
-                if isinstance(value, bool) or not isinstance(value, int | float) or (kind is int and
-                                                                                     not isinstance(value, int)):
-                    raise argparse.ArgumentTypeError(f"expected {'a whole number' if kind is int else 'a number'}")
-                out[key] = field_type(fields[key], kind)(str(value))
-            else:
-                choices = field_choices(fields[key])
-                wrong = [v for v in (value if isinstance(value, list) else [value]) if v not in choices] \
-                    if choices is not None and isinstance(value, str | list) else []
-                if wrong:
-                    raise argparse.ArgumentTypeError(f"expected one of {', '.join(map(str, choices))}, got "
-                                                     f"{wrong[0]!r}")
-                out[key] = value
-        except argparse.ArgumentTypeError as err:
+            out[key] = field_check(cls, key)(value)
+        except Mismatch as err:
             raise ConfigError(f"{option} {key}={value!r}: {err}") from None
     return out
 
@@ -439,38 +460,60 @@ def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
         action.required = False
 
 
+def flag_check(action: argparse.Action, flag: str | None = None, fix: str = "") -> Check:
+    """The values of the option ``action`` as a check of :mod:`abm.schema` (what a recipe or a spec gives for it):
+    :func:`recipe_value`, whose words name ``flag`` (default: the option's first flag) as the same check, then
+    ``fix``."""
+    same = flag or (action.option_strings[0] if action.option_strings else action.dest)
+
+    def check(value: Any) -> Any:
+        try:
+            return recipe_value(action, value)
+        except argparse.ArgumentTypeError as err:
+            raise Mismatch(f"{err} (the same check as {same}){fix}") from None
+
+    return check
+
+
 def check_recipe(parser: argparse.ArgumentParser, values: dict[str, Any], source: str
                  ) -> list[tuple[argparse.Action, Any]]:
     """Every value of a recipe for the command ``parser`` (``abm train``), checked as its flag checks it
-    (:func:`recipe_value`), with the option it sets; what ``abm train --config`` and an experiment spec's runs
-    (:mod:`abm.experiments.spec`) both check before anything runs.
+    (:func:`flag_check`, read by the YAML validator :class:`abm.schema.Reader`), with the option it sets; what
+    ``abm train --config`` and an experiment spec's recipe (:mod:`abm.experiments.spec`) both check before
+    anything runs. A section (``policy:``, the command's ``config_sections``) holds the options of its prefix.
 
     Raises:
-        ConfigError: ``SOURCE: KEY: what is expected (the same check as --FLAG)``; an unknown option, a key of
-            :data:`RECIPE_REFUSED`, an empty path.
+        ConfigError: ``SOURCE: KEY: what is expected (the same check as --FLAG); fix the value in the recipe``;
+            an unknown option (``unknown keys [...] (expected: [...])``), a key of :data:`RECIPE_REFUSED`, an empty
+            path.
     """
-    sections = parser.get_default("config_sections") or {}
+    sections: dict[str, str] = parser.get_default("config_sections") or {}
     actions = {a.dest: a for a in parser._actions if a.dest not in ("help", "config")}
-    unknown, checked = [], []
-    for key, value in values.items():
-        items = ([(sections[key] + k, v) for k, v in value.items()] if key in sections and isinstance(value, dict)
-                 else [(key, value)])
-        for dest, v in items:
-            action = actions.get(dest.replace("-", "_"))
-            if action is None:
-                unknown.append(dest.removeprefix(sections.get(key, "")))
-                continue
-            if action.dest in RECIPE_REFUSED:
-                raise ConfigError(f"{source}: {key!r} cannot be set in a recipe: {RECIPE_REFUSED[action.dest]}")
-            if action.type is Path and isinstance(v, str) and not v.strip():
-                raise ConfigError(f"{source}: {key} is an empty path; give a path, or leave the key out")
-            try:
-                checked.append((action, recipe_value(action, v)))
-            except argparse.ArgumentTypeError as err:
-                name = key if dest == key else f"{key}.{dest.removeprefix(sections.get(key, ''))}"
-                flag = action.option_strings[0] if action.option_strings else name
-                raise ConfigError(f"{source}: {name}: {err} (the same check as {flag}); fix the value in the "
-                                  "recipe") from None
-    if unknown:
-        raise ConfigError(f"{source}: unknown option(s) {', '.join(unknown)}")
+    top = Reader(values, source, error=ConfigError)
+    own = {dest: a for dest, a in actions.items() if not any(dest.startswith(p) for p in sections.values())}
+    checked = _options(top, own)
+    top.done([*own, *sections])
+    for section, prefix in sections.items():
+        if top.has(section):
+            reader = top.sub(section)
+            options = {dest.removeprefix(prefix): a for dest, a in actions.items() if dest.startswith(prefix)}
+            checked += _options(reader, options)
+            reader.done(list(options))
+    return checked
+
+
+def _options(reader: Reader, options: dict[str, argparse.Action]) -> list[tuple[argparse.Action, Any]]:
+    """The values of ``reader`` that set ``options`` (by name; ``-`` may stand for ``_``), each checked."""
+    checked = []
+    for key in list(reader.data):
+        name = str(key).replace("-", "_")
+        if name not in options:
+            continue
+        if name in RECIPE_REFUSED:
+            raise reader.error(f"{key!r} cannot be set in a recipe: {RECIPE_REFUSED[name]}")
+        value = reader.data[key]
+        if options[name].type is Path and isinstance(value, str) and not value.strip():
+            raise reader.error(f"{key} is an empty path; give a path, or leave the key out")
+        checked.append((options[name], reader.value(key, flag_check(options[name],
+                                                                    fix="; fix the value in the recipe"))))
     return checked

@@ -22,15 +22,15 @@ from typing import Any, Protocol
 
 from abm.configuration import (
     CAMERA_RESOLUTION,
-    INT_MAX,
     MAX_KEYFRAMES,
     SPLITS,
     WORKERS,
     builtin_or_file,
-    check_overrides,
     check_recipe,
+    field_check,
+    flag_check,
     load_recipe,
-    recipe_value,
+    settable_fields,
 )
 from abm.errors import ConfigError
 from abm.evaluation.settings import EXPERT_KEYFRAME_KINDS
@@ -40,6 +40,7 @@ from abm.grounding.config import GROUNDERS
 from abm.policy.config import PolicyConfig
 from abm.policy.language_config import LANGUAGES
 from abm.policy.variants import VARIANTS
+from abm.schema import Reader, shown
 from abm.train.config import TrainConfig
 
 #: the built-in specs (``abm experiment run paper_tables``; the repository's configs/experiments/ links here)
@@ -567,57 +568,21 @@ ORACLE_MASK = "@oracle"  #: suffix of a diagnosis with the simulator's mask inst
 
 
 # ------------------------------------------------------------------------------------------------ reading
-class _Reader:
-    """Typed access to one mapping of a spec file; every error names the file and the key path."""
+class _Reader(Reader):
+    """A spec's mapping, read by the YAML validator (:class:`abm.schema.Reader`; every error a :class:`SpecError`
+    naming the file and the key path), with the kinds of value only specs have: paths inside the root, values
+    checked as an ``abm`` command's option checks them, task lists."""
 
-    def __init__(self, data: Any, source: Path, where: str) -> None:
-        self.source, self.where = source, where
-        if not isinstance(data, dict):
-            raise self.error(f"expected a mapping, got {_shown(data)}")
-        self.data: dict[str, Any] = data
-        self.used: set[str] = set()
-
-    def error(self, message: str, key: str | None = None) -> SpecError:
-        path = f"{self.where}.{key}" if key and self.where else key or self.where or "(top level)"
-        return SpecError(f"{self.source}: {path}: {message}")
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = None) -> Any:
-        self.used.add(key)
-        return self.data.get(key, default)
-
-    def sub(self, key: str, default: Any = None) -> _Reader:
-        value = self.raw(key, {} if default is None else default)
-        return _Reader(value, self.source, f"{self.where}.{key}" if self.where else key)
-
-    def text(self, key: str, default: str | None = None) -> str:
-        value = self.raw(key, default)
-        if value is None:
-            raise self.error("is required (a text)", key)
-        if not isinstance(value, str):
-            raise self.error(f"expected a text, got {_shown(value)}", key)
-        return " ".join(value.split()) if "\n" in value else value
-
-    def integer(self, key: str, default: int | None = None, low: int = 1, high: int = INT_MAX) -> int:
-        value = self.raw(key, default)
-        if value is None:
-            raise self.error(f"is required (a whole number >= {low})", key)
-        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-            raise self.error(f"expected a whole number from {low} to {high}, got {_shown(value)}", key)
-        return value
+    def __init__(self, data: Any, source: str | Path, where: str = "", error: Any = SpecError,
+                 keys: Sequence[str] = ()) -> None:
+        super().__init__(data, source, where, error, keys)
 
     def flag_value(self, key: str, default: Any, command: str, dest: str) -> Any:
         """``key``, checked as the option ``dest`` of ``abm COMMAND`` checks its value on the command line (its
-        own type, range and choices: :func:`abm.configuration.recipe_value`), so a spec cannot hand a job a value
+        own type, range and choices: :func:`abm.configuration.flag_check`), so a spec cannot hand a job a value
         its flag refuses."""
         action = next(a for a in command_parser(command)._actions if a.dest == dest)
-        value = self.raw(key, default)
-        try:
-            return recipe_value(action, value)
-        except argparse.ArgumentTypeError as err:
-            raise self.error(f"{err} (the same check as abm {command} {action.option_strings[0]})", key) from None
+        return self.value(key, flag_check(action, f"abm {command} {action.option_strings[0]}"), default)
 
     def path(self, key: str, default: str | None = "", folder: bool = False) -> str:
         """A path of the spec: relative to the root and inside it (no ``..``, not absolute); a ``folder`` the
@@ -637,52 +602,14 @@ class _Reader:
     def optional_integer(self, key: str, low: int = 1) -> int | None:
         return None if self.raw(key) is None else self.integer(key, low=low)
 
-    def number(self, key: str, default: float | None = None) -> float:
-        value = self.raw(key, default)
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.error(f"expected a number, got {_shown(value)}", key)
-        return float(value)
-
-    def flag(self, key: str, default: bool = False) -> bool:
-        value = self.raw(key, default)
-        if not isinstance(value, bool):
-            raise self.error(f"expected true or false, got {_shown(value)}", key)
-        return value
-
-    def names(self, key: str, default: Sequence[str] | None = None, lists: Mapping[str, tuple[str, ...]] | None = None
-              ) -> tuple[str, ...]:
-        """A list of names, or (with ``lists``) the name of one of the spec's named task lists."""
-        value = self.raw(key, default)
-        if isinstance(value, tuple):  # a default
-            value = list(value)
-        if value is None:
-            raise self.error("is required (a list of names)", key)
-        if isinstance(value, str) and lists is not None:
-            if value not in lists:
-                raise self.error(f"{value!r} is no task list of this spec (known: {', '.join(lists) or 'none'})", key)
-            return lists[value]
-        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
-            raise self.error(f"expected a list of names, got {_shown(value)}", key)
-        if len(set(value)) != len(value):
-            raise self.error(f"names a value twice: {value}", key)
-        return tuple(value)
-
-    def choice(self, key: str, choices: Sequence[str], default: str | None = None) -> str:
-        value = self.text(key, default)
-        if value not in choices:
-            raise self.error(f"expected one of {', '.join(choices)}, got {value!r}", key)
-        return value
-
-    def done(self) -> None:
-        """Refuse keys nobody read (a typo would otherwise be silently ignored)."""
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            raise self.error(f"unknown key(s) {', '.join(map(repr, unknown))}; known: {', '.join(sorted(self.used))}")
-
-
-def _shown(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+    def tasks(self, key: str, lists: Mapping[str, tuple[str, ...]]) -> tuple[str, ...]:
+        """A list of names, or the name of one of the spec's named task lists."""
+        value = self.raw(key)
+        if not isinstance(value, str):
+            return self.names(key)
+        if value not in lists:
+            raise self.error(f"{value!r} is no task list of this spec (known: {', '.join(lists) or 'none'})", key)
+        return lists[value]
 
 
 def _recipe(reader: _Reader, name: str) -> dict[str, Any]:
@@ -705,17 +632,15 @@ def _recipe(reader: _Reader, name: str) -> dict[str, Any]:
 
 
 def _checked(reader: _Reader, key: str, cls: type, forbidden: Sequence[str] = ()) -> dict[str, Any]:
-    """``reader[key]``: overrides of the config dataclass ``cls``, each key a settable field of the right type."""
+    """``reader[key]``: overrides of the config dataclass ``cls``, each key a settable field, each value checked as
+    its flag checks it (:func:`abm.configuration.field_check`)."""
     sub = reader.sub(key)
     for name in forbidden:
         if sub.has(name):
             raise sub.error("is set by the engine for every run; remove it from the spec", name)
-    try:
-        out = check_overrides(cls, dict(sub.data), option="")
-    except ValueError as err:
-        raise sub.error(str(err).strip()) from None
-    sub.used |= set(sub.data)
-    return out
+    fields = [name for name in settable_fields(cls) if name not in forbidden]
+    sub.done(fields)
+    return {name: sub.value(name, field_check(cls, name)) for name in sub.data}
 
 
 # --------------------------------------------------------------------------------------------- sections
@@ -748,7 +673,7 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
                 raise sub.error(f"{run!r} is no run of this spec", run)
             values = values if isinstance(values, list) else [values]
             if not values or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
-                raise sub.error(f"expected a number per split, got {_shown(values)}", run)
+                raise sub.error(f"expected a number per split, got {shown(values)}", run)
             paper[run] = tuple(float(v) for v in values)
             sub.used.add(run)
     names: dict[str, str] = {}
@@ -767,10 +692,10 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
     if reader.has("checks"):
         raw = reader.raw("checks")
         if not isinstance(raw, list):
-            raise reader.error(f"expected a list of checks, got {_shown(raw)}", "checks")
+            raise reader.error(f"expected a list of checks, got {shown(raw)}", "checks")
         items = []
         for i, item in enumerate(raw):
-            c = _Reader(item, reader.source, f"{reader.where}.checks[{i}]")
+            c = reader.at(item, f"checks[{i}]")
             check = TargetCheck(text=c.text("text"), kind=c.choice("kind", TARGET_KINDS),
                                 split=c.choice("split", SPLITS), value=c.number("value"), base=c.text("base", ""),
                                 run=c.text("run", ""), keyframe=c.text("keyframe", ""))
@@ -787,9 +712,9 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
     sentences = []
     raw_sentences = reader.raw("sentences", [])
     if not isinstance(raw_sentences, list):
-        raise reader.error(f"expected a list of sentences, got {_shown(raw_sentences)}", "sentences")
+        raise reader.error(f"expected a list of sentences, got {shown(raw_sentences)}", "sentences")
     for i, item in enumerate(raw_sentences):
-        c = _Reader(item, reader.source, f"{reader.where}.sentences[{i}]")
+        c = reader.at(item, f"sentences[{i}]")
         pair = c.names("runs")
         if len(pair) != 2 or any(r not in known for r in pair):
             raise c.error(f"expected two runs of this spec, got {list(pair)}", "runs")
@@ -820,8 +745,8 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
 def _sections(reader: _Reader, key: str, runs: Sequence[str]) -> tuple[Section, ...]:
     raw = reader.raw(key, [])
     if not isinstance(raw, list):
-        raise reader.error(f"expected a list of sections, got {_shown(raw)}", key)
-    return tuple(_section(_Reader(item, reader.source, f"{reader.where}.{key}[{i}]"), runs)
+        raise reader.error(f"expected a list of sections, got {shown(raw)}", key)
+    return tuple(_section(reader.at(item, f"{key}[{i}]"), runs)
                  for i, item in enumerate(raw))
 
 
@@ -874,7 +799,7 @@ def load_spec(name: str | Path, *, check_tasks: bool = True) -> ExperimentSpec:
 def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> ExperimentSpec:
     """The :class:`ExperimentSpec` of the plain data ``data`` read from ``path`` (see :func:`load_spec`)."""
     _tasks = functools.partial(_task_names, check=check_tasks)
-    top = _Reader(data, path, "")
+    top = _Reader(data, path)
     name = top.text("name")
     if not _NAME.match(name):
         raise top.error(f"expected a plain name (letters, digits, _ . -), got {name!r}", "name")
@@ -977,7 +902,7 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
     if top.has("diagnose"):
         g = top.sub("diagnose")
         diagnose = DiagnoseSpec(episodes=g.integer("episodes", 5), splits=g.names("splits", ("seen", "unseen")),
-                                tasks=g.names("tasks", lists=lists) if g.has("tasks") else None,
+                                tasks=g.tasks("tasks", lists) if g.has("tasks") else None,
                                 oracle_mask=g.flag("oracle_mask"),
                                 steps=tuple(_steps(g)), kinds=g.names("kinds", ()),
                                 skill_text=_skill_text(g, runs))
@@ -996,9 +921,9 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
     figures = []
     raw_figures = rep.raw("figures", [])
     if not isinstance(raw_figures, list):
-        raise rep.error(f"expected a list of figures, got {_shown(raw_figures)}", "figures")
+        raise rep.error(f"expected a list of figures, got {shown(raw_figures)}", "figures")
     for i, item in enumerate(raw_figures):
-        f = _Reader(item, path, f"report.figures[{i}]")
+        f = rep.at(item, f"figures[{i}]")
         file = f.path("file", None)
         if not file.endswith(".png"):
             raise f.error(f"expected a PNG file (NAME.png), got {file!r}", "file")
@@ -1066,7 +991,7 @@ def _task_names(reader: _Reader, key: str, lists: Mapping[str, tuple[str, ...]],
     """A list of task names (or a task list's name), each a task of the benchmark (``trainable``: one
     demonstrations can be generated for, as ``abm data generate --task`` checks; ``check=False``: not looked up
     in the registry, see :func:`load_spec`)."""
-    names = reader.names(key, lists=lists)
+    names = reader.tasks(key, lists)
     if not check:
         return names
     from abm.sim.tasks import TASKS  # the task registry (no simulator is built)
@@ -1103,5 +1028,5 @@ def _steps(reader: _Reader) -> list[int]:
     value = reader.raw("steps", [])
     if not isinstance(value, list) or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0
                                               for v in value):
-        raise reader.error(f"expected a list of positive step numbers, got {_shown(value)}", "steps")
+        raise reader.error(f"expected a list of positive step numbers, got {shown(value)}", "steps")
     return list(value)
