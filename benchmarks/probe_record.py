@@ -9,12 +9,11 @@ of the same arm and step:
 * ``--rollouts FILE``: the ``eval_summary.json`` (or a ``results.json``) of ``abm eval``: rows
   ``{arm, step, task, split, successes, episodes}``.
 
-``--tables`` prints the probe's three tables (yaw fit per step and arm, keyframe accuracy and rollouts at ``--step``)
-as markdown, as docs/results/zoom_probe.md shows them (:mod:`abm.experiments.report.pages.zoom_probe`).
+The probe's tables on its page are written from this JSON by its spec's report (``abm experiment run zoom_probe
+--stages report``: the ``probe_fit``, ``probe_accuracy`` and ``probe_rollouts`` sections).
 
 Usage: python benchmarks/probe_record.py --probe docs/results/zoom_probe.json --arm two-stage+crop --step 3000
            [--accuracy acc.json] [--rollouts runs/.../eval_summary.json]
-       python benchmarks/probe_record.py --probe docs/results/zoom_probe.json --tables [--step 3000]
 """
 
 from __future__ import annotations
@@ -23,8 +22,6 @@ import argparse
 import json
 from pathlib import Path
 from typing import Any
-
-from abm.experiments.report.pages.zoom_probe import markdown_tables
 
 
 def accuracy_rows(summary: list[dict[str, Any]], arm: str, step: int) -> list[dict[str, Any]]:
@@ -59,14 +56,9 @@ def main() -> None:
     p.add_argument("--step", type=int, default=None)
     p.add_argument("--accuracy", type=Path, default=None)
     p.add_argument("--rollouts", type=Path, default=None)
-    p.add_argument("--tables", action="store_true", help="print the probe's tables as markdown (at --step, "
-                   "default 3000)")
     args = p.parse_args()
-    if args.tables:
-        print(markdown_tables(json.loads(args.probe.read_text()), args.step or 3000))
-        return
     if args.accuracy is None and args.rollouts is None:
-        p.error("give --accuracy and/or --rollouts (or --tables)")
+        p.error("give --accuracy and/or --rollouts")
     if args.arm is None or args.step is None:
         p.error("--accuracy / --rollouts need --arm and --step")
     probe = json.loads(args.probe.read_text()) if args.probe.exists() else {"fit": [], "accuracy": [], "rollouts": []}

@@ -74,6 +74,7 @@ from abm.experiments.state import (
     span_minutes,
     stamp,
 )
+from abm.experiments.status import kept_minutes
 from abm.files import FolderBusyError, FolderLock
 from abm.grounding.config import GROUNDERS
 from abm.policy.config import PolicyConfig
@@ -248,7 +249,11 @@ class Engine:
         planner = {"data": self._data, "ground": self._ground, "train": self._train, "export": self._export,
                    "eval": self._eval, "diagnose": self._diagnose, "report": self._report,
                    "carry": self._carry}[stage]
-        return planner()
+        jobs = planner()
+        if self.spec.finished and stage not in ("report", "carry"):  # finished and kept: only its report runs
+            for job in jobs:
+                job.state, job.note, job.before, job.after = DONE, "finished (kept)", None, None
+        return jobs
 
     def _data(self) -> list[Job]:
         d = self.spec.data
@@ -490,7 +495,7 @@ class Engine:
         return job
 
     def _report(self) -> list[Job]:
-        return [Job("report", "report", note=f"writes {self.spec.report.document}")]
+        return [Job("report", "report", note=f"writes {self.spec.report.document or self.spec.report.readme}")]
 
     def _carry(self) -> list[Job]:
         return [Job("carry", "carry", note=f"unfinished work into {self.rel(self.layout.carry)}"
@@ -688,7 +693,7 @@ class Engine:
                 ends = [e for e in events if e["event"] == "end"]
                 if job.id == "report":
                     others = [j for j in jobs if j.stage != "report"]
-                    document = self.root / self.spec.report.document
+                    document = self.root / (self.spec.report.document or self.spec.report.readme)
                     if document.is_file() and all(j.state == DONE for j in others):
                         job.state = DONE
                 if job.state != DONE and (
@@ -696,8 +701,9 @@ class Engine:
                     job.state = RUNNING
                 if job.state == RUNNING and starts:
                     job.minutes = (span_minutes(events) or 0.0) + (time.time() - starts[-1]["time"]) / 60
-                elif job.state == DONE:
+                elif job.state == DONE:  # this folder's job log, else what is kept (a fresh clone)
                     job.minutes = span_minutes(events)
+                    job.minutes = kept_minutes(self.spec, self.layout, job) if job.minutes is None else job.minutes
                 elif job.state != DONE and ends and ends[-1].get("rc") not in (0, None) and job.state == LEFT:
                     log = self.layout.log(job.id)
                     job.state, job.note = FAILED, f"exit code {ends[-1]['rc']}: {last_line(log)} (log: {self.rel(log)})"

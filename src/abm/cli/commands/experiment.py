@@ -10,6 +10,7 @@ from types import FrameType
 from abm.experiments.scheduler import Source
 from abm.experiments.spec import builtin_specs, load_spec
 from abm.experiments.stages import Engine
+from abm.experiments.status import carried_lines, estimate, kept_line
 
 
 def _engine(args: argparse.Namespace) -> Engine:
@@ -38,6 +39,8 @@ def status(args: argparse.Namespace) -> int:
     engine = _engine(args)
     jobs = engine.status()
     print(f"{engine.spec.name} ({engine.spec.path.name}), working folder {engine.rel(engine.layout.out)}")
+    if engine.spec.finished:
+        print(f"finished: {engine.spec.finished} (only its report runs)")
     width = max(len(j.id) for j in jobs)
     print(f"{'job':{width}s}  {'state':8s} {'min':>7s}  note")
     for job in jobs:
@@ -46,6 +49,11 @@ def status(args: argparse.Namespace) -> int:
     counts = Counter(j.state for j in jobs)
     print(", ".join(f"{state} {counts[state]}" for state in ("done", "running", "left", "blocked", "failed")
                     if counts[state]))
+    spec, layout = engine.spec, engine.layout
+    sources = [s.source for s in (*spec.report.summary, *spec.report.details,
+                                  *(s for b in spec.report.blocks.values() for s in b)) if s.source]
+    for line in (kept_line(layout, sources), *carried_lines(layout), *estimate(spec, layout, jobs)):
+        print(line)
     return 0
 
 

@@ -98,3 +98,12 @@ register_section("diagnosis", SectionKind(
     "per model: keyframe accuracy per kind, the skill-text probe and why its rollouts failed"))
 register_section("loops", SectionKind(
     ("title", "runs", "splits", "column"), "episodes with a grasp <-> lift loop per row and split"))
+# a probe's tables (abm.experiments.report.probe); no Reproduce line: the block's provenance names the command
+PROBE = ("title", "runs", "source")
+register_section("probe_fit", SectionKind(
+    PROBE, "a probe's yaw fit on its training keyframes per step and arm (its records' fit rows)", reproduce=False))
+register_section("probe_accuracy", SectionKind(
+    PROBE, "a probe's keyframe accuracy per task, split and kind, a column per arm at its final step",
+    reproduce=False))
+register_section("probe_rollouts", SectionKind(
+    PROBE, "a probe's rollout successes per task and split, a column per arm, with averages", reproduce=False))

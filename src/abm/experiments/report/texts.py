@@ -65,8 +65,8 @@ def provenance(spec: ExperimentSpec, layout: Layout, dashes: bool = True) -> str
     kept, source = layout.show(layout.kept), spec_name(spec, layout)
     what, tail = ("evaluation JSON", "; cells not evaluated yet show –" if dashes else "") if (
         spec.evaluation.splits) else ("diagnosis JSON", "")
-    return (f"Written by `abm experiment run {spec.name}` ([{source}]({source})) from the {what} kept in "
-            f"[{kept}/]({kept}/){tail}.")
+    where = f"[{kept}/]({kept}/)" if layout.kept.is_dir() else f"{kept}/ (nothing kept yet)"  # no dead link
+    return f"Written by `abm experiment run {spec.name}` ([{source}]({source})) from the {what} kept in {where}{tail}."
 
 
 _LINK = re.compile(r"\]\(([^)\s]+)\)")
