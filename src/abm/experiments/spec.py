@@ -488,6 +488,8 @@ class ExperimentSpec:
         diagnose: the diagnosis (``None``: no diagnosis stage).
         resources: trainings at a time, threads each.
         report: what the report writes.
+        finished: the experiment is finished and its outcomes kept; its trainings are not run again (their
+            checkpoints are gone): says when it ran and where its numbers are. Only its report runs (from them).
     """
 
     name: str
@@ -508,6 +510,7 @@ class ExperimentSpec:
     resources: Resources = field(default_factory=Resources)
     zoo_suffix: str = ""
     edition: int = 1
+    finished: str = ""
 
     def run_names(self) -> list[str]:
         """Every run, in report order."""
@@ -953,8 +956,11 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
         evaluation=evaluation, report=report, zoo=top.path("zoo", "", folder=True),
         carry=top.path("carry", "", folder=True), clip=clip,
         clip_command=top.text("clip_command", ""), diagnose=diagnose,
-        resources=resources, zoo_suffix=top.text("zoo_suffix", ""), edition=top.integer("edition", 1))
+        resources=resources, zoo_suffix=top.text("zoo_suffix", ""), edition=top.integer("edition", 1),
+        finished=top.text("finished", ""))
     top.done()
+    if spec.finished and spec.carry:
+        raise top.error("a finished experiment carries nothing: remove its carry", "carry")
     if spec.zoo_suffix and not _NAME.match("x" + spec.zoo_suffix):
         raise top.error(f"expected letters, digits, _ . - (e.g. _v2), got {spec.zoo_suffix!r}", "zoo_suffix")
     if spec.edition > 1 and not spec.zoo_suffix:
