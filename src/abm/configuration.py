@@ -12,6 +12,9 @@ builds the dataclass back from the parsed arguments. Field ``metadata`` adjusts 
 * ``off_help``: the help of the ``--no-name`` switch of a ``True`` field (default ``turn off: <field text>``);
 * ``cli=False``: no flag (the command fills the field itself, e.g. from several flags).
 
+Recipe files (``--config``) and the config overrides of experiment specs are read by the one YAML validator,
+:class:`abm.schema.Reader`, each value with its option's own check (:func:`flag_check`, :func:`field_check`).
+
 Numbers are range-checked when the command line is parsed (:func:`int_range`, :func:`float_range`): a
 field's ``range`` metadata ``(low, high)`` sets it, else :data:`RANGES` by field name, else whole numbers
 are 1 .. 10**9 and reals finite and >= 0. Command modules use the same helpers for their own flags
@@ -433,9 +436,10 @@ def apply_config_file(parser: argparse.ArgumentParser, argv: list[str]) -> None:
     Only for commands with a ``--config`` option. The file maps option names (``lr``, ``checkpoint_every`` or
     ``checkpoint-every``) to values; a nested mapping fills the options whose destination starts with the
     command's ``config_sections[name]`` prefix (``policy:`` -> the policy flags). Options the file sets are no
-    longer required on the command line. Every value passes the checks its flag has (:func:`recipe_value`: the
-    same ranges, choices and types). Bad files end the command with a usage error naming the file, the key and
-    what is expected, and so do the keys of :data:`RECIPE_REFUSED` (``overwrite``) and an empty path.
+    longer required on the command line. The file is read by the YAML validator (:func:`check_recipe`), every value
+    with the checks its flag has (:func:`flag_check`: the same ranges, choices and types). Bad files end the command
+    with a usage error naming the file, the key and what is expected, and so do the keys of :data:`RECIPE_REFUSED`
+    (``overwrite``) and an empty path.
     """
     sub, tokens = parser, list(argv)
     while True:  # descend to the (sub-)command the arguments name

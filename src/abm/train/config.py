@@ -163,8 +163,9 @@ class TrainConfig:
         elif policy == PolicyConfig() and (self.method, self.preset) != ("abm", "small"):
             self.policy = preset_policy(self.preset, self.method, {})  # the field's default: the preset's
         elif (self.policy.variant, self.policy.preset.split("+")[0]) != (self.method, self.preset):
-            raise ConfigError(f"policy: a {self.policy.variant} network of the {self.policy.preset} preset, but "
-                              f"method {self.method} and preset {self.preset}: give the same (or leave policy out)")
+            raise ConfigError(f"policy: the network of variant {self.policy.variant} and preset {self.policy.preset}, "
+                              f"but method {self.method} and preset {self.preset}: give the same (or leave policy "
+                              "out)")
 
     @property
     def language_config(self) -> LanguageConfig:
