@@ -33,15 +33,9 @@ from typing import Any
 
 from abm.experiments.report.pages.grounding_configs import block, fmt, markdown, nan_mean, write_block
 from abm.geometry import Workspace, fuse_cameras
-from abm.grounding import (
-    ClipGrounder,
-    MaskFieldConfig,
-    OracleGrounder,
-    decompose_instruction,
-    load_clip,
-    target_point_mask,
-)
+from abm.grounding import ClipGrounder, MaskFieldConfig, OracleGrounder, load_clip, target_point_mask
 from abm.grounding.metrics import score_mask, summarize
+from abm.language import decompose_instruction
 from abm.render.synthetic import synthetic_scene
 
 SIM_TASKS = ("place_food", "pick_block", "put_in_shelf", "place_wine", "water_plants", "close_jar", "insert_peg",
