@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 
 import pytest
-from tests.test_experiments import _spec
+from tests.test_experiments import TINY, _spec, _touch_checkpoint, _with
 
 from abm.cli import main
 from abm.evaluation.results import EpisodeOutcome, OutcomeLog, write_outcome_archive
@@ -84,3 +84,20 @@ def test_a_finished_job_s_minutes_come_from_what_is_kept_on_a_fresh_clone(tmp_pa
     assert jobs["train/rvt_clip"].minutes is None and kept_minutes(spec, layout, jobs["report"]) is None
     rate = step_rate(spec, layout)  # no training log: the finished runs' minutes
     assert rate is not None and rate.seconds == 250.0 and rate.source == "the minutes of the finished runs abm_oracle"
+
+
+def test_the_carry_stage_removes_a_carried_training_once_its_evaluations_are_kept(tmp_path: Path) -> None:
+    data = _with(runs={"abm_oracle": TINY["runs"]["abm_oracle"]}, evaluation__from_zoo=False,
+                 report__summary=[{"kind": "per_task", "table": 1, "runs": ["abm_oracle"], "splits": ["seen"]}])
+    for key in ("clip", "zoo"):
+        data.pop(key)
+    spec, _ = _spec(tmp_path, data)
+    engine = Engine(spec, root=tmp_path)
+    _touch_checkpoint(engine.layout, "abm_oracle", 3)  # trained, not evaluated yet: its evaluation needs it
+    assert engine.served() == [] and engine.carry(strict=True) == ["abm_oracle"]
+    carried = tmp_path / "models/carry/abm_oracle"
+    assert (carried / "step_00000003.pt").is_file()
+    (engine.layout.kept / "abm_oracle_seen.json").parent.mkdir(parents=True)
+    (engine.layout.kept / "abm_oracle_seen.json").write_text("[]")  # its only evaluation is kept
+    assert engine.served() == ["abm_oracle"]
+    assert engine.carry(strict=True) == [] and not carried.exists()  # removed, not carried again

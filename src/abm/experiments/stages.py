@@ -610,20 +610,37 @@ class Engine:
     def carry(self, strict: bool = False) -> list[str]:
         """Carry the unfinished trainings and evaluations (see :func:`carry_unfinished`); a carry folder holding
         files the carry did not write raises :class:`CarryError` (``strict``: ``--stages carry``) or is said in
-        one line (the carry after a failed or stopped stage, which must not hide why it stopped)."""
+        one line (the carry after a failed or stopped stage, which must not hide why it stopped). A carried
+        training that nothing needs any more (:meth:`served`) is removed."""
+        served = self.served()
         try:
-            copied = carry_unfinished(self.spec, self.layout)
+            copied = [name for name in carry_unfinished(self.spec, self.layout) if name not in served]
         except CarryError as err:
             if strict:
                 raise
             LOG.error("carry: %s", err)
             return []
+        for run in served:
+            drop_carry(self.layout, run)
+            LOG.info("carry: removed %s's carried checkpoint (its evaluations and diagnoses are kept)", run)
         if copied:
             LOG.info("carried %s into %s (commit it to continue elsewhere)", ", ".join(copied),
                      self.rel(self.layout.carry or self.root))
         elif strict:
             LOG.info("carry: nothing unfinished to carry into %s", self.rel(self.layout.carry or self.root))
         return copied
+
+    def served(self) -> list[str]:
+        """The carried trainings nothing needs any more: runs of a spec without a zoo (an exported run's carry goes
+        with its export) whose every evaluation (its variants' too) and diagnosis is done and kept."""
+        if self.layout.carry is None or self.layout.zoo is not None:
+            return []
+        users: dict[str, list[str]] = {}
+        for job in (*self.plan("eval"), *self.plan("diagnose")):
+            name = job.id.split("/")[2 if job.id.startswith("diagnose/skill_text/") else 1]
+            users.setdefault(self._variant_base(name.removesuffix(ORACLE_MASK)), []).append(job.state)
+        return [run for run in self.spec.runs if (self.layout.carry / run).is_dir() and users.get(run)
+                and all(state == DONE for state in users[run])]
 
     def _run_stage(self, stage: str, dry_run: bool) -> bool:
         jobs = self.plan(stage)
