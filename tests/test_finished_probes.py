@@ -90,3 +90,17 @@ def test_every_probe_s_page_is_written_by_its_spec_s_report(name: str) -> None:
         text = (ROOT / spec.report.readme).read_text()
         assert all(f"<!-- {block}:start -->" in text for block in (spec.report.block, *spec.report.blocks))
     assert spec.report.document or spec.report.readme
+
+
+def test_the_zoom_probe_s_runs_are_the_arms_its_page_describes() -> None:
+    """Each run of the spec builds the network its arm trained: the parameter counts of the page's table."""
+    from abm.policy.keyframe_policy import KeyframePolicy
+
+    page = (ROOT / PAGE).read_text()
+    for run in load_spec("zoom_probe").runs.values():
+        config = run.config
+        policy = KeyframePolicy(config.policy, config.language_config, config.grounder)
+        count = sum(p.numel() for p in policy.parameters())
+        row = next(line for line in page.splitlines() if line.startswith(f"| {run.label} | `") or line.startswith(
+            f"| {run.label} | (none)"))  # the arms' table: label, flags, parameters, steps
+        assert row.endswith(f"| {count:,} | {config.steps} |")

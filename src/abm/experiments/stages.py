@@ -646,7 +646,7 @@ class Engine:
         jobs = self.plan(stage)
         if stage == "report":
             if dry_run:
-                LOG.info("report: would write %s", self.spec.report.document)
+                LOG.info("report: would write %s", self.spec.report.document or self.spec.report.readme)
                 return True
             keep(self.spec, self.layout)
             write_report(self.spec, self.layout)
