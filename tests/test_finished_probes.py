@@ -79,7 +79,7 @@ def test_a_finished_spec_carries_nothing(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("name", ["rotation_probe", "clip_grounder", "put_in_container", "destination_probe",
-                                  "zoom_probe"])
+                                  "zoom_probe", "skill_text_probe"])
 def test_every_probe_s_page_is_written_by_its_spec_s_report(name: str) -> None:
     """A probe's document holds the report's mark (so its report stage replaces it), or its README blocks are
     between their markers; put_in_container's page, measured before the engine, was regenerated with the mark."""
@@ -103,3 +103,21 @@ def test_the_zoom_probe_s_runs_are_the_arms_its_page_describes() -> None:
         count = sum(p.numel() for p in policy.parameters())
         (row,) = [line for line in page.splitlines() if line.startswith(f"| {run.label} | ")]  # the arms' table
         assert row.endswith(f"| {count:,} | {config.steps} |")
+
+
+def test_the_skill_text_probe_s_tables_are_written_from_their_kept_json(tmp_path: Path) -> None:
+    page = "docs/results/skill_text_probe.md"
+    for name in (page, "docs/results/skill_text_probe"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (shutil.copytree if (ROOT / name).is_dir() else shutil.copyfile)(ROOT / name, tmp_path / name)
+    spec = load_spec("skill_text_probe")
+    committed = (ROOT / page).read_text()
+    blocks = (spec.report.block, *spec.report.blocks)
+    assert len(blocks) == len(list((ROOT / "docs/results/skill_text_probe").glob("*_move.json"))) == 11
+    blanked = committed
+    for name in blocks:
+        blanked = blanked.replace(block_of(committed, name), "")
+    (tmp_path / page).write_text(blanked)
+    assert main(["experiment", "run", "skill_text_probe", "--root", str(tmp_path), "--stages", "report"]) == 0
+    assert (tmp_path / page).read_text() == committed
+    assert "| **put X in the wine rack** (own) | place_wine | 26.3 | 0.0 |" in block_of(committed, blocks[0])

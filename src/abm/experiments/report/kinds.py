@@ -107,3 +107,5 @@ register_section("probe_accuracy", SectionKind(
     reproduce=False))
 register_section("probe_rollouts", SectionKind(
     PROBE, "a probe's rollout successes per task and split, a column per arm, with averages", reproduce=False))
+register_section("skill_text_table", SectionKind(
+    ("title", "source"), "one skill-text probe's table from its kept JSON", reproduce=False))
