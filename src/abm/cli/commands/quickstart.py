@@ -49,9 +49,10 @@ def quickstart_spec(cfg: QuickstartConfig, grounder: str) -> ExperimentSpec:
     base = load_spec(SPEC)
     tasks = tuple(cfg.tasks)
     base_config = next(iter(base.runs.values())).config  # the quickstart recipe, with the command's values
-    train = replace(base_config, batch=cfg.batch, lr=cfg.lr, optimizer=cfg.optimizer, warmup=min(cfg.warmup, cfg.steps // 4),
-                    checkpoint_every=max(50, cfg.steps // 4), device=cfg.device, seed=cfg.seed, tasks=list(tasks),
-                    steps=cfg.steps, grounder=as_grounder_config(grounder))
+    train = replace(base_config, batch=cfg.batch, lr=cfg.lr, optimizer=cfg.optimizer,
+                    warmup=min(cfg.warmup, cfg.steps // 4), checkpoint_every=max(50, cfg.steps // 4),
+                    device=cfg.device, seed=cfg.seed, tasks=list(tasks), steps=cfg.steps,
+                    grounder=as_grounder_config(grounder))
     runs = {m: RunSpec(name=m, label=m, grounding=grounder, config=replace(
         train, method=m, policy=preset_policy(train.preset, m, cfg.policy.preset_changes()))) for m in cfg.methods}
     cores = os.cpu_count() or 1
