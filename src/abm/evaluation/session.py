@@ -76,7 +76,7 @@ class EvalRequest:
     ray_address: str | None = None
 
 
-def default_tasks(split: str, splits_path: Path | None) -> list[str]:
+def default_tasks(split: str, splits_path: str | Path | None) -> list[str]:
     """Tasks whose objects the split file defines for ``split``."""
     splits = load_splits(splits_path)
     return [name for name in sorted(TASKS) if split in splits.tasks.get(name, {})]
