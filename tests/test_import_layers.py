@@ -25,7 +25,7 @@ from abm.lazy import type_checking_exports
 ROOT = Path(abm.__file__).parent
 LAYERS = [
     ("types", "errors", "machine", "workers", "configuration", "files", "schema", "lazy", "progress", "ray_pool",
-     "registry"),
+     "registry", "measured"),
     ("geometry",),
     ("render", "sim"),
     ("language",),  # reads the tasks' skills and the object catalog (sim); nothing here grounds or renders

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from typing import Any
 from abm.cli.train import POLICY_DEST, parse_override
 from abm.configuration import CAMERA_RESOLUTION, add_config_arguments, load_recipe
 from abm.experiments.spec import ExperimentSpec, load_spec
+from abm.measured import quickstart_text
 from abm.policy.config import PolicyConfig
 from abm.policy.variants import VARIANTS
 from abm.train.config import preset_policy
@@ -106,9 +108,10 @@ class QuickstartConfig:
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "quickstart",
-        help="generate data, train abm and rvt, evaluate on seen/unseen objects, write a report (measured time: "
-             "docs/evaluation.md)",
-        description=__doc__.split("\n\n")[0],
+        help="generate data, train abm and rvt, evaluate on seen/unseen objects, write a report",
+        description="\n\n".join(textwrap.fill(" ".join(part.split()), 79) for part in (
+            __doc__.split("\n\n")[0], f"With the defaults: {quickstart_text()}.")),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_config_arguments(p, QuickstartConfig)
     p.add_argument("--set", dest="overrides", type=parse_override, action="append", default=[], metavar="KEY=VALUE",

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from abm.configuration import WORKERS, int_range
 from abm.evaluation.settings import ZOO_EVAL_EPISODES, ZOO_EVAL_MAX_STEPS, ZOO_EVAL_TASKS
+from abm.measured import zoo_eval_text
 from abm.zoo import DEFAULT_ZOO
 
 
@@ -37,7 +38,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     ev.add_argument("--tasks", nargs="+", default=list(ZOO_EVAL_TASKS),
                     help="tasks to evaluate (default: the paper's 8 tasks)")
     ev.add_argument("--episodes", type=int_range(1, 10_000), default=ZOO_EVAL_EPISODES,
-                    help=f"seeded episodes per task and split (default {ZOO_EVAL_EPISODES}: ~7 min on 2 cores)")
+                    help=f"seeded episodes per task and split (default {ZOO_EVAL_EPISODES}: {zoo_eval_text()})")
     ev.add_argument("--workers", type=int_range(1, 256), default=WORKERS,
                     help=f"parallel rollout processes (default {WORKERS})")
     ev.add_argument("--max-steps", type=int_range(1, 100), default=ZOO_EVAL_MAX_STEPS,

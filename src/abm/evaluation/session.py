@@ -42,10 +42,11 @@ from abm.evaluation.settings import ZOO_EVAL_EPISODES, ZOO_EVAL_MAX_STEPS, ZOO_E
 from abm.files import FolderLock
 from abm.grounding.config import GROUNDERS
 from abm.grounding.default import default_grounder
+from abm.measured import reproducibility_text
 from abm.policy.checkpoint import load_checkpoint
 from abm.sim.splits import load_splits
 from abm.sim.tasks import TASKS
-from abm.zoo import COMPARED_METHODS, ZooError, entry_path, pick, read_index, verify
+from abm.zoo import COMPARED_METHODS, ZooError, edition, entry_path, pick, read_index, verify
 
 
 @dataclass(frozen=True)
@@ -338,6 +339,12 @@ def check_zoo_clips(zoo: Path, runs: list[Path], clip: dict[str, Any] | None) ->
                            "checkout), and pass that folder as --zoo")
 
 
+def edition_page(number: int) -> str:
+    """The page of the paper tables' edition ``number`` (``docs/results/paper_tables.md`` for the first,
+    ``docs/results/paper_tables_vN.md`` after)."""
+    return "docs/results/paper_tables.md" if number == 1 else f"docs/results/paper_tables_v{number}.md"
+
+
 def evaluate_zoo(zoo: Path, out: Path, tasks: Sequence[str] = ZOO_EVAL_TASKS, episodes: int = ZOO_EVAL_EPISODES,
                  workers: int = WORKERS, max_steps: int = ZOO_EVAL_MAX_STEPS) -> None:
     """Evaluate the zoo's abm and rvt models (:data:`abm.zoo.COMPARED_METHODS`, each checked against its sha256,
@@ -373,7 +380,9 @@ def evaluate_zoo(zoo: Path, out: Path, tasks: Sequence[str] = ZOO_EVAL_TASKS, ep
     table = markdown_table(rates)
     (out / "results.md").write_text(table + "\n")
     print(table)
-    print(f"results: {out / 'results.md'}; the full tables: docs/results/paper_tables.md")
+    page = edition_page(max(edition(e) for e in chosen))
+    print(f"results: {out / 'results.md'}; the full tables of these models' edition: {page}")
+    print(reproducibility_text())
     crashes = crash_summary(outcomes)
     if crashes:  # a crash is not a measurement: the table is written, but the command fails
         raise ExternalError(f"{crashes}; outcomes: {out / '{seen,unseen}' / 'outcomes.jsonl'}")

@@ -1,0 +1,166 @@
+"""Record what a new user's first hour costs into src/abm/configs/measured.json (:mod:`abm.measured`) and rewrite
+the blocks that read it (the README's first-hour block, docs/evaluation.md's quickstart block).
+
+Each section is recorded from measured runs; sections not given keep their recorded values:
+
+    # the quickstart on a fresh clone, timed
+    git clone . /tmp/qs && cd /tmp/qs && /usr/bin/time -v -o /tmp/qs-time.txt abm quickstart
+    python benchmarks/first_hour.py --quickstart /tmp/qs/out/quickstart --quickstart-time /tmp/qs-time.txt \
+        --quickstart-load "nothing else ran"
+    # abm zoo eval with the default kernels and with AVX-512 switched off (another CPU type's kernels)
+    abm zoo eval --out /tmp/zoo
+    ATEN_CPU_CAPABILITY=avx2 ONEDNN_MAX_CPU_ISA=AVX2 MKL_ENABLE_INSTRUCTIONS=AVX2 abm zoo eval --out /tmp/zoo-avx2
+    python benchmarks/first_hour.py --zoo-eval /tmp/zoo --zoo-eval-minutes 6.5 --cross-cpu /tmp/zoo-avx2
+    # abm --help (timed here) and the test script (minutes from its own run)
+    python benchmarks/first_hour.py --help-time --tests 8.5 14
+
+The machine is this one's (its CPU model and core count) unless ``--machine`` names it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import time
+from collections import Counter
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+FILE = ROOT / "src" / "abm" / "configs" / "measured.json"
+AVX2 = ("the AVX-512 kernels switched off (ATEN_CPU_CAPABILITY=avx2, ONEDNN_MAX_CPU_ISA=AVX2, "
+        "MKL_ENABLE_INSTRUCTIONS=AVX2)")
+
+
+def this_machine() -> str:
+    """``CPU MODEL, N cores`` of this machine (``/proc/cpuinfo``)."""
+    try:
+        info = Path("/proc/cpuinfo").read_text()
+        model = re.search(r"model name\s*:\s*(.+)", info)
+        name = " ".join(model.group(1).split()) if model else "x86-64 CPU"
+    except OSError:
+        name = "x86-64 CPU"
+    return f"{name}, {os.cpu_count()} cores"
+
+
+def commit() -> str:
+    """The checkout's short commit."""
+    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
+def outcomes(folder: Path) -> list[dict[str, Any]]:
+    """Every outcome row under ``folder`` (its ``outcomes.jsonl`` files, any depth)."""
+    rows = []
+    for path in sorted(folder.rglob("outcomes.jsonl")):
+        rows += [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    if not rows:
+        raise SystemExit(f"first_hour: no outcomes.jsonl under {folder}")
+    return rows
+
+
+def results(rows: Iterable[dict[str, Any]]) -> dict[str, dict[str, list[int]]]:
+    """``{method: {split: [successes, episodes]}}``, splits in the order seen, unseen."""
+    counts: dict[str, dict[str, list[int]]] = {}
+    for row in sorted(rows, key=lambda r: (r["method"], r["split"] != "seen")):
+        cell = counts.setdefault(row["method"], {}).setdefault(row["split"], [0, 0])
+        cell[0] += bool(row["success"])
+        cell[1] += 1
+    return counts
+
+
+def time_file(path: Path) -> tuple[float, float]:
+    """Wall and CPU (user + system, children included) minutes from ``/usr/bin/time -v`` output."""
+    text = path.read_text()
+    user = float(re.search(r"User time \(seconds\): ([\d.]+)", text).group(1))
+    system = float(re.search(r"System time \(seconds\): ([\d.]+)", text).group(1))
+    wall = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)", text).group(1)
+    seconds = 0.0
+    for part in wall.split(":"):
+        seconds = seconds * 60 + float(part)
+    return round(seconds / 60, 1), round((user + system) / 60, 1)
+
+
+def cross_cpu(default: Path, other: Path, machine: str) -> dict[str, Any]:
+    """How many episodes changed outcome between two ``abm zoo eval`` folders of the same seeds."""
+    def key(row: dict[str, Any]) -> tuple[Any, ...]:
+        return row["method"], row["task"], row["split"], row["repeat"], row["episode"], row["seed"]
+
+    a = {key(r): r for r in outcomes(default)}
+    b = {key(r): r for r in outcomes(other)}
+    if set(a) != set(b):
+        raise SystemExit(f"first_hour: {default} and {other} hold different episodes")
+    flipped = [k for k in a if bool(a[k]["success"]) != bool(b[k]["success"])]
+    per_cell = Counter(k[:3] for k in flipped)
+    return {"kernels": AVX2, "episodes": len(a), "differing": len(flipped),
+            "cells": len({k[:3] for k in a}), "cells_differing": len(per_cell),
+            "max_per_cell": max(per_cell.values(), default=0),
+            "identical_trajectories": sum(a[k]["trajectory"] == b[k]["trajectory"] for k in a), "machine": machine}
+
+
+def help_seconds(runs: int = 5) -> float:
+    """Median wall seconds of ``python -m abm.cli --help``."""
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "abm.cli", "--help"], capture_output=True, check=True)
+        times.append(time.perf_counter() - start)
+    return round(statistics.median(times), 2)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quickstart", type=Path, help="the quickstart's output folder (its outcomes)")
+    parser.add_argument("--quickstart-time", type=Path, help="/usr/bin/time -v output of the quickstart")
+    parser.add_argument("--quickstart-load", default="nothing else ran", help="what else ran meanwhile")
+    parser.add_argument("--quickstart-grounder", default="benchmark CLIP (models/benchmark-clip)")
+    parser.add_argument("--zoo-eval", type=Path, help="abm zoo eval's output folder (default kernels)")
+    parser.add_argument("--zoo-eval-minutes", type=float, help="its wall minutes on idle cores")
+    parser.add_argument("--cross-cpu", type=Path, help="abm zoo eval's output folder with AVX-512 switched off")
+    parser.add_argument("--help-time", action="store_true", help="time abm --help now")
+    parser.add_argument("--tests", type=float, nargs=2, metavar=("PYTEST_MIN", "CI_MIN"),
+                        help="the test script's minutes: pytest alone, .ci/run on a fresh clone")
+    parser.add_argument("--machine", default=None, help="the machine the runs were measured on (default: this one)")
+    args = parser.parse_args(argv)
+    machine = args.machine or this_machine()
+    today = datetime.date.today().isoformat()
+    data: dict[str, Any] = json.loads(FILE.read_text()) if FILE.is_file() else {}
+    if args.quickstart:
+        if not args.quickstart_time:
+            parser.error("--quickstart needs --quickstart-time")
+        wall, cpu = time_file(args.quickstart_time)
+        data["quickstart"] = {"wall_minutes": wall, "cpu_minutes": cpu, "machine": machine, "date": today,
+                              "commit": commit(), "grounder": args.quickstart_grounder, "load": args.quickstart_load,
+                              "results": results(outcomes(args.quickstart))}
+    if args.zoo_eval:
+        if args.zoo_eval_minutes is None:
+            parser.error("--zoo-eval needs --zoo-eval-minutes")
+        data["zoo_eval"] = {"wall_minutes": args.zoo_eval_minutes, "machine": machine, "date": today,
+                            "commit": commit(), "results": results(outcomes(args.zoo_eval))}
+        if args.cross_cpu:
+            data["cross_cpu"] = cross_cpu(args.zoo_eval, args.cross_cpu, machine)
+    if args.help_time:
+        data["help"] = {"seconds": help_seconds(), "machine": machine}
+    if args.tests:
+        data["tests"] = {"pytest_minutes": args.tests[0], "ci_minutes": args.tests[1], "machine": machine}
+    FILE.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    sys.path.insert(0, str(ROOT / "src"))
+    from abm import measured
+    from abm.experiments.report.pages import first_hour
+
+    measured.measured.cache_clear()
+    for path in first_hour.write(ROOT):
+        print(f"first_hour: wrote {path.relative_to(ROOT)}")
+    print(f"first_hour: {FILE.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

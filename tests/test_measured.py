@@ -1,0 +1,94 @@
+"""The first hour's measurements (abm.measured, benchmarks/first_hour.py): parsed from real tool output, counted
+from outcome files, and the README / docs blocks the same as the committed measurement file makes them."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+from abm import measured
+from abm.experiments.report.pages import first_hour
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def script():
+    spec = importlib.util.spec_from_file_location("first_hour_script", ROOT / "benchmarks" / "first_hour.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+TIME_V = """\tCommand being timed: "abm quickstart"
+\tUser time (seconds): 2400.50
+\tSystem time (seconds): 59.50
+\tPercent of CPU this job got: 180%
+\tElapsed (wall clock) time (h:mm:ss or m:ss): 1:02:03
+\tMaximum resident set size (kbytes): 2000000
+"""
+
+
+def _outcomes(folder: Path, rows: list[tuple[str, str, str, int, bool, str]]) -> None:
+    for method, split, task, episode, success, digest in rows:
+        path = folder / split / "outcomes.jsonl"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("a") as f:
+            f.write(json.dumps({"method": method, "task": task, "split": split, "repeat": 0, "episode": episode,
+                                "seed": 1000 + episode, "success": success, "trajectory": digest}) + "\n")
+
+
+def test_wall_and_cpu_minutes_from_usr_bin_time(script, tmp_path: Path) -> None:
+    (tmp_path / "t.txt").write_text(TIME_V)
+    assert script.time_file(tmp_path / "t.txt") == (62.0, 41.0)  # 1 h 2 min 3 s; (2400.5 + 59.5) / 60
+
+
+def test_results_and_episodes_that_flip_across_cpus(script, tmp_path: Path) -> None:
+    rows = [("abm", "seen", "pick_block", 0, True, "a"), ("abm", "seen", "pick_block", 1, False, "b"),
+            ("abm", "unseen", "pick_block", 0, True, "c"), ("rvt", "seen", "place_wine", 0, False, "d")]
+    _outcomes(tmp_path / "default", rows)
+    flipped = [rows[0][:4] + (False, "x"), rows[1][:4] + (True, "y"), rows[2], rows[3][:5] + ("z",)]
+    _outcomes(tmp_path / "avx2", flipped)
+    assert script.results(script.outcomes(tmp_path / "default")) == {
+        "abm": {"seen": [1, 2], "unseen": [1, 1]}, "rvt": {"seen": [0, 1]}}
+    c = script.cross_cpu(tmp_path / "default", tmp_path / "avx2", "test machine")
+    assert (c["episodes"], c["differing"], c["cells"], c["cells_differing"], c["max_per_cell"],
+            c["identical_trajectories"]) == (4, 2, 3, 1, 2, 1)
+    _outcomes(tmp_path / "fewer", rows[:3])
+    with pytest.raises(SystemExit, match="different episodes"):
+        script.cross_cpu(tmp_path / "default", tmp_path / "fewer", "test machine")
+
+
+def test_the_sentences_say_what_was_measured(monkeypatch: pytest.MonkeyPatch) -> None:
+    data = {"quickstart": {"wall_minutes": 31.4, "cpu_minutes": 55.0, "machine": "M, 2 cores", "date": "2026-11-28",
+                           "commit": "abc1234", "grounder": "benchmark CLIP", "load": "nothing else ran",
+                           "results": {"abm": {"seen": [6, 10], "unseen": [5, 10]}, "rvt": {"seen": [2, 10],
+                                                                                         "unseen": [0, 10]}}},
+            "cross_cpu": {"kernels": "AVX2", "episodes": 160, "differing": 7, "cells": 32, "cells_differing": 6,
+                          "max_per_cell": 2, "identical_trajectories": 0, "machine": "M, 2 cores"}}
+    monkeypatch.setattr(measured, "measured", lambda: data)
+    text = measured.quickstart_text()
+    assert "31 min wall (55 min of CPU)" in text and "abm 6/10 seen, 5/10 unseen; rvt 2/10 seen, 0/10 unseen" in text
+    assert "7 of 160 episodes" in measured.reproducibility_text()
+    assert measured.zoo_eval_text() == "not measured yet" and measured.tests_text() == "not measured yet"
+    block = first_hour.quickstart_block()
+    assert "| | abm seen | abm unseen | rvt seen | rvt unseen | wall | CPU |" in block
+    assert "| defaults | 6/10 | 5/10 | 2/10 | 0/10 | 31.4 min | 55.0 min |" in block
+
+
+def test_the_committed_blocks_are_what_the_committed_measurements_make(tmp_path: Path) -> None:
+    for name in ("README.md", "docs/evaluation.md"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text((ROOT / name).read_text())
+    assert first_hour.write(tmp_path) == []  # nothing to change: the committed blocks are generated
+
+
+def test_the_help_texts_state_the_measurement() -> None:
+    from abm.cli import build_parser
+
+    parser = build_parser()
+    quick = parser._subparsers._group_actions[0].choices["quickstart"]  # noqa: SLF001 - argparse has no getter
+    assert " ".join(quick.format_help().split()).count(" ".join(measured.quickstart_text().split())[:40]) == 1
