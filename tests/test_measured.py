@@ -92,3 +92,14 @@ def test_the_help_texts_state_the_measurement() -> None:
     parser = build_parser()
     quick = parser._subparsers._group_actions[0].choices["quickstart"]  # noqa: SLF001 - argparse has no getter
     assert " ".join(quick.format_help().split()).count(" ".join(measured.quickstart_text().split())[:40]) == 1
+
+
+def test_zoo_eval_points_at_its_models_edition_page() -> None:
+    from abm.evaluation.session import edition_page
+    from abm.zoo import edition, read_index
+
+    editions = {edition(e) for e in read_index(ROOT / "models") if e.get("method")}
+    assert editions >= {1, 2}
+    for number in editions:
+        assert (ROOT / edition_page(number)).is_file()
+    assert edition_page(2) == "docs/results/paper_tables_v2.md"
