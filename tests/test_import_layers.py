@@ -1,5 +1,5 @@
 """Imports flow one way: types (and the small helpers errors, machine, workers, configuration, files,
-schema, lazy, progress, ray_pool, registry) -> geometry
+schema, lazy, progress, ray_pool, registry, measured, serialize) -> geometry
 -> render / sim -> language (instruction understanding: the benchmark's tasks and catalog are its vocabulary)
 -> grounding -> samples -> data -> policy -> train -> evaluation / robot / viewer / zoo / gym
 -> clip_training (the benchmark CLIP's trainer) -> experiments (the experiment engine) -> cli (the command line:
@@ -25,7 +25,7 @@ from abm.lazy import type_checking_exports
 ROOT = Path(abm.__file__).parent
 LAYERS = [
     ("types", "errors", "machine", "workers", "configuration", "files", "schema", "lazy", "progress", "ray_pool",
-     "registry", "measured"),
+     "registry", "measured", "serialize"),
     ("geometry",),
     ("render", "sim"),
     ("language",),  # reads the tasks' skills and the object catalog (sim); nothing here grounds or renders

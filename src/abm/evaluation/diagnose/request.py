@@ -6,33 +6,12 @@ measure and where to write it, that round-trips through JSON (:meth:`~DiagnosisR
 from __future__ import annotations
 
 import json
-import types
 from dataclasses import fields
 from pathlib import Path
-from typing import Any, ClassVar, Self, Union, get_args, get_origin, get_type_hints
+from typing import Any, ClassVar, Self, get_type_hints
 
 from abm.errors import ConfigError
-
-
-def _plain(value: Any) -> Any:
-    """``value`` as JSON holds it: paths as text, tuples as lists."""
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, tuple | list):
-        return [_plain(v) for v in value]
-    return value
-
-
-def _typed(hint: Any, value: Any) -> Any:
-    """``value`` read from JSON as the field type ``hint`` says (``Path``, ``tuple[X, ...]``, optional ones)."""
-    if value is None:
-        return None
-    origin = get_origin(hint)
-    if origin in (Union, types.UnionType):
-        return _typed(next(a for a in get_args(hint) if a is not type(None)), value)
-    if origin is tuple:
-        return tuple(_typed(get_args(hint)[0], v) for v in value)
-    return Path(value) if hint is Path else value
+from abm.serialize import json_value, typed_value
 
 
 class DiagnosisRequest:
@@ -46,7 +25,7 @@ class DiagnosisRequest:
 
     def to_dict(self) -> dict[str, Any]:
         """``{"kind": KIND, FIELD: value, ...}`` (JSON types: paths as text, tuples as lists)."""
-        return {"kind": self.kind, **{f.name: _plain(getattr(self, f.name)) for f in fields(self)}}  # type: ignore[arg-type]
+        return {"kind": self.kind, **{f.name: json_value(getattr(self, f.name)) for f in fields(self)}}  # type: ignore[arg-type]
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Self:
@@ -66,7 +45,7 @@ class DiagnosisRequest:
             raise ConfigError(f"unknown key(s) {', '.join(unknown)} of a {cls.kind!r} diagnosis; known: "
                               f"{', '.join(names)}")
         try:
-            return cls(**{k: _typed(hints[k], v) for k, v in data.items()})
+            return cls(**{k: typed_value(hints[k], v) for k, v in data.items()})
         except TypeError as err:  # a required field missing
             raise ConfigError(f"a {cls.kind!r} diagnosis request: {err}") from None
 

@@ -13,7 +13,7 @@ Each kind calls what its ``abm`` command calls:
 * ``ground`` (:class:`GroundJob`): :func:`abm.data.stores.ground_store`, as ``abm data ground``;
 * ``train`` (:class:`TrainJob`): :func:`abm.train.loop.train`, then the loss curve, as ``abm train``;
 * ``export`` (:class:`ExportJob`): :func:`abm.policy.export.export_model`, as ``abm export``;
-* ``eval`` (:class:`EvalJob`): :func:`abm.evaluation.session.run_evaluation`, as ``abm eval``;
+* ``eval`` (:class:`EvaluationJob`): :func:`abm.evaluation.session.run_evaluation`, as ``abm eval``;
 * ``zoo_eval`` (:class:`ZooEvalJob`): :func:`abm.evaluation.session.evaluate_zoo`, as ``abm zoo eval``;
 * ``diagnose`` (:class:`DiagnoseJob`): a diagnosis request's ``run`` (:mod:`abm.evaluation.diagnose`).
 
@@ -25,11 +25,9 @@ there and not in a running experiment.
 from __future__ import annotations
 
 import json
-import types
-from collections.abc import Sequence
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, ClassVar, Self, Union, get_args, get_origin, get_type_hints
+from typing import Any, ClassVar, Self, get_type_hints
 
 from abm.data.stores import generate_tasks, ground_store
 from abm.errors import ConfigError
@@ -42,42 +40,9 @@ from abm.geometry import Workspace
 from abm.policy.config import PolicyConfig
 from abm.policy.export import export_model
 from abm.registry import Registry
+from abm.serialize import json_value, typed_value
 from abm.train.config import TrainConfig
 from abm.train.loop import train
-
-
-def _json_value(value: Any) -> Any:
-    """A field's value in JSON form: a typed config by its own ``to_dict``, another dataclass field by field,
-    paths as POSIX text, tuples as lists."""
-    if hasattr(value, "to_dict"):
-        return value.to_dict()
-    if is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _json_value(getattr(value, f.name)) for f in fields(value)}
-    if isinstance(value, Path):
-        return value.as_posix()
-    if isinstance(value, tuple | list):
-        return [_json_value(v) for v in value]
-    return value
-
-
-def _field_value(hint: Any, value: Any) -> Any:
-    """A field's value read back from :func:`_json_value`'s form, as its type ``hint`` says."""
-    if value is None:
-        return None
-    origin = get_origin(hint)
-    if origin in (Union, types.UnionType):
-        (inner,) = [a for a in get_args(hint) if a is not type(None)]
-        return _field_value(inner, value)
-    if origin in (tuple, list, Sequence):
-        return tuple(_field_value(get_args(hint)[0], v) for v in value)
-    if hint is Path:
-        return Path(value)
-    if isinstance(hint, type) and hasattr(hint, "from_dict"):
-        return hint.from_dict(value)
-    if isinstance(hint, type) and is_dataclass(hint):
-        hints = get_type_hints(hint)
-        return hint(**{k: _field_value(hints[k], v) for k, v in value.items()})
-    return value
 
 
 class TypedJob:
@@ -96,7 +61,7 @@ class TypedJob:
 
     def to_dict(self) -> dict[str, Any]:
         """``{"kind": KIND, FIELD: value, ...}`` in JSON types."""
-        return {"kind": self.kind, **{f.name: _json_value(getattr(self, f.name)) for f in fields(self)}}  # type: ignore[arg-type]
+        return {"kind": self.kind, **{f.name: json_value(getattr(self, f.name)) for f in fields(self)}}  # type: ignore[arg-type]
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Self:
@@ -113,7 +78,7 @@ class TypedJob:
                               f"has {', '.join(sorted(names))})")
         hints = get_type_hints(cls)
         try:
-            return cls(**{k: _field_value(hints[k], v) for k, v in values.items()})
+            return cls(**{k: typed_value(hints[k], v) for k, v in values.items()})
         except TypeError as err:  # a field missing
             raise ConfigError(f"a job of kind {cls.kind!r}: {err}") from None
 
@@ -246,7 +211,7 @@ class ExportJob(TypedJob):
 
 @_register
 @dataclass(frozen=True)
-class EvalJob(TypedJob):
+class EvaluationJob(TypedJob):
     """One evaluation (:func:`abm.evaluation.session.run_evaluation`); it resumes from the outcomes its folder
     holds."""
 
