@@ -23,7 +23,7 @@ from abm.experiments.jobs import (
     JOBS,
     DataJob,
     DiagnoseJob,
-    EvalJob,
+    EvaluationJob,
     ExportJob,
     GroundJob,
     TrainJob,
@@ -32,7 +32,7 @@ from abm.experiments.jobs import (
 )
 from abm.train.config import TrainConfig
 
-EVAL = EvalJob(EvalRequest((Path("models/abm_clip.pt"),), tasks=("pick_block", "place_food"), splits=("unseen",),
+EVAL = EvaluationJob(EvalRequest((Path("models/abm_clip.pt"),), tasks=("pick_block", "place_food"), splits=("unseen",),
                            episodes=3, repeats=2, workers=1, gifs=2, out=Path("runs/x/eval/abm_clip/unseen"),
                            settings=EvalSettings(grounder="clip", resolution=64, max_steps=6,
                                                  clip_model="models/benchmark-clip", expert_keyframes="move")))

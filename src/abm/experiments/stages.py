@@ -41,7 +41,7 @@ from abm.evaluation.settings import EvalSettings
 from abm.experiments.jobs import (
     DataJob,
     DiagnoseJob,
-    EvalJob,
+    EvaluationJob,
     ExportJob,
     GroundJob,
     TrainJob,
@@ -402,7 +402,7 @@ class Engine:
                 request = EvalRequest((Path(self.rel(model)),) if model else (), tasks=tuple(split.tasks),
                                       splits=(split.split,), episodes=ev.episodes, repeats=ev.repeats,
                                       workers=ev.workers, gifs=ev.gifs, out=Path(self.rel(folder)), settings=settings)
-                job = Job(f"eval/{name}/{split.split}", "eval", EvalJob(request) if model else None,
+                job = Job(f"eval/{name}/{split.split}", "eval", EvaluationJob(request) if model else None,
                           folder=folder)
                 if self.have(folder / "results.json"):
                     job.state = DONE

@@ -8,7 +8,7 @@ from abm.experiments.report.numbers import table_head, table_row
 from abm.experiments.report.probe import arms, final_step, probe_records
 from abm.experiments.spec import Section
 
-KINDS = ("approach", "grasp", "move", "place")  #: the keyframe kinds shown, in order
+SHOWN_KEYFRAME_KINDS = ("approach", "grasp", "move", "place")  #: the keyframe kinds shown, in order
 
 
 def write(ctx: Context, section: Section) -> list[str]:
@@ -21,7 +21,7 @@ def write(ctx: Context, section: Section) -> list[str]:
     lines = table_head(["task", "split", "keyframe", *(f"{a} ({step})" for a in names)])
     for task in dict.fromkeys(task for _, task, _, _ in rows):
         for split in ("seen", "unseen"):
-            for kind in KINDS:
+            for kind in SHOWN_KEYFRAME_KINDS:
                 found = [rows.get((a, task, split, kind)) for a in names]
                 lines.append(table_row([task, split, kind, *(
                     f"{r['yaw_error_deg']:.0f} / {r['position_error_cm']:.1f}" if r else "–" for r in found)]))

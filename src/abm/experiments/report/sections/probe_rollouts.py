@@ -8,7 +8,7 @@ from abm.experiments.report.numbers import table_head, table_row
 from abm.experiments.report.probe import arms, final_step, probe_records
 from abm.experiments.spec import Section
 
-SPLITS = ("seen", "unseen")
+PROBE_SPLITS = ("seen", "unseen")
 
 
 def write(ctx: Context, section: Section) -> list[str]:
@@ -20,14 +20,14 @@ def write(ctx: Context, section: Section) -> list[str]:
         return []
     tasks = list(dict.fromkeys(task for _, task, _ in rows))
     lines = table_head(["task", "split", *(f"{a} ({step})" for a in names)])
-    for split in SPLITS:
+    for split in PROBE_SPLITS:
         for task in tasks:
             lines.append(table_row([task, split, *(
                 str(rows[(a, task, split)]["successes"]) if (a, task, split) in rows else "–" for a in names)]))
     averages = []
     for arm in names:
         parts = []
-        for split in SPLITS:
+        for split in PROBE_SPLITS:
             found = [rows[(arm, t, split)] for t in tasks if (arm, t, split) in rows]
             parts.append(f"{100 * sum(r['successes'] for r in found) / sum(r['episodes'] for r in found):.0f}"
                          if found else "–")
