@@ -201,7 +201,8 @@ def estimate(spec: ExperimentSpec, layout: Layout, jobs: Sequence[StatusJob]) ->
     """The estimated cost of the jobs not done (trainings and evaluations; see the module docstring), each with
     where its rate was measured; ``[]`` when nothing is left."""
     open_jobs = [j for j in jobs if j.state != "done"]
-    lines, minutes = [], 0.0
+    lines: list[str] = []
+    minutes = 0.0
     trainings = [j.id.split("/")[1] for j in open_jobs if j.stage == "train"]
     if trainings:
         left = sum(max(0, spec.runs[run].config.steps - steps_done(layout, run)) for run in trainings)
