@@ -482,5 +482,9 @@ def test_the_architecture_doc_names_every_registry() -> None:
     named += [f"abm.robot.kinds.{n}" for n in re.findall(r", `([A-Z_]+)` \|", section)]
     registries = {n: resolve(":".join(n.rsplit(".", 1))) for n in named}
     assert all(isinstance(r, Registry) for r in registries.values()), registries
-    assert {r.what for r in registries.values()} == {"grounder kind", "language encoder kind", "policy variant",
-                                                     "task", "camera kind", "arm kind", "dataset format"}
+    defined = {m.group(1) for path in (ROOT / "src" / "abm").rglob("*.py")
+               for m in re.finditer(r'= Registry\("([^"]+)"\)', path.read_text())}
+    assert {"grounder kind", "dataset format", "diagnosis", "report section kind", "job kind"} <= defined
+    assert {r.what for r in registries.values()} == defined
+    listed = (ROOT / "src" / "abm" / "registry.py").read_text().split('"""')[1]
+    assert [n for n in named if f":data:`{n}`" not in listed] == []

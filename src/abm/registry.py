@@ -9,7 +9,12 @@ Every extension point of abm is one registry, defined next to what it registers:
 * tasks: :data:`abm.sim.tasks.base.TASKS` (a :class:`~abm.sim.tasks.base.Task` class);
 * robots' cameras and arms: :data:`abm.robot.kinds.CAMERA_KINDS`, :data:`abm.robot.kinds.ARM_KINDS`
   (:class:`~abm.robot.kinds.DeviceKind`);
-* dataset formats: :data:`abm.data.formats.DATASET_FORMATS` (:class:`~abm.data.formats.DatasetFormat`).
+* dataset formats: :data:`abm.data.formats.DATASET_FORMATS` (:class:`~abm.data.formats.DatasetFormat`);
+* diagnoses: :data:`abm.evaluation.diagnose.DIAGNOSES` (:class:`~abm.evaluation.diagnose.DiagnosisKind`);
+* report section kinds: :data:`abm.experiments.report.kinds.SECTIONS`
+  (:class:`~abm.experiments.report.kinds.SectionKind`);
+* the experiment engine's job kinds: :data:`abm.experiments.jobs.JOBS` (a
+  :class:`~abm.experiments.jobs.TypedJob` dataclass).
 
 The command line's choice lists are the registries' names (``choices=GROUNDERS.names()``). So that ``abm --help``
 stays light, an entry holds what is heavy (a grounder class, an exporter) as a ``"module:attribute"`` text that
