@@ -17,6 +17,8 @@ import yaml
 
 from abm.cli import main
 from abm.configuration import load_recipe
+from abm.evaluation.diagnose.skill_text import SkillTextProbe
+from abm.experiments.jobs import DiagnoseJob, EvaluationJob
 from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
 from abm.experiments.stages import BLOCKED, DONE, LEFT, Engine, training_steps
 from abm.experiments.state import Layout, carry_unfinished, restore_training
@@ -106,14 +108,13 @@ def test_the_diagnosis_probes_the_skill_text_of_the_exported_models(tmp_path: Pa
     assert {j.id: j.state for j in engine.plan("export")}["export/abm_oracle"] == DONE
     job = {j.id: j for j in engine.plan("diagnose")}["diagnose/skill_text/abm_oracle/pick_block"]
     assert job.state == LEFT
-    argv = job.argv[1:]
-    assert argv[0].endswith("benchmarks/skill_text_probe.py")
-    assert argv[1:] == ["--run", "models/abm_oracle_v2.pt", "--task", "pick_block", "--kind", "move", "--split",
-                        "seen", "--episodes", "5", "--resolution", "128", "--skill-tasks", *V2.data.tasks, "--out",
-                        "runs/paper_v2/skill_text/abm_oracle_pick_block.json"]
-    ev = {j.id: j for j in engine.plan("eval")}["eval/abm_oracle/seen"]
-    assert ev.argv[ev.argv.index("--run") + 1] == "models/abm_oracle_v2.pt"
-    assert ev.argv[ev.argv.index("--repeats") + 1] == "3"
+    assert job.work == DiagnoseJob(SkillTextProbe(
+        model=Path("models/abm_oracle_v2.pt"), task="pick_block", keyframe="move", split="seen", episodes=5,
+        resolution=128, skill_tasks=tuple(V2.data.tasks),
+        out=Path("runs/paper_v2/skill_text/abm_oracle_pick_block.json")))
+    ev = {j.id: j for j in engine.plan("eval")}["eval/abm_oracle/seen"].work
+    assert isinstance(ev, EvaluationJob)
+    assert list(ev.request.runs) == [Path("models/abm_oracle_v2.pt")] and ev.request.repeats == 3
     # a probe kept under the committed folder counts as done on a fresh clone
     kept = root / V2.kept / "skill_text_abm_oracle_pick_block.json"
     kept.parent.mkdir(parents=True)
