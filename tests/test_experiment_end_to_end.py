@@ -5,6 +5,7 @@ episode per task, reported; a rerun does nothing and ``abm experiment status`` s
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import yaml
@@ -80,4 +81,8 @@ def test_a_tiny_experiment_runs_end_to_end_and_reports(tmp_path: Path, capsys, m
     assert "job(s)" not in out.err, out.err
     assert main(["experiment", "status", str(tmp_path / "tiny.yaml"), "--root", str(tmp_path)]) == 0
     status = capsys.readouterr().out
-    assert status.splitlines()[-1] == "done 8", status  # data, 2 trainings, 2 exports, 2 evaluations, report
+    # the counts (data, 2 trainings, 2 exports, 2 evaluations, report), then what is kept and carried; nothing left,
+    # so no estimate
+    counts, kept_files, carried = status.splitlines()[-3:]
+    assert counts == "done 8" and carried == "carried: nothing (this experiment keeps no carry)", status
+    assert re.fullmatch(r"kept: docs/results/tiny/ \(8 files, \d+ kB\)", kept_files), status
