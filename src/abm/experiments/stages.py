@@ -73,6 +73,7 @@ from abm.experiments.state import (
     restore_training,
     span_minutes,
     stamp,
+    stopped_early,
 )
 from abm.experiments.status import kept_minutes
 from abm.files import FolderBusyError, FolderLock
@@ -223,11 +224,12 @@ class Engine:
         return self.layout.zoo is not None and self.layout.zoo_file(run).is_file()
 
     def trained(self, run: str) -> bool:
-        """Finished: exported, or its latest checkpoint holds the last step (the step it records, not its name)."""
+        """Finished: exported, or its latest checkpoint holds the last step (the step it records, not its name) or
+        says the run stopped there, its curve flat (``abm train --stop-when-flat``)."""
         if self.exported(run):
             return True
         found = checkpoints(self.layout.run_dir(run))
-        return bool(found) and (checkpoint_step(found[-1][1]) or 0) >= self.steps
+        return bool(found) and ((checkpoint_step(found[-1][1]) or 0) >= self.steps or stopped_early(found[-1][1]))
 
     def model(self, run: str) -> Path | None:
         """What evaluations load: the zoo file (``from_zoo``) or the run folder, once it is finished."""
@@ -317,7 +319,9 @@ class Engine:
             step = last_logged_step(folder)
             if self.trained(run):
                 job.state = DONE
-                job.note = "exported" if self.exported(run) else f"{self.steps} steps"
+                job.note = "exported" if self.exported(run) else (
+                    f"{step}/{self.steps} steps: stopped, its curve flat" if step is not None and step < self.steps
+                    else f"{self.steps} steps")
             elif self.needs_clip(run) and not self.has_clip():
                 job.state, job.note = BLOCKED, f"no benchmark CLIP in {self.rel(self.layout.clip or self.root)}"
             else:

@@ -489,23 +489,35 @@ def checkpoint_step(path: Path) -> int | None:
     """The step a checkpoint file holds (its own record, not its file name), checked byte for byte
     (:func:`abm.policy.checkpoint.load_checkpoint`); ``None`` when it cannot be read. Read once per file
     version (path, size, modification time)."""
+    return _checkpoint_record(path)[0]
+
+
+def stopped_early(path: Path) -> bool:
+    """Whether a checkpoint file records that its run stopped there, its curve flat (``stopped: "flat"``,
+    :mod:`abm.train.early_stop`): the run is finished before its last step. Read like :func:`checkpoint_step`."""
+    return _checkpoint_record(path)[1]
+
+
+def _checkpoint_record(path: Path) -> tuple[int | None, bool]:
     try:
         stat = path.stat()
     except OSError:
-        return None
+        return None, False
     key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
-    if key not in _STEPS:
+    if key not in _RECORDS:
         from abm.policy.checkpoint import load_checkpoint  # torch: only when a checkpoint is read
 
         try:
-            step = load_checkpoint(path).get("step")
+            ckpt = load_checkpoint(path)
         except (AbmError, OSError, ValueError, RuntimeError, EOFError):
-            step = None
-        _STEPS[key] = step if isinstance(step, int) and not isinstance(step, bool) else None
-    return _STEPS[key]
+            ckpt = {}
+        step = ckpt.get("step")
+        _RECORDS[key] = (step if isinstance(step, int) and not isinstance(step, bool) else None,
+                         ckpt.get("stopped") == "flat")
+    return _RECORDS[key]
 
 
-_STEPS: dict[tuple[str, int, int], int | None] = {}
+_RECORDS: dict[tuple[str, int, int], tuple[int | None, bool]] = {}
 
 
 def restore_training(layout: Layout, run: str) -> bool:

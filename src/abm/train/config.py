@@ -40,6 +40,7 @@ from abm.policy.language_config import (
     language_config_from_dict,
 )
 from abm.policy.variants import VARIANTS
+from abm.train.early_stop import DEFAULT_TOLERANCE, FlatRule
 
 #: options that control a run, not what it trains: left out of the recipe a run writes (RUN/recipe.yaml), so a
 #: recipe reused for another run never resumes, overwrites, skips checks or shares a cache by accident
@@ -109,6 +110,12 @@ class TrainConfig:
             autocast.
         verify: check the checksums of every episode before training (each file is read in full once, then
             only when it changes; ``--no-verify`` trains on the files as they are).
+        stop_when_flat: end the training early, at a checkpoint, once its curve is flat: the mean logged loss
+            (val_total with --val-data, else total) over the last this many steps improved on the mean of the as
+            many steps before by less than flat_tolerance (abm.train.early_stop; docs/policy.md measured 1000 on
+            the second edition's curves; unset: train every step).
+        flat_tolerance: the relative improvement under which stop_when_flat's window counts as flat (unset: 0.02).
+        flat_after: the first step at which stop_when_flat may stop a run (unset: half of steps).
     """
 
     method: str = field(default="abm", metadata={"choices": VARIANTS.names, "required": True})
@@ -149,6 +156,9 @@ class TrainConfig:
     bf16: str = field(default="auto", metadata={"choices": ["auto", "on", "off"]})
     verify: bool = field(default=True, metadata={
         "off_help": "skip the episode checksum check: train on the files as they are"})
+    stop_when_flat: int | None = None
+    flat_tolerance: float | None = field(default=None, metadata={"range": (0.0, 1.0)})
+    flat_after: int | None = None
 
     def __post_init__(self) -> None:
         grounder: object = self.grounder  # a kind name or a dict form is read here (flags, recipes, files)
@@ -166,6 +176,14 @@ class TrainConfig:
             raise ConfigError(f"policy: the network of variant {self.policy.variant} and preset {self.policy.preset}, "
                               f"but method {self.method} and preset {self.preset}: give the same (or leave policy "
                               "out)")
+
+    @property
+    def flat_rule(self) -> FlatRule | None:
+        """The rule that stops this run when its curve is flat (:attr:`stop_when_flat`), or ``None``."""
+        if self.stop_when_flat is None:
+            return None
+        tolerance = DEFAULT_TOLERANCE if self.flat_tolerance is None else self.flat_tolerance
+        return FlatRule(self.stop_when_flat, tolerance, self.steps // 2 if self.flat_after is None else self.flat_after)
 
     @property
     def language_config(self) -> LanguageConfig:

@@ -59,6 +59,7 @@ from abm.policy.keyframe_policy import LOSS_TERMS, KeyframePolicy
 from abm.policy.language_config import build_language_encoder
 from abm.progress import Progress
 from abm.train.config import TrainConfig
+from abm.train.early_stop import FlatStop
 from abm.train.stop import StopOnTerm
 from abm.types import Episode
 
@@ -195,6 +196,7 @@ class _Logger:
     def __init__(self, run: Path, start_step: int, enabled: bool) -> None:
         self.enabled = enabled
         self.tb = None
+        self.rows: list[dict[str, str]] = []  # every row of log.csv, as text (rank 0)
         if not enabled:
             return
         self.path = run / "log.csv"
@@ -206,6 +208,7 @@ class _Logger:
             w = csv.DictWriter(f, LOG_FIELDS)
             w.writeheader()
             w.writerows(rows)
+        self.rows = rows
         try:
             from torch.utils.tensorboard import SummaryWriter
 
@@ -216,8 +219,10 @@ class _Logger:
     def log(self, row: dict[str, float | str]) -> None:
         if not self.enabled:
             return
+        text = {k: str(row.get(k, "")) for k in LOG_FIELDS}
+        self.rows.append(text)
         with self.path.open("a", newline="") as f:
-            csv.DictWriter(f, LOG_FIELDS).writerow({k: row.get(k, "") for k in LOG_FIELDS})
+            csv.DictWriter(f, LOG_FIELDS).writerow(text)
         if self.tb is not None:
             step = int(row["step"])
             for k in ("total", "translation", "rotation", "gripper", "collision", "zoom_translation"):
@@ -226,6 +231,10 @@ class _Logger:
             self.tb.add_scalar("samples_per_s", row["samples_per_s"], step)
             if row.get("val_total", "") != "":
                 self.tb.add_scalar("loss/val_total", row["val_total"], step)
+
+    def curve(self, loss: str) -> list[tuple[int, float]]:
+        """``(step, value)`` of the column ``loss`` in the rows that have it."""
+        return [(int(r["step"]), float(r[loss])) for r in self.rows if r.get(loss, "") != ""]
 
     def close(self) -> None:
         if self.tb is not None:
@@ -330,6 +339,7 @@ class Trainer:
         self._t0 = time.perf_counter()
         self.term = StopOnTerm()  # installed while fit() runs: SIGTERM stops at a step boundary
         self.stop_requested = False  # after a step: a SIGTERM arrived (in any rank when distributed)
+        self.stopped: FlatStop | None = None  # the run ended early, its curve flat (cfg.stop_when_flat)
 
     # ------------------------------------------------------------------ build
     def build(self) -> Trainer:
@@ -406,9 +416,7 @@ class Trainer:
             self.train_policy = DistributedDataParallel(
                 self.policy, device_ids=[device.index] if device.type == "cuda" else None)
         if dinfo.main:
-            write_text_atomic(self.run / "config.json", json.dumps(
-                {"train": self.trained.to_dict(), "language": self.language_spec, "world_size": world, "lr": self.lr,
-                 "warmup": self.warmup, **({"changed_on_resume": self.changed} if self.changed else {})}, indent=2))
+            self._write_config()
             import yaml
 
             (self.run / "recipe.yaml").write_text(  # the run's options as a file: abm train --config RUN/recipe.yaml
@@ -420,6 +428,14 @@ class Trainer:
             worker_init_fn=worker_init, pin_memory=device.type == "cuda",
         )
         return self
+
+    def _write_config(self) -> None:
+        """RUN/config.json: the run's options, language encoder, processes, learning rate and warm-up, what changed
+        on resume, and why it stopped early (when it did)."""
+        write_text_atomic(self.run / "config.json", json.dumps(
+            {"train": self.trained.to_dict(), "language": self.language_spec, "world_size": self.dinfo.world_size,
+             "lr": self.lr, "warmup": self.warmup, **({"changed_on_resume": self.changed} if self.changed else {}),
+             **(self.stopped.to_dict() if self.stopped is not None else {})}, indent=2))
 
     def _resume_checkpoint(self) -> dict[str, Any] | None:
         if not self.cfg.resume:
@@ -471,6 +487,7 @@ class Trainer:
             "scheduler": self.scheduler.state_dict(), "rng": _rng_state(), "step": step,
             "train_config": self.trained.to_dict(), "world_size": self.dinfo.world_size,
             "elapsed_s": self.elapsed_s(),  # training time over all resumes
+            **(self.stopped.to_dict() if self.stopped is not None else {}),  # a finished run: not continued
         }
 
     def restore(self, ckpt: dict[str, Any]) -> None:
@@ -481,6 +498,7 @@ class Trainer:
         _set_rng_state(ckpt["rng"])
         self.start = int(ckpt["step"])
         self.prior_s = float(ckpt.get("elapsed_s", 0.0))
+        self.stopped = FlatStop.from_record(ckpt)
         if self.dinfo.main:
             log.info("abm train: resumed from %s at step %d", ckpt["path"], self.start)
 
@@ -533,6 +551,18 @@ class Trainer:
             self.train_policy.train()
         return total / count
 
+    def flat_stop(self, logger: _Logger, step: int) -> FlatStop | None:
+        """Whether the run's curve is flat at the checkpoint ``step`` (:attr:`TrainConfig.flat_rule`, decided on rank
+        0 from the logged rows and shared with every rank); ``None``: train on."""
+        rule = self.cfg.flat_rule
+        if rule is None:
+            return None
+        loss = "val_total" if self.val_dataset is not None else "total"
+        found = [rule.check(logger.curve(loss), step, loss) if self.dinfo.main else None]
+        if self.dinfo.enabled:
+            dist.broadcast_object_list(found, src=0)
+        return found[0]
+
     def startup_summary(self) -> str:
         """What is trained on what, where: the first lines of a training log."""
         cfg = self.cfg
@@ -549,8 +579,12 @@ class Trainer:
                 f"{self.grounder_config.kind}, from step {self.start}; run folder {self.run}")
 
     def fit(self, on_step: Callable[[int, dict[str, float]], None] | None = None) -> dict[str, Any]:
-        """Train from the current step to ``cfg.steps``; returns the run summary (also ``summary.json``)."""
+        """Train from the current step to ``cfg.steps``, or to the checkpoint where its curve is flat
+        (``cfg.stop_when_flat``); returns the run summary (also ``summary.json``). A run that stopped early is
+        finished: resumed, it trains no further and returns its summary."""
         cfg, dinfo = self.cfg, self.dinfo
+        if self.stopped is not None:
+            return self._finished_summary()
         world = dinfo.world_size
         logger = _Logger(self.run, self.start, dinfo.main)
         step, last = self.start, {}
@@ -573,7 +607,8 @@ class Trainer:
                         bar.write(f"train {cfg.method}/{cfg.preset}: step {step}, loss {last['total']:.4f}, "
                                   f"validation loss {val:.4f}")
                     bar.update(1, loss=round(last["total"], 4))
-                    if step % cfg.log_every == 0 or step == cfg.steps or val is not None:
+                    flat_check = checkpoint and step != cfg.steps and cfg.flat_rule is not None
+                    if step % cfg.log_every == 0 or step == cfg.steps or val is not None or flat_check:
                         now = time.perf_counter()
                         sps = (step - tick_step) * cfg.batch * world / max(now - tick, 1e-9)
                         tick, tick_step = now, step
@@ -582,6 +617,12 @@ class Trainer:
                                     "elapsed_s": self.elapsed_s(), "val_total": "" if val is None else val})
                     if on_step is not None:
                         on_step(step, last)
+                    self.stopped = self.flat_stop(logger, step) if flat_check else None
+                    if self.stopped is not None:  # the last checkpoint is written below, with the reason
+                        if dinfo.main:
+                            log.info(self.stopped.message())
+                            self._write_config()
+                        break
                     if step % cfg.checkpoint_every == 0 and step != cfg.steps:
                         self.save(step)
                     if self.stop_requested and step != cfg.steps:
@@ -611,13 +652,31 @@ class Trainer:
             "parameters": self.policy.num_parameters(), "world_size": dinfo.world_size,
             "parameter_digests": digests, "ranks_in_sync": len(set(digests)) == 1,
             "seconds": time.perf_counter() - self._t0, "checkpoint": str(checkpoint_path(self.run, step)),
+            **(self.stopped.to_dict() if self.stopped is not None else {}),
         }
         if dinfo.main:
             write_text_atomic(self.run / "summary.json", json.dumps(summary, indent=2))
-        if dinfo.enabled:
+        self._leave_process_group()
+        return summary
+
+    def _finished_summary(self) -> dict[str, Any]:
+        """A run that stopped early, resumed: nothing is trained; its summary.json (written when it stopped, else
+        written now)."""
+        assert self.stopped is not None
+        if self.dinfo.main:
+            log.info("abm train: %s is finished: it stopped at step %d, its curve flat (summary.json); train "
+                     "into a new --out folder to train it further", self.run, self.stopped.step)
+        written = self.run / "summary.json"
+        if not written.is_file():  # a carried checkpoint, restored into a fresh folder
+            return self._summary(self.start, {})
+        summary: dict[str, Any] = json.loads(written.read_text())
+        self._leave_process_group()
+        return summary
+
+    def _leave_process_group(self) -> None:
+        if self.dinfo.enabled:
             dist.barrier()
             dist.destroy_process_group()
-        return summary
 
 
 def train(

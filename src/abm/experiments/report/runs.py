@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from abm.train.config import TrainConfig
+from abm.train.early_stop import FlatStop
 
 
 def training_summary(run_dir: Path) -> dict[str, float] | None:
@@ -38,7 +39,8 @@ def minutes_at_steps(run_dir: Path, steps: Sequence[int]) -> dict[str, float]:
 
 def describe_run(run_dir: Path) -> dict[str, Any]:
     """What only a run folder knows (``config.json``, ``log.csv``): tasks, data, steps, recipe, language,
-    grounder and training minutes; ``{}`` when the folder is gone (a fresh clone). The options are read as
+    grounder and training minutes (the steps it trained: fewer than its option when it stopped early, its curve
+    flat); ``{}`` when the folder is gone (a fresh clone). The options are read as
     training saved them (:meth:`abm.train.config.TrainConfig.from_dict`, any abm version's form); the learning
     rate is the one the run used (``config.json``'s ``lr``: the option, or the rate it derived)."""
     cfg_path = run_dir / "config.json"
@@ -47,8 +49,9 @@ def describe_run(run_dir: Path) -> dict[str, Any]:
     cfg = json.loads(cfg_path.read_text())
     train = TrainConfig.from_dict(cfg["train"])
     policy = train.policy
+    stopped = FlatStop.from_record(cfg)  # ended early, its curve flat: the steps it trained
     entry: dict[str, Any] = {
-        "tasks": train.tasks, "data": str(train.data), "steps": train.steps,
+        "tasks": train.tasks, "data": str(train.data), "steps": train.steps if stopped is None else stopped.step,
         "recipe": {"batch": train.batch, "optimizer": train.optimizer, "warmup": train.warmup,
                    "weight_decay": train.weight_decay, "seed": train.seed, "lr": cfg["lr"],
                    "resolution": policy.resolution, "patch_size": policy.patch_size, "preset": policy.preset},
