@@ -112,8 +112,8 @@ class TrainConfig:
             only when it changes; ``--no-verify`` trains on the files as they are).
         stop_when_flat: end the training early, at a checkpoint, once its curve is flat: the mean logged loss
             (val_total with --val-data, else total) over the last this many steps improved on the mean of the as
-            many steps before by less than flat_tolerance (abm.train.early_stop; docs/policy.md measured 1000 on
-            the second edition's curves; unset: train every step).
+            many steps before by less than flat_tolerance (abm.train.early_stop; 1000 for 6000-step runs, chosen on
+            the second edition's curves in docs/policy.md; unset: train every step).
         flat_tolerance: the relative improvement under which stop_when_flat's window counts as flat (unset: 0.02).
         flat_after: the first step at which stop_when_flat may stop a run (unset: half of steps).
     """
