@@ -58,12 +58,13 @@ def quickstart_text() -> str:
             "(episodes succeeded; a run on other CPUs differs by a few episodes)")
 
 
-def zoo_eval_text() -> str:
-    """``abm zoo eval``'s measured time in a few words."""
+def zoo_eval_text(results: bool = True) -> str:
+    """``abm zoo eval``'s measured time in a few words, and (``results``) what succeeded."""
     z = measured().get("zoo_eval")
     if not z:
         return "not measured yet"
-    return f"~{_minutes(z['wall_minutes'])} on {z['machine']}"
+    took = f"~{_minutes(z['wall_minutes'])} on {z['machine']}"
+    return f"{took}, {_results(z['results'])} (episodes succeeded)" if results else took
 
 
 def reproducibility_text() -> str:
