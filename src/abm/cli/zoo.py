@@ -38,7 +38,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     ev.add_argument("--tasks", nargs="+", default=list(ZOO_EVAL_TASKS),
                     help="tasks to evaluate (default: the paper's 8 tasks)")
     ev.add_argument("--episodes", type=int_range(1, 10_000), default=ZOO_EVAL_EPISODES,
-                    help=f"seeded episodes per task and split (default {ZOO_EVAL_EPISODES}: {zoo_eval_text(results=False)})")
+                    help=f"seeded episodes per task and split (default {ZOO_EVAL_EPISODES}: "
+                         f"{zoo_eval_text(results=False)})")
     ev.add_argument("--workers", type=int_range(1, 256), default=WORKERS,
                     help=f"parallel rollout processes (default {WORKERS})")
     ev.add_argument("--max-steps", type=int_range(1, 100), default=ZOO_EVAL_MAX_STEPS,
