@@ -103,7 +103,6 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
     start = time.perf_counter()
     steps = 0
     instruction = target = ""
-    grounding: list[dict[str, Any]] = []
     step_grounding: list[dict[str, Any] | None] = []  # per step, None without a mask
     replaced: list[Any] = []  # per step under --expert-keyframes: the prediction an expert keyframe replaced, or None
     try:
@@ -131,8 +130,6 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                     decision = recorder.record()
                     step_grounding.append(None if decision is None else
                                           {k: decision[k] for k in ("found", "confidence", "target", "reason")})
-                    if step_grounding[-1] is not None:
-                        grounding.append(step_grounding[-1])
                     return action
 
                 with recorder:
@@ -156,7 +153,8 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
                               subgoals=subgoal_results(_roles(episode), held, bool(episode.success)),
                               instruction=instruction, target=target,
                               trajectory=trajectory_digest(a for _, a in episode.steps), code=code_digest(),
-                              grounding=grounding, step_records=[r.to_json() for r in records])
+                              grounding=[g for g in step_grounding if g is not None],
+                              step_records=[r.to_json() for r in records])
     except Exception as err:  # noqa: BLE001 - an episode crash must not abort the evaluation
         text = " ".join(f"{type(err).__name__}: {err}".split())
         # the frame's file by name only: no folder of this machine in a log an experiment commits
