@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -19,6 +21,7 @@ from abm.train.early_stop import DEFAULT_TOLERANCE, FlatRule, FlatStop, flat_sto
 from abm.train.synthetic import synthetic_episodes
 from conftest import TINY_POLICY as TINY
 from test_experiments import _spec
+from test_train_distributed import _torchrun
 
 FALLING = [(s, 10.0 * 0.999 ** s) for s in range(10, 2001, 10)]  # -10 % per 100 steps, for ever
 # falling until step 1000, then flat (a small wobble around 3.0)
@@ -117,3 +120,21 @@ def test_the_engine_takes_a_run_that_stopped_early_as_trained(tmp_path: Path) ->
     (engine.layout.run_dir("abm_oracle") / "log.csv").write_text("step,total\n1,1.0\n2,1.0\n")
     (job,) = [j for j in engine.plan("train") if j.id == "train/abm_oracle"]
     assert job.state == DONE and job.note == "2/3 steps: stopped, its curve flat"
+
+
+@pytest.mark.slow
+def test_every_rank_of_a_distributed_training_stops_at_the_same_checkpoint(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    cmd = _torchrun() + ["--standalone", "--nproc_per_node", "2", "-m", "abm.cli", "train", "--method", "abm",
+                         "--synthetic", "3", "--camera-resolution", "32", "--steps", "12", "--batch", "1",
+                         "--out", str(out), "--no-progress", "--checkpoint-every", "2", "--stop-when-flat", "2",
+                         "--flat-tolerance", "1", "--flat-after", "6"]
+    for key, value in TINY.items():
+        cmd += ["--set", f"{key}={value}"]
+    proc = subprocess.run(cmd, env=dict(os.environ, OMP_NUM_THREADS="1"), capture_output=True, text=True,
+                          timeout=180)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["world_size"] == 2 and summary["ranks_in_sync"]
+    assert (summary["steps"], summary["stopped"], summary["flat"]["step"]) == (6, "flat", 6)
+    assert "stopped at step 6: the training curve is flat" in proc.stdout + proc.stderr
