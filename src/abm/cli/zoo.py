@@ -6,8 +6,7 @@ training.
 * ``abm zoo eval`` evaluates the zoo's abm and rvt models on seen and unseen objects of the paper's 8 tasks
   (:data:`~abm.evaluation.settings.ZOO_EVAL_TASKS`, fixed before looking at any result) through the full pipeline
   (simulator, grounding, policy, executor) and prints one table. The default budget is 5 episodes per task and
-  split: 160 rollouts, about 10 minutes on 2 CPU cores (estimated: the previous default, 80 rollouts of 2 tasks,
-  took 5 minutes here).
+  split: 160 rollouts (its measured time: ``abm zoo eval --help``, from :mod:`abm.measured`).
 
 Of each method (abm, rvt) it runs the first model of the index that the zoo can run: a CLIP-grounded one when
 the benchmark CLIP is in the zoo too (abm_clip, rvt_clip in the committed zoo), else one that needs no CLIP
@@ -33,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     lst.add_argument("--zoo", type=Path, default=DEFAULT_ZOO, help=f"zoo folder (default {DEFAULT_ZOO})")
     lst.set_defaults(func="abm.cli.commands.zoo:list_zoo")
     ev = sub.add_parser("eval", help="evaluate the zoo's abm and rvt models on seen and unseen objects "
-                        "(~7 min on 2 cores)")
+                        f"({zoo_eval_text(results=False)})")
     ev.add_argument("--zoo", type=Path, default=DEFAULT_ZOO, help=f"zoo folder (default {DEFAULT_ZOO})")
     ev.add_argument("--tasks", nargs="+", default=list(ZOO_EVAL_TASKS),
                     help="tasks to evaluate (default: the paper's 8 tasks)")

@@ -15,7 +15,7 @@ from abm.grounding.config import GROUNDERS, grounder_from_flags
 #: on which tasks the zoo's models happen to do well on
 ZOO_EVAL_TASKS = ("close_jar", "insert_peg", "pick_block", "place_food", "place_wine", "put_in_shelf", "take_off_pan",
                   "water_plants")
-ZOO_EVAL_EPISODES = 5  #: ``abm zoo eval``'s episodes per task and split (~7 min on 2 cores)
+ZOO_EVAL_EPISODES = 5  #: ``abm zoo eval``'s episodes per task and split (its time: abm.measured)
 ZOO_EVAL_MAX_STEPS = 8  #: ``abm zoo eval``'s keyframes per episode
 
 EXPERT_KEYFRAME_KINDS = ("move",)
