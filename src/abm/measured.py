@@ -36,7 +36,8 @@ def measured() -> dict[str, Any]:
         text = resources.files("abm").joinpath("configs", FILE).read_text()
     except FileNotFoundError:
         return {}
-    return json.loads(text)
+    data: dict[str, Any] = json.loads(text)
+    return data
 
 
 def _minutes(value: float) -> str:
