@@ -330,3 +330,64 @@ def test_lazy_exports_refuse_other_statements_under_type_checking(tmp_path) -> N
         type_checking_exports(init)
     init.write_text("from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n    from a.b import c as d, e\n")
     assert type_checking_exports(init) == {"d": "a.b", "e": "a.b"}
+
+
+#: Imports under ``if TYPE_CHECKING:`` that close a circle with the module-level graph (the imported module reaches
+#: the importer back at run time). Each names a class for annotations only, from a module the importer must not
+#: load when it is imported: docs/architecture.md ("Type-only circles") says why each stays.
+TYPE_ONLY_CIRCLES = {
+    ("abm.sim.split_file", "abm.sim.tasks.base"),  # Task: the tasks read their split file when they are defined
+    ("abm.grounding.config", "abm.grounding.grounders"),  # Grounder: loads torch and CLIP; configs are data
+    ("abm.policy.language_config", "abm.policy.language"),  # LanguageEncoder: loads torch; configs are data
+}
+
+
+def type_checking_imports(path: Path, root: Path = ROOT) -> set[str]:
+    """The package's modules ``path`` imports inside ``if TYPE_CHECKING:`` blocks."""
+    modules = {module_name(p, root) for p in root.rglob("*.py")}
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.If) and _is_type_checking(node):
+            for sub in ast.walk(node):
+                if isinstance(sub, ast.ImportFrom) and sub.module and sub.level == 0:
+                    for name in (f"{sub.module}.{a.name}" for a in sub.names):
+                        found |= {name, sub.module} & modules
+    return found
+
+
+def type_only_circles(root: Path) -> set[tuple[str, str]]:
+    """``(importer, imported)`` for every type-only import whose module reaches the importer at module level (a
+    package's own lazy exports, names of its submodules under ``TYPE_CHECKING``, are no circle: the package never
+    imports them at run time, and the submodule imports the package first anyway)."""
+    graph = import_graph(root)
+
+    def reaches(start: str, goal: str) -> bool:
+        seen, todo = set(), [start]
+        while todo:
+            node = todo.pop()
+            if node == goal:
+                return True
+            if node not in seen:
+                seen.add(node)
+                todo += graph.get(node, ())
+        return False
+
+    return {(module_name(p, root), other) for p in root.rglob("*.py")
+            for other in type_checking_imports(p, root)
+            if reaches(other, module_name(p, root)) and not other.startswith(module_name(p, root) + ".")}
+
+
+def test_every_type_only_circle_is_one_the_architecture_explains() -> None:
+    assert type_only_circles(ROOT) == TYPE_ONLY_CIRCLES
+    doc = (ROOT.parents[1] / "docs" / "architecture.md").read_text()
+    assert all(f"`{a}`" in doc and f"`{b}`" in doc for a, b in TYPE_ONLY_CIRCLES)
+
+
+def test_the_circle_check_sees_a_type_only_circle(tmp_path) -> None:
+    pkg = tmp_path / "abm"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n    from abm.b import B\n")
+    (pkg / "b.py").write_text("from abm.a import x\n")
+    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n    from abm.b import B\n")
+    assert type_only_circles(pkg) == {("abm.a", "abm.b")}
