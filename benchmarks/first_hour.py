@@ -50,10 +50,13 @@ def this_machine() -> str:
     return f"{name}, {os.cpu_count()} cores"
 
 
-def commit() -> str:
-    """The checkout's short commit."""
-    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                          check=True).stdout.strip()
+def commit(folder: Path) -> str:
+    """The short commit of the checkout ``folder`` lies in (a fresh clone's output folder), else of this one."""
+    for where in (folder, ROOT):
+        done = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=where, capture_output=True, text=True)
+        if done.returncode == 0:
+            return done.stdout.strip()
+    raise SystemExit(f"first_hour: neither {folder} nor {ROOT} is in a git checkout")
 
 
 def outcomes(folder: Path) -> list[dict[str, Any]]:
@@ -127,6 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--help-time", action="store_true", help="time abm --help now")
     parser.add_argument("--tests", type=float, nargs=2, metavar=("PYTEST_MIN", "CI_MIN"),
                         help="the test script's minutes: pytest alone, .ci/run on a fresh clone")
+    parser.add_argument("--commit", default=None, help="the commit the runs measured (default: that of the checkout "
+                        "their folder lies in, else this one)")
     parser.add_argument("--machine", default=None, help="the machine the runs were measured on (default: this one)")
     args = parser.parse_args(argv)
     machine = args.machine or this_machine()
@@ -137,13 +142,13 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--quickstart needs --quickstart-time")
         wall, cpu = time_file(args.quickstart_time)
         data["quickstart"] = {"wall_minutes": wall, "cpu_minutes": cpu, "machine": machine, "date": today,
-                              "commit": commit(), "grounder": args.quickstart_grounder, "load": args.quickstart_load,
-                              "results": results(outcomes(args.quickstart))}
+                              "commit": args.commit or commit(args.quickstart), "grounder": args.quickstart_grounder,
+                              "load": args.quickstart_load, "results": results(outcomes(args.quickstart))}
     if args.zoo_eval:
         if args.zoo_eval_minutes is None:
             parser.error("--zoo-eval needs --zoo-eval-minutes")
         data["zoo_eval"] = {"wall_minutes": args.zoo_eval_minutes, "machine": machine, "date": today,
-                            "commit": commit(), "results": results(outcomes(args.zoo_eval))}
+                            "commit": args.commit or commit(args.zoo_eval), "results": results(outcomes(args.zoo_eval))}
         if args.cross_cpu:
             data["cross_cpu"] = cross_cpu(args.zoo_eval, args.cross_cpu, machine)
     if args.help_time:

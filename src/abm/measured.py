@@ -54,7 +54,7 @@ def quickstart_text() -> str:
     q = measured().get("quickstart")
     if not q:
         return "its time and results are not measured yet"
-    return (f"measured {_minutes(q['wall_minutes'])} wall ({_minutes(q['cpu_minutes'])} of CPU) on a "
+    return (f"measured {_minutes(q['wall_minutes'])} wall ({_minutes(q['cpu_minutes'])} of CPU) on "
             f"{q['machine']}, {q['date']}, grounded with the {q['grounder']}: {_results(q['results'])} "
             "(episodes succeeded; a run on other CPUs differs by a few episodes)")
 

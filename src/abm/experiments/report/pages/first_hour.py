@@ -28,8 +28,8 @@ def quickstart_block() -> str:
     methods = list(q["results"])
     head = " | ".join(f"{m} {split}" for m in methods for split in q["results"][m])
     cells = " | ".join(f"{s}/{n}" for m in methods for s, n in q["results"][m].values())
-    return (f"**Measured** ({SOURCE}) with `time abm quickstart` on a fresh clone at {q['commit']}, {q['date']}, on a "
-            f"{q['machine']} with no GPU, grounded with the {q['grounder']}; {q['load']}.\n\n"
+    return (f"**Measured** ({SOURCE}) with `time abm quickstart` on a fresh clone at {q['commit']}, {q['date']}, on "
+            f"{q['machine']}, no GPU, grounded with the {q['grounder']}; {q['load']}.\n\n"
             f"| | {head} | wall | CPU |\n|{'---|' * (len(methods) * 2 + 3)}\n"
             f"| defaults | {cells} | {q['wall_minutes']:.1f} min | {q['cpu_minutes']:.1f} min |\n")
 
