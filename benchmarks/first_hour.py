@@ -3,14 +3,14 @@ the blocks that read it (the README's first-hour block, docs/evaluation.md's qui
 
 Each section is recorded from measured runs; sections not given keep their recorded values:
 
-    # the quickstart on a fresh clone, timed
-    git clone . /tmp/qs && cd /tmp/qs && /usr/bin/time -v -o /tmp/qs-time.txt abm quickstart
-    python benchmarks/first_hour.py --quickstart /tmp/qs/out/quickstart --quickstart-time /tmp/qs-time.txt \
+    # the quickstart on a fresh clone (QS, a folder outside the checkout), timed
+    git clone . QS && cd QS && /usr/bin/time -v -o qs-time.txt abm quickstart && cd -
+    python benchmarks/first_hour.py --quickstart QS/out/quickstart --quickstart-time QS/qs-time.txt \
         --quickstart-load "nothing else ran"
     # abm zoo eval with the default kernels and with AVX-512 switched off (another CPU type's kernels)
-    abm zoo eval --out /tmp/zoo
-    ATEN_CPU_CAPABILITY=avx2 ONEDNN_MAX_CPU_ISA=AVX2 MKL_ENABLE_INSTRUCTIONS=AVX2 abm zoo eval --out /tmp/zoo-avx2
-    python benchmarks/first_hour.py --zoo-eval /tmp/zoo --zoo-eval-minutes 6.5 --cross-cpu /tmp/zoo-avx2
+    abm zoo eval --out out/zoo
+    ATEN_CPU_CAPABILITY=avx2 ONEDNN_MAX_CPU_ISA=AVX2 MKL_ENABLE_INSTRUCTIONS=AVX2 abm zoo eval --out out/zoo-avx2
+    python benchmarks/first_hour.py --zoo-eval out/zoo --zoo-eval-minutes 6.5 --cross-cpu out/zoo-avx2
     # abm --help (timed here) and the test script (minutes from its own run)
     python benchmarks/first_hour.py --help-time --tests 8.5 14
 
