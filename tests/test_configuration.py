@@ -149,7 +149,8 @@ def test_train_config_file_with_flags_overriding_it(tmp_path, monkeypatch, capsy
     assert f"recipe {recipe}: unknown keys ['stepz'] (expected: ['accept_changed_config', " in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["train", "--config", str(tmp_path / "nope.yaml"), "--synthetic", "1"])
-    assert "built-in recipe: cpu, paper_tables, paper_tables_v2, paper_tables_v3, quickstart, seen_unseen" in capsys.readouterr().err
+    assert ("built-in recipe: cpu, paper_tables, paper_tables_v2, paper_tables_v3, quickstart, seen_unseen"
+            in capsys.readouterr().err)
 
 
 def test_every_run_writes_the_recipe_that_retrains_it(tmp_path, monkeypatch) -> None:
