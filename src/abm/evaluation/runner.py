@@ -61,6 +61,7 @@ from abm.language.roles import split_roles
 from abm.policy.checkpoint import load_checkpoint, resolve_checkpoint
 from abm.progress import Progress
 from abm.ray_pool import RayActorPool
+from abm.sim.cameras import single_threaded_rasterizer
 from abm.workers import die_with_parent
 
 
@@ -96,9 +97,12 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
     The outcome depends on the job's checkpoint, task, split and seed and on ``settings`` only: the rollout gets
     a fresh copy of the policy, one torch thread and RNGs seeded from the scene seed
     (:func:`abm.evaluation.policies.rollout_state`), in whichever process it runs; with a GIF it acts through
-    ``explain()``, whose action is :meth:`act`'s.
+    ``explain()``, whose action is :meth:`act`'s. The process's GL rasterizer runs in the drawing thread
+    (:func:`abm.sim.cameras.single_threaded_rasterizer`, unless the user set ``LP_NUM_THREADS``).
     """
     from abm.sim.env import make_env, run_policy  # mujoco (optional `sim` extra)
+
+    single_threaded_rasterizer()  # before the process's first GL context
 
     start = time.perf_counter()
     steps = 0

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from abm.errors import ExternalError
+from abm.sim.frustum_culling import FrustumCulling, drawn_geoms, reflects
 from abm.types import CameraFrame
 
 if TYPE_CHECKING:
@@ -88,6 +89,21 @@ def _offscreen(create: Callable[[], _T]) -> _T:
             f"MuJoCo cannot render offscreen ({first}). Use MUJOCO_GL=egl (Mesa EGL) or MUJOCO_GL=osmesa "
             "with `apt-get install -y libosmesa6`, set before mujoco is imported."
         ) from first
+
+
+RASTERIZER_THREADS = "LP_NUM_THREADS"
+"""Mesa llvmpipe's rasterizer threads (read when the process makes its first GL context; default: one per core)."""
+
+
+def single_threaded_rasterizer() -> None:
+    """Have Mesa's llvmpipe rasterize in the drawing thread (``LP_NUM_THREADS=0``) unless the user set the variable.
+
+    For processes that draw with one thread per core in use, as evaluation workers do (one torch thread each): at
+    128² the rasterizer threads' hand-offs cost more CPU than they share out (the pixels are the same). Mesa reads
+    the variable when the process's first GL context is made; called later, it changes nothing in this process
+    (processes it starts inherit it).
+    """
+    os.environ.setdefault(RASTERIZER_THREADS, "0")
 
 
 def make_renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
@@ -194,6 +210,9 @@ class CameraRig:
         geom_to_object: ``(ngeom,)`` int32 segmentation id of each geom (-1 = not an object).
         segmentation: draw each camera's segmentation (a second draw); without it a frame's ``segmentation`` is
             ``None`` and its depth comes from the colour draw's depth buffer (:meth:`_colour_and_depth`).
+
+    Each camera draws only the mesh geoms whose bounding box reaches into its view (``culling``:
+    :class:`abm.sim.frustum_culling.FrustumCulling`, ``None`` for models where that could change a pixel).
     """
 
     def __init__(self, model: mujoco.MjModel, camera_names: Sequence[str], height: int, width: int,
@@ -212,6 +231,7 @@ class CameraRig:
             self.camera_ids.append(cid)
         self.geom_to_object = np.asarray(geom_to_object, np.int32)
         self._renderer = scene_renderer(model, self.height, self.width)
+        self.culling = FrustumCulling.for_model(model)  # None: every geom drawn by every camera
         self._geom_type = int(mujoco.mjtObj.mjOBJ_GEOM)
         self._zfar = float(model.vis.map.zfar * model.stat.extent)
         # depth and segmentation from one draw: None = not checked yet (the first frame checks it; once it passed,
@@ -233,6 +253,8 @@ class CameraRig:
             if activate is not None:
                 activate()
             renderer.update_scene(data, camera=cid)
+            if self.culling is not None:
+                self.culling.apply(renderer, data)
             seg: np.ndarray | None = None
             if self.segmentation or not self._colour_depth_usable():
                 rgb = renderer.render().copy()
@@ -337,15 +359,10 @@ def _opaque(model: mujoco.MjModel) -> bool:
     """Whether every geom drawn by default (the default ``MjvOption``'s geom groups) is opaque and no plane or box
     among them reflects (MuJoCo draws reflections on those only): the colour draw then writes the depth the
     segmentation draw writes."""
-    import mujoco
-
-    groups = [g for g, shown in enumerate(mujoco.MjvOption().geomgroup) if shown]
-    drawn = np.isin(model.geom_group, groups)
+    drawn = drawn_geoms(model)
     matid = model.geom_matid[drawn]
-    flat = drawn & np.isin(model.geom_type, [mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_BOX]) \
-        & (model.geom_matid >= 0)
     return bool(np.all(model.geom_rgba[drawn, 3] >= 1.0) and np.all(model.mat_rgba[matid[matid >= 0], 3] >= 1.0)
-                and np.all(model.mat_reflectance[model.geom_matid[flat]] <= 0.0))
+                and not reflects(model))
 
 
 _COLOUR_DEPTH_VERIFIED: bool | None = None
