@@ -11,7 +11,8 @@ the software GL rasterizer's), split into stages by wrapping the functions that 
 * ``policy``: the rest of ``policy.act`` (fusion, virtual views, the networks, decoding);
 * ``physics``: executing keyframes (IK along the path, physics steps, contact checks, the success test);
 * ``expert``: the scripted expert run on the scene after the rollout for the per-step records (a commit that has
-  them: ``abm.evaluation.runner._expert_of``; once per scene and process, so the first model of a scene pays it),
+  them: ``abm.evaluation.runner._expert_of``; once per scene and process, so the first model of a scene pays it:
+  the servers run with the expert's disk cache off, ``ABM_EXPERT_CACHE=off``, so no tree reads another run's),
   everything inside it included;
 * ``other``: the rest of the rollout (a fresh copy of the policy, the outcome's bookkeeping);
 * ``total``: the rollout's process CPU seconds.
@@ -164,7 +165,7 @@ def _commit(ref: str = "HEAD") -> str:
 
 def _server(src: Path, args: argparse.Namespace) -> subprocess.Popen[str]:
     env = {**os.environ, "PYTHONPATH": str(src), "OMP_NUM_THREADS": "1",
-           "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+           "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "ABM_EXPERT_CACHE": "off"}
     cmd = [sys.executable, str(Path(__file__).resolve()), "--serve", "--task", args.task, "--split", args.split,
            "--max-steps", str(args.max_steps)]
     proc = subprocess.Popen(cmd, env=env, cwd=str(ROOT), stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
