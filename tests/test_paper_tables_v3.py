@@ -1,7 +1,8 @@
 """The paper tables' third edition as the engine sees it before it is run (spec paper_tables_v3, recipe
 paper_tables_v3): the second edition's runs with the progress input on every model, the destination mask on the mask
 variants and the early stop of a flat curve, second seeds of abm_clip, rvt_clip and the best fusion, issue 54's
-targets, no README block yet, and a dry run that plans every job without writing anything."""
+targets (with Table 3's differences against its seed spread), the destination's grounding quality in the
+diagnosis, no README block yet, and a dry run that plans every job without writing anything."""
 
 from __future__ import annotations
 
@@ -67,10 +68,15 @@ def test_the_edition_evaluates_like_the_second_and_writes_no_readme_block_yet(tm
     assert V3.diagnose is not None and V3.diagnose.skill_text is not None
     # the diagnosis as the second edition's (the skill-text probe on this edition's mask runs) ...
     assert V3.diagnose == replace(V2.diagnose, skill_text=replace(V2.diagnose.skill_text,
-                                                                  runs=V3.diagnose.skill_text.runs))
+                                                                  runs=V3.diagnose.skill_text.runs),
+                                  destination_grounding=V3.diagnose.destination_grounding)
     assert set(V3.diagnose.skill_text.runs) == MASK_RUNS
     sections = {s.kind: s for s in V3.report.summary}
     assert sections["keyframe_compare"].kinds == ("move",)  # ... plus the move keyframe's error
+    # ... and the destination's grounding quality, in the Diagnosis part (tests/test_destination_grounding.py)
+    assert V3.diagnose.destination_grounding is not None and V2.diagnose.destination_grounding is None
+    kinds = [s.kind for s in V3.report.summary]
+    assert kinds.index("heading") < kinds.index("destination_grounding") < kinds.index("diagnosis")
     assert (V3.report.readme, V3.report.blocks, V3.report.zoo_readme) == ("", {}, False)
     written = {path.relative_to(tmp_path).as_posix() for path, _ in report_files(V3, Layout.of(V3, tmp_path))}
     assert "README.md" not in written and "models/README.md" not in written  # the second edition's stay
@@ -88,7 +94,12 @@ def test_the_targets_are_issue_54s() -> None:
         (("abm_clip",), "ratio", "unseen", 0.85, ""), (("abm_clip",), "beats", "unseen", 25, "rvt_clip"),
         (("abm_clip",), "at_least", "compositional", 70, ""),
         (("abm_clip",), "beats", "compositional", 30, "rvt_clip"),
-        (("abm_oracle",), "at_least", "seen", 80, "")}
+        (("abm_oracle",), "at_least", "seen", 80, ""),
+        ((), "exceeds_spread", "seen", 0, ""), ((), "exceeds_spread", "unseen", 0, "")}
+    # every Table-3 difference the README names exceeds Table 3's seed spread: the best fusion against the others
+    spread = [c for s in V3.report.summary if s.kind == "targets" for c in s.checks if c.kind == "exceeds_spread"]
+    assert {(c.of_table, c.pairs) for c in spread} == {(3, tuple(("concat-rerendered", other) for other in (
+        "stack", "concat-full", "abm_clip_hash")))}
 
 
 def test_a_dry_run_plans_every_job_and_writes_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -110,7 +121,12 @@ def test_a_dry_run_plans_every_job_and_writes_nothing(tmp_path: Path, capsys: py
     assert set(plan["eval"]) == cells | {"eval/zoo"} and set(plan["eval"].values()) == {BLOCKED}
     oracle = {f"diagnose/{r}@oracle" for r in MASK_RUNS if V3.runs[r].config.grounder.kind == "clip"}
     probes = {f"diagnose/skill_text/{r}/{t}" for r in MASK_RUNS for t in ("place_wine", "pick_block")}
-    assert set(plan["diagnose"]) == {f"diagnose/{r}" for r in V3.runs} | oracle | probes
+    assert set(plan["diagnose"]) == {f"diagnose/{r}" for r in V3.runs} | oracle | probes | {
+        "diagnose/destination_grounding"}
+    # the grounder's diagnosis needs no trained model: the dry run lists it (with the clone's benchmark CLIP)
+    assert plan["diagnose"]["diagnose/destination_grounding"] == LEFT
+    assert 'diagnose/destination_grounding: {"kind": "diagnose", "request": {"kind": "destination_grounding", ' \
+           '"clip_model": "models/benchmark-clip", "out": "runs/paper_v3/destination_grounding.json"' in logged
     assert engine.recipe("abm_clip_seed1")["policy"]["destination_mask"] is True
     assert "destination_mask" not in engine.recipe("rvt_clip_seed1")["policy"]
     assert engine.recipe("rvt_clip_seed1")["policy"]["progress_input"] is True

@@ -38,7 +38,13 @@ from abm.evaluation.runner import (
     run_job,
     same_file_runs,
 )
-from abm.evaluation.settings import ZOO_EVAL_EPISODES, ZOO_EVAL_MAX_STEPS, ZOO_EVAL_TASKS, EvalSettings
+from abm.evaluation.settings import (
+    ZOO_EVAL_EPISODES,
+    ZOO_EVAL_MAX_STEPS,
+    ZOO_EVAL_SPLITS,
+    ZOO_EVAL_TASKS,
+    EvalSettings,
+)
 from abm.files import FolderLock
 from abm.grounding.config import GROUNDERS
 from abm.grounding.default import default_grounder
@@ -372,7 +378,7 @@ def evaluate_zoo(zoo: Path, out: Path, tasks: Sequence[str] = ZOO_EVAL_TASKS, ep
     settings = EvalSettings(max_steps=max_steps)
     rates = []
     outcomes: list[EpisodeOutcome] = []
-    for split in ("seen", "unseen"):
+    for split in ZOO_EVAL_SPLITS:
         print(f"abm zoo eval: {', '.join(labels.values())} on {split} objects of {', '.join(tasks)} "
               f"({episodes} episodes each)")
         rates += evaluate(runs, tasks, split, out / split, episodes, 1, workers, settings,

@@ -17,6 +17,7 @@ ZOO_EVAL_TASKS = ("close_jar", "insert_peg", "pick_block", "place_food", "place_
                   "water_plants")
 ZOO_EVAL_EPISODES = 5  #: ``abm zoo eval``'s episodes per task and split (its time: abm.measured)
 ZOO_EVAL_MAX_STEPS = 8  #: ``abm zoo eval``'s keyframes per episode
+ZOO_EVAL_SPLITS = ("seen", "unseen")  #: ``abm zoo eval``'s object splits (its outcomes in ``OUT/SPLIT``)
 
 EXPERT_KEYFRAME_KINDS = ("move",)
 """Keyframe kinds ``abm eval --expert-keyframes`` executes as the scripted expert's

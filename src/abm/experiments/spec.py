@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import functools
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath
 from typing import Any, Protocol
@@ -256,6 +256,8 @@ class DiagnoseSpec:
         kinds: keyframe kinds to print (all are stored).
         skill_text: also run the skill-text probe (``benchmarks/skill_text_probe.py``) on the runs that read a
             skill text (``None``: not part of the diagnosis).
+        destination_grounding: also measure how well the spec's CLIP grounds each task's destination beside its
+            target (``benchmarks/destination_grounding.py``), once per spec (``None``: not part of the diagnosis).
     """
 
     episodes: int = 5
@@ -265,6 +267,7 @@ class DiagnoseSpec:
     steps: tuple[int, ...] = ()
     kinds: tuple[str, ...] = ()
     skill_text: SkillTextSpec | None = None
+    destination_grounding: DestinationGroundingSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -287,6 +290,25 @@ class SkillTextSpec:
     split: str = "seen"
     runs: tuple[str, ...] = ()
     within_cm: float = 5.0
+
+
+@dataclass(frozen=True)
+class DestinationGroundingSpec:
+    """The destination's grounding quality in the diagnosis (the ``destination_grounding`` diagnosis,
+    :class:`abm.evaluation.diagnose.destination_grounding.DestinationGrounding`): the spec's CLIP grounder (its
+    default configuration) on each task's target X and destination, scored against the simulator's segmentation.
+    It measures the grounder, not a run: one job per spec (``diagnose/destination_grounding``), kept as
+    ``KEPT/destination_grounding.json``.
+
+    Attributes:
+        episodes: evaluation scenes per task and split (first observation).
+        splits: their object splits.
+        tasks: the tasks measured (default: the diagnosis' tasks; one without a destination has target rows only).
+    """
+
+    episodes: int = 5
+    splits: tuple[str, ...] = ("seen", "unseen")
+    tasks: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -391,12 +413,17 @@ class TargetCheck:
             ``keyframe_cm`` / ``keyframe_deg`` (the diagnosis's median position error, cm, / rotation error, °, of
             ``keyframe`` on the split, the median over the tasks of each task's median, ≤ ``value``) or
             ``loops`` (the share of the split's episodes with a grasp <-> lift loop,
-            :func:`abm.experiments.arm_records.loops`, ≤ ``value`` %).
+            :func:`abm.experiments.arm_records.loops`, ≤ ``value`` %); or, of the section rather than of a row,
+            ``exceeds_spread`` (every difference between the split averages of two rows named in ``pairs`` larger
+            than the seed spread of table ``of_table`` on the split, as that table's ``seeds`` sections measure
+            it, plus ``value`` points, default 0).
         split: the split it is checked on.
         value: the threshold, ratio or margin.
         base: the run compared with (``beats``, ``below``).
         run: the only row it is checked on (default: every row of the section).
         keyframe: the keyframe kind of ``keyframe_cm`` / ``keyframe_deg`` (``move``).
+        pairs: the differences an ``exceeds_spread`` check names, each two rows of table ``of_table``.
+        of_table: the table whose rows and seed spread an ``exceeds_spread`` check reads.
     """
 
     text: str
@@ -406,6 +433,8 @@ class TargetCheck:
     base: str = ""
     run: str = ""
     keyframe: str = ""
+    pairs: tuple[tuple[str, str], ...] = ()
+    of_table: int | None = None
 
 
 @dataclass(frozen=True)
@@ -649,7 +678,8 @@ def _checked(reader: _Reader, key: str, cls: type, forbidden: Sequence[str] = ()
 # --------------------------------------------------------------------------------------------- sections
 #: what a ``setup`` paragraph can state (default: machines, recipe, minutes, stages, evaluation)
 SETUP_ITEMS = ("machines", "data", "clip", "recipe", "minutes", "speed", "stages", "evaluation", "keyframes")
-TARGET_KINDS = ("at_least", "ratio", "beats", "below", "keyframe_cm", "keyframe_deg", "loops")
+TARGET_KINDS = ("at_least", "ratio", "beats", "below", "keyframe_cm", "keyframe_deg", "loops", "exceeds_spread")
+SPREAD_CHECK = "exceeds_spread"  #: the target kind checked on a table's differences, not on a row
 FIGURE_KINDS = ("success", "losses", "keyframe_error")
 
 
@@ -699,9 +729,16 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
         items = []
         for i, item in enumerate(raw):
             c = reader.at(item, f"checks[{i}]")
-            check = TargetCheck(text=c.text("text"), kind=c.choice("kind", TARGET_KINDS),
-                                split=c.choice("split", SPLITS), value=c.number("value"), base=c.text("base", ""),
-                                run=c.text("run", ""), keyframe=c.text("keyframe", ""))
+            check_kind = c.choice("kind", TARGET_KINDS)
+            spread_check = check_kind == SPREAD_CHECK
+            check = TargetCheck(text=c.text("text"), kind=check_kind, split=c.choice("split", SPLITS),
+                                value=c.number("value", 0.0 if spread_check else None), base=c.text("base", ""),
+                                run=c.text("run", ""), keyframe=c.text("keyframe", ""),
+                                pairs=_pairs(c, known) if spread_check else (),
+                                of_table=c.optional_integer("of_table") if spread_check else None)
+            if spread_check and (not check.pairs or check.of_table is None or check.run):
+                raise c.error("an exceeds_spread check names its pairs ([[RUN, RUN], ...]) and the table whose seed "
+                              "spread they are held to (of_table), and no run", "pairs")
             if (check.kind in ("keyframe_cm", "keyframe_deg")) != bool(check.keyframe):
                 raise c.error(f"a keyframe kind goes with a keyframe_cm or keyframe_deg check, not {check.kind}",
                               "keyframe")
@@ -743,6 +780,30 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
                            "seeds")
     reader.done()
     return section
+
+
+def _pairs(reader: _Reader, known: set[str]) -> tuple[tuple[str, str], ...]:
+    """An ``exceeds_spread`` check's ``pairs``: a list of two different runs of the spec each."""
+    raw = reader.raw("pairs", [])
+    if not isinstance(raw, list) or not all(isinstance(p, list) and len(p) == 2 and p[0] != p[1]
+                                            and all(isinstance(r, str) and r in known for r in p) for p in raw):
+        raise reader.error(f"expected a list of pairs of two different runs of this spec, got {shown(raw)}", "pairs")
+    return tuple((a, b) for a, b in raw)
+
+
+def _check_spread_targets(reader: _Reader, report: ReportSpec) -> None:
+    """Every ``exceeds_spread`` check names rows of its table (``of_table``), which has a ``seeds`` section."""
+    sections = (*report.summary, *report.details, *(s for block in report.blocks.values() for s in block))
+    for section in sections:
+        for check in (c for c in section.checks if c.kind == SPREAD_CHECK):
+            table = next((s for s in sections if s.table == check.of_table), None)
+            if table is None or not any(s.kind == "seeds" and s.of_table == check.of_table for s in sections):
+                raise reader.error(f"{check.text!r}: table {check.of_table} has no seeds section to measure its seed "
+                                   "spread", "summary")
+            stray = sorted({r for pair in check.pairs for r in pair} - set(table.runs))
+            if stray:
+                raise reader.error(f"{check.text!r}: {', '.join(stray)} is no row of table {check.of_table}",
+                                   "summary")
 
 
 def _sections(reader: _Reader, key: str, runs: Sequence[str]) -> tuple[Section, ...]:
@@ -908,7 +969,8 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
                                 tasks=g.tasks("tasks", lists) if g.has("tasks") else None,
                                 oracle_mask=g.flag("oracle_mask"),
                                 steps=tuple(_steps(g)), kinds=g.names("kinds", ()),
-                                skill_text=_skill_text(g, runs))
+                                skill_text=_skill_text(g, runs),
+                                destination_grounding=_destination_grounding(g, lists, _tasks))
         g.done()
 
     res = top.sub("resources")
@@ -970,6 +1032,9 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
         raise top.error("a zoo_suffix needs a zoo folder to export into", "zoo")
     if any(run.needs_clip for run in runs.values()) and not spec.clip:
         raise top.error("runs need the benchmark CLIP (grounder or language clip): give its folder", "clip")
+    if diagnose is not None and diagnose.destination_grounding is not None and not spec.clip:
+        raise top.error("diagnose.destination_grounding measures the spec's CLIP grounder: give its folder", "clip")
+    _check_spread_targets(rep, report)
     if evaluation.from_zoo and not spec.zoo:
         raise top.error("evaluation.from_zoo needs a zoo folder to export into", "zoo")
     if report.zoo_readme and not spec.zoo:
@@ -1028,6 +1093,22 @@ def _skill_text(reader: _Reader, runs: Mapping[str, RunSpec]) -> SkillTextSpec |
                           split=s.choice("split", SPLITS, "seen"), runs=named, within_cm=within)
     s.done()
     return probe
+
+
+def _destination_grounding(reader: _Reader, lists: Mapping[str, tuple[str, ...]],
+                           task_names: Callable[..., tuple[str, ...]]) -> DestinationGroundingSpec | None:
+    """The diagnosis' ``destination_grounding`` block (``None`` when absent)."""
+    if not reader.has("destination_grounding"):
+        return None
+    d = reader.sub("destination_grounding")
+    splits = d.names("splits", ("seen", "unseen"))
+    for split in splits:
+        if split not in SPLITS:
+            raise d.error(f"{split!r} is no object split ({', '.join(SPLITS)})", "splits")
+    found = DestinationGroundingSpec(episodes=d.integer("episodes", 5), splits=splits,
+                                     tasks=task_names(d, "tasks", lists) if d.has("tasks") else None)
+    d.done()
+    return found
 
 
 def _steps(reader: _Reader) -> list[int]:

@@ -33,6 +33,7 @@ from typing import Any
 import yaml
 
 from abm.errors import ConfigError
+from abm.evaluation.diagnose.destination_grounding import DestinationGrounding
 from abm.evaluation.diagnose.keyframe_accuracy import KeyframeAccuracy
 from abm.evaluation.diagnose.request import DiagnosisRequest
 from abm.evaluation.diagnose.skill_text import SkillTextProbe
@@ -50,7 +51,7 @@ from abm.experiments.jobs import (
 )
 from abm.experiments.report import keep_training_log, write_report, zoo_index
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Runner, Source
-from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, ExperimentSpec
+from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, DestinationGroundingSpec, ExperimentSpec
 from abm.experiments.state import (
     CarryError,
     Layout,
@@ -82,6 +83,7 @@ from abm.policy.config import PolicyConfig
 
 LOG = logging.getLogger("abm")
 DONE, RUNNING, LEFT, BLOCKED, FAILED = "done", "running", "left", "blocked", "failed"
+DESTINATION_GROUNDING_JOB = "diagnose/destination_grounding"  #: the one job of the spec's grounder
 
 
 @dataclass
@@ -483,7 +485,17 @@ class Engine:
                                     resolution=self.spec.data.resolution) if model else None
             found.append(self._diagnosis_job(f"diagnose/skill_text/{run}/{task}", probed, out,
                                              clip=self.needs_clip(run)))
+        if d.destination_grounding is not None:  # of the spec's CLIP grounder, not of a run: whatever --runs says
+            found.append(self._destination_grounding(d.destination_grounding, tasks))
         return found
+
+    def _destination_grounding(self, spec: DestinationGroundingSpec, tasks: Sequence[str]) -> Job:
+        """The diagnosis of the spec's CLIP grounder on each task's destination beside its target (one job)."""
+        out = self.layout.destination_grounding
+        request = DestinationGrounding(self.clip_arg() or None, Path(self.rel(out)), tasks=tuple(spec.tasks or tasks),
+                                       splits=spec.splits, episodes=spec.episodes,
+                                       resolution=self.spec.data.resolution)
+        return self._diagnosis_job(DESTINATION_GROUNDING_JOB, request, out, clip=True)
 
     def _diagnosis_job(self, job_id: str, request: DiagnosisRequest | None, out: Path, clip: bool) -> Job:
         """A diagnosis job (``request``: ``None`` until its model is trained or exported); done once ``out`` is
@@ -641,6 +653,8 @@ class Engine:
             return []
         users: dict[str, list[str]] = {}
         for job in (*self.plan("eval"), *self.plan("diagnose")):
+            if job.id == DESTINATION_GROUNDING_JOB:  # of the grounder: no run's
+                continue
             name = job.id.split("/")[2 if job.id.startswith("diagnose/skill_text/") else 1]
             users.setdefault(self._variant_base(name.removesuffix(ORACLE_MASK)), []).append(job.state)
         return [run for run in self.spec.runs if (self.layout.carry / run).is_dir() and users.get(run)

@@ -2,8 +2,11 @@
 
 The working folder OUT (``runs/NAME``, never committed) holds the data, run folders, evaluations and
 diagnoses. What is finished is kept in the committed folder KEPT (``docs/results/NAME``): evaluation JSON
-(``RUN_SPLIT.json``), keyframe accuracy (``keyframe_accuracy_NAME.json``), the timed zoo evaluation, the stage
-times (``times.txt``) and the machines that ran a stage (``machines.txt``). On a fresh clone :func:`restore`
+(``RUN_SPLIT.json``) with every episode's outcome and per-step records, compressed (``RUN_SPLIT_outcomes.jsonl.xz``,
+every split of every run and variant), keyframe accuracy (``keyframe_accuracy_NAME.json``), the skill-text probes,
+the destination's grounding quality (``destination_grounding.json``), the timed zoo evaluation (its table, seconds
+and outcomes: ``zoo_eval_SPLIT_outcomes.jsonl.xz``), the stage times (``times.txt``) and the machines that ran a
+stage (``machines.txt``). On a fresh clone :func:`restore`
 copies them back into OUT, so nothing finished runs twice and the report has every row.
 
 Unfinished work crosses machines through CARRY (``models/carry``, committed): :func:`carry_unfinished`
@@ -28,6 +31,7 @@ from typing import Any
 
 from abm.errors import AbmError, OutputError
 from abm.evaluation.results import OUTCOME_ARCHIVE, OutcomeLog
+from abm.evaluation.settings import ZOO_EVAL_SPLITS
 from abm.experiments.spec import ExperimentSpec, SpecError
 from abm.files import LOCK_NAME, is_inside, sha256_file, write_text_atomic
 from abm.machine import describe_machine
@@ -95,6 +99,11 @@ class Layout:
     def diagnosis(self, name: str) -> Path:
         return self.out / "keyframe_accuracy" / f"{name}.json"
 
+    @property
+    def destination_grounding(self) -> Path:
+        """The diagnosis of the spec's CLIP grounder on each task's destination and target (one per spec)."""
+        return self.out / "destination_grounding.json"
+
     def skill_text(self, run: str, task: str) -> Path:
         """The skill-text probe of ``run`` on ``task`` (``benchmarks/skill_text_probe.py --out``)."""
         return self.out / "skill_text" / f"{run}_{task}.json"
@@ -160,9 +169,14 @@ def kept_pairs(spec: ExperimentSpec, layout: Layout) -> list[tuple[Path, Path]]:
         pairs.append((layout.diagnosis(name), kept / f"keyframe_accuracy_{name}.json"))
     for run, task in spec.probes():
         pairs.append((layout.skill_text(run, task), kept / f"skill_text_{run}_{task}.json"))
+    if spec.diagnose is not None and spec.diagnose.destination_grounding is not None:
+        pairs.append((layout.destination_grounding, kept / layout.destination_grounding.name))
     if spec.evaluation.zoo_eval:
         pairs += [(layout.zoo_eval / "results.md", kept / "zoo_eval.md"),
                   (layout.zoo_eval / "seconds", kept / "zoo_eval_seconds.txt")]
+        # the timed zoo evaluation's episodes and their per-step records too, compressed, per split
+        pairs += [(layout.zoo_eval / split / OUTCOME_ARCHIVE, kept / f"zoo_eval_{split}_{OUTCOME_ARCHIVE}")
+                  for split in ZOO_EVAL_SPLITS]
     pairs += [(layout.times, kept / "times.txt"),  # the stage times of every session, added up
               (layout.machines, kept / "machines.txt")]  # every machine that ran a stage
     return pairs
@@ -206,30 +220,39 @@ def stamp(layout: Layout, event: str, when: float | None = None) -> None:
         f.write(f"{event} {int(time.time() if when is None else when)} {session()}\n")
 
 
-def stage_minutes(times: Path) -> dict[str, float]:
+def stage_minutes(times: Path, *more: Path) -> dict[str, float]:
     """Minutes per stage, summed over every (start, end) pair of one session: a resumed stage counts all its
     sessions, and sessions whose spans interleave (two engines of one experiment, each in its own working folder,
     their times merged into KEPT) each count their own span. Lines without a session (older files) pair as
-    they come.
+    they come. ``more`` files add their lines ``times`` lacks (OUT's and KEPT's times together).
 
     A line ``STAGE_minutes M`` adds ``M`` minutes measured elsewhere (the totals of earlier sessions whose
     run folders did not survive)."""
+    return stage_spans(times, *more)[0]
+
+
+def stage_spans(times: Path, *more: Path) -> tuple[dict[str, float], dict[tuple[str, str], int]]:
+    """:func:`stage_minutes`, and the stages started and not ended yet: ``(stage, session) -> start`` (seconds;
+    a stage running now, or one whose engine was killed)."""
     total: dict[str, float] = {}
     open_at: dict[tuple[str, str], int] = {}
-    if times.is_file():
-        for line in times.read_text().split("\n"):
-            fields = line.split()
-            if len(fields) not in (2, 3):
-                continue
-            key, value, who = fields[0], fields[1], fields[2] if len(fields) == 3 else ""
-            stage, _, edge = key.rpartition("_")
-            if edge == "start":
-                open_at[(stage, who)] = int(value)
-            elif edge == "minutes":
-                total[stage] = total.get(stage, 0.0) + float(value)
-            elif edge == "end" and (stage, who) in open_at:
-                total[stage] = total.get(stage, 0.0) + (int(value) - open_at.pop((stage, who))) / 60
-    return total
+    lines = times.read_text().split("\n") if times.is_file() else []
+    known = set(lines)
+    lines += [line for other in more if other.is_file() for line in other.read_text().split("\n")
+              if line not in known]
+    for line in lines:
+        fields = line.split()
+        if len(fields) not in (2, 3):
+            continue
+        key, value, who = fields[0], fields[1], fields[2] if len(fields) == 3 else ""
+        stage, _, edge = key.rpartition("_")
+        if edge == "start":
+            open_at[(stage, who)] = int(value)
+        elif edge == "minutes":
+            total[stage] = total.get(stage, 0.0) + float(value)
+        elif edge == "end" and (stage, who) in open_at:
+            total[stage] = total.get(stage, 0.0) + (int(value) - open_at.pop((stage, who))) / 60
+    return total, open_at
 
 
 def merge_lines(made: Path, copy: Path) -> bytes:

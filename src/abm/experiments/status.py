@@ -1,5 +1,6 @@
 """What ``abm experiment status`` says beside each job's state: a finished job's minutes where no job log of this
-working folder has them, what is kept and carried (files and sizes), and an estimate of what is left.
+working folder has them, the edition's time per stage (:func:`stage_time_lines`), what is kept and carried (files
+and sizes), and an estimate of what is left.
 
 Minutes of a finished job (:func:`kept_minutes`), when OUT/jobs.jsonl has none (a fresh clone): a training's
 ``train_minutes`` from the zoo index or ``KEPT/runs.json``, an evaluation's episodes' seconds summed (the
@@ -17,6 +18,8 @@ from __future__ import annotations
 import csv
 import json
 import re
+import socket
+import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,8 +27,8 @@ from statistics import mean
 from typing import Any, Protocol
 
 from abm.evaluation.results import OUTCOME_ARCHIVE, OutcomeLog, read_outcome_archive
-from abm.experiments.spec import ExperimentSpec
-from abm.experiments.state import Layout, last_logged_step
+from abm.experiments.spec import STAGES, ExperimentSpec
+from abm.experiments.state import Layout, job_events, last_logged_step, pid_alive, span_minutes, stage_spans
 
 ROLLOUT_SPEED = "docs/results/rollout_speed.json"  #: seconds per rollout measured by benchmarks/rollout_speed.py
 _STEP_FILE = re.compile(r"^step_(\d+)\.pt$")
@@ -37,6 +40,7 @@ class StatusJob(Protocol):
     id: str
     stage: str
     state: str
+    minutes: float | None
 
 
 @dataclass(frozen=True)
@@ -117,6 +121,38 @@ def kept_minutes(spec: ExperimentSpec, layout: Layout, job: StatusJob) -> float 
         seconds = episode_seconds(layout, parts[1], parts[2])
         return sum(seconds) / 60 if seconds else None
     return None
+
+
+# ------------------------------------------------------------------------------------------- stage times
+def stage_time_lines(layout: Layout, jobs: Sequence[StatusJob]) -> list[str]:
+    """The edition's time per stage: the wall time (the stage times of OUT and KEPT, every session added up, as the
+    report's setup states them, :func:`abm.experiments.state.stage_minutes`; a stage running now in a live engine
+    on this host counted up to now) and the jobs' own minutes added up per stage (each job's minutes as the status
+    shows them: this working folder's job log, else what is kept; a job not done yet adds the spans its sessions
+    logged; trainings side by side each add theirs)."""
+    wall, started = stage_spans(layout.times, layout.kept / layout.times.name)
+    running = set()
+    for (stage, session), start in started.items():
+        host, _, pid = session.rpartition(":")
+        if host == socket.gethostname() and pid.isdigit() and pid_alive(int(pid)):
+            wall[stage] = wall.get(stage, 0.0) + (time.time() - start) / 60
+            running.add(stage)
+    order = [*STAGES, *sorted(set(wall) - set(STAGES))]
+    shown = [f"{stage} {wall[stage]:.0f}{' (running)' if stage in running else ''}" for stage in order
+             if stage in wall]
+    lines = [f"wall time per stage, every session added up (min): {', '.join(shown)}; {sum(wall.values()):.0f} in "
+             "all" if shown else "wall time per stage: no stage has run yet"]
+    timed: dict[str, list[float]] = {}
+    events = job_events(layout)
+    for job in jobs:  # a done or running job's minutes, else what its unfinished sessions logged
+        minutes = job.minutes if job.minutes is not None else span_minutes(events.get(job.id, []))
+        if minutes is not None:
+            timed.setdefault(job.stage, []).append(minutes)
+    if timed:
+        lines.append("job time per stage, each job's own minutes added up (min): " + ", ".join(
+            f"{stage} {sum(timed[stage]):.0f} ({len(timed[stage])} job{'s' if len(timed[stage]) > 1 else ''})"
+            for stage in STAGES if stage in timed))
+    return lines
 
 
 # --------------------------------------------------------------------------------------------- estimate

@@ -16,7 +16,9 @@ imported when it is used, :func:`abm.registry.resolve`):
 * ``rotation_fit``: how well a policy fits the rotation labels of its training keyframes
   (:class:`~abm.evaluation.diagnose.rotation_fit.RotationFit`);
 * ``failure_reasons``: why closed-loop rollouts stop, step by step against the expert
-  (:class:`~abm.evaluation.diagnose.failure_reasons.FailureReasons`).
+  (:class:`~abm.evaluation.diagnose.failure_reasons.FailureReasons`);
+* ``destination_grounding``: how well a grounder finds each task's destination beside its target (of the grounder,
+  not of a policy: :class:`~abm.evaluation.diagnose.destination_grounding.DestinationGrounding`).
 
 **Adding a diagnosis**: its module (the request dataclass with its ``kind`` and ``run``) and its
 :func:`register_diagnosis` entry here, plus its tests.
@@ -81,3 +83,6 @@ register_diagnosis("rotation_fit", DiagnosisKind(
 register_diagnosis("failure_reasons", DiagnosisKind(
     "abm.evaluation.diagnose.failure_reasons:FailureReasons",
     "why closed-loop rollouts stop: each step's motion status against the expert's keyframe, per kind"))
+register_diagnosis("destination_grounding", DiagnosisKind(
+    "abm.evaluation.diagnose.destination_grounding:DestinationGrounding",
+    "point IoU, hit and found rate of a grounder's target and destination masks on evaluation scenes"))

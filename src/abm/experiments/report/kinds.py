@@ -91,6 +91,9 @@ register_section("keyframe_compare", SectionKind(
     ("title", "runs", "names", "kinds"), "rotation / position error per task, split and kind, a column per run"))
 register_section("grounding_quality", SectionKind(
     ("title", "source", "config"), "mask quality of one grounding configuration on the evaluated tasks"))
+register_section("destination_grounding", SectionKind(
+    ("title",), "the spec's CLIP grounder on each task's target and destination: IoU and hit rate per task and split",
+    writer="abm.experiments.report.sections.grounding_quality:write_destination"))
 register_section("seeds", SectionKind(
     ("title", "of_table", "seeds", "splits", "digits"), "the seed spread of a table, and the differences above it"))
 register_section("diagnosis", SectionKind(

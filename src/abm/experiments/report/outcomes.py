@@ -31,6 +31,8 @@ class Outcomes:
         index: the whole zoo index the report writes (with other specs' entries), or ``None`` without a zoo.
         loops: grasp <-> lift loops per (run or variant, task, split): (episodes that loop, episodes)
             (:func:`abm.experiments.arm_records.loop_counts`).
+        destination_grounding: the rows of the ``destination_grounding`` diagnosis (the spec's CLIP grounder on
+            each task's target and destination), ``[]`` before it ran.
     """
 
     cells: Cells
@@ -42,6 +44,7 @@ class Outcomes:
     probes: dict[tuple[str, str], dict[str, Any]] = field(default_factory=dict)
     index: list[dict[str, Any]] | None = None
     loops: Loops = field(default_factory=dict)
+    destination_grounding: list[dict[str, Any]] = field(default_factory=list)
 
 
 def collect_cells(spec: ExperimentSpec, layout: Layout) -> Cells:
@@ -163,7 +166,15 @@ def collect(spec: ExperimentSpec, layout: Layout) -> Outcomes:
     return Outcomes(cells=collect_cells(spec, layout), summaries=keyframe_summaries(spec, layout), entries=entries,
                     stages=stage_minutes(layout.times), machines=machines(layout.machines), zoo_eval=zoo_eval,
                     probes=skill_text_probes(spec, layout), index=index,
-                    loops=loop_counts(spec, layout) if _reads_loops(spec) else {})
+                    loops=loop_counts(spec, layout) if _reads_loops(spec) else {},
+                    destination_grounding=destination_grounding(spec, layout))
+
+
+def destination_grounding(spec: ExperimentSpec, layout: Layout) -> list[dict[str, Any]]:
+    """The rows of the spec's ``destination_grounding`` diagnosis (``[]``: not part of it, or not run yet)."""
+    path = layout.destination_grounding
+    measured = spec.diagnose is not None and spec.diagnose.destination_grounding is not None and path.is_file()
+    return list(json.loads(path.read_text())) if measured else []
 
 
 def _reads_loops(spec: ExperimentSpec) -> bool:

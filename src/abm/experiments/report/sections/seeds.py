@@ -9,12 +9,13 @@ from abm.experiments.report.numbers import pct, table_head, table_row
 from abm.experiments.spec import Section
 
 
-def seed_spread(ctx: Context) -> dict[str, float]:
-    """split -> the seed spread of every ``seeds`` section of the report (points): the largest difference between
-    the averages of two seeds of one run; a split is left out until one seed pair has it evaluated."""
+def seed_spread(ctx: Context, of_table: int | None = None) -> dict[str, float]:
+    """split -> the seed spread of every ``seeds`` section of the report (points; of table ``of_table``'s only, when
+    given): the largest difference between the averages of two seeds of one run; a split is left out until one
+    seed pair has it evaluated."""
     spread: dict[str, float] = {}
     for section in (*ctx.spec.report.summary, *ctx.spec.report.details):
-        if section.kind == "seeds":
+        if section.kind == "seeds" and of_table in (None, section.of_table):
             for split, points in section_spread(seed_differences(ctx, section)).items():
                 spread[split] = max(spread.get(split, 0.0), points)
     return spread

@@ -9,7 +9,7 @@ from abm.experiments.report.context import Context
 from abm.experiments.report.keyframes import kind_medians
 from abm.experiments.report.numbers import pct, ratio
 from abm.experiments.report.sections.seeds import seed_spread
-from abm.experiments.spec import Section, TargetCheck
+from abm.experiments.spec import SPREAD_CHECK, Section, TargetCheck
 
 
 def verdict(text: str, ok: bool | None, value: str) -> str:
@@ -25,17 +25,20 @@ def shortfall(missed_by: float, split: str, spread: Mapping[str, float], digits:
 
 
 def checked(ctx: Context, section: Section) -> tuple[list[str], dict[str, list[str]]]:
-    """The verdicts of a ``targets`` section, one ``RUN: check: verdict; ...`` per row run, and the texts of the
-    checks each run misses (measured, not asserted; with ``explain``, a target in points missed by no more than
-    the report's seed spread, :func:`seed_spread`, says so)."""
+    """The verdicts of a ``targets`` section, one ``RUN: check: verdict; ...`` per row run after one ``check:
+    verdict`` per ``exceeds_spread`` check (of the table, :func:`exceeds_spread`), and the texts of the checks each
+    run misses (measured, not asserted; with ``explain``, a target in points missed by no more than the report's
+    seed spread, :func:`seed_spread`, says so)."""
     parts = []
     digits = section.digits
     missed: dict[str, list[str]] = {}
     spread = seed_spread(ctx) if section.explain else {}
+    for check in (c for c in section.checks if c.kind == SPREAD_CHECK):  # of the section's table, not of a row
+        parts.append(exceeds_spread(ctx, check, digits))
     for run in section.runs:
         checks = []
         for check in section.checks:
-            if check.run and check.run != run:
+            if check.run and check.run != run or check.kind == SPREAD_CHECK:
                 continue
             value = ctx.average(run, check.split)
             ok: bool | None
@@ -65,6 +68,28 @@ def checked(ctx: Context, section: Section) -> tuple[list[str], dict[str, list[s
         if checks:
             parts.append(f"{run}: " + "; ".join(checks))
     return parts, missed
+
+
+def exceeds_spread(ctx: Context, check: TargetCheck, digits: int) -> str:
+    """An ``exceeds_spread`` check (:class:`TargetCheck`) as the report states it: met when every named difference
+    between two rows' split averages exceeds table ``of_table``'s seed spread on the split (:func:`seed_spread`) by
+    more than ``value`` points, not met with every difference beside the spread otherwise, not measured yet while
+    the spread or a row's average is missing (naming what is missing)."""
+    spread = seed_spread(ctx, check.of_table).get(check.split)
+    averages = {r: ctx.average(r, check.split) for pair in check.pairs for r in pair}
+    missing = [r for r, v in averages.items() if v is None]
+    if spread is None or missing:
+        lacking = ([f"the seed spread of Table {check.of_table}"] if spread is None else []) + missing
+        return f"{check.text}: not measured yet (no {check.split} average of {', '.join(lacking)})"
+    values = {r: v for r, v in averages.items() if v is not None}
+    bar = spread + check.value
+    shown, ok = [], True
+    for a, b in check.pairs:
+        difference = abs(values[a] - values[b])
+        ok = ok and difference > bar
+        shown.append(f"{a} vs {b} {difference:.{digits}f}{'' if difference > bar else ' (within)'}")
+    limit = f"seed spread {spread:.{digits}f}" + (f" + {check.value:g}" if check.value else "")
+    return verdict(check.text, ok, f"{limit} points; " + ", ".join(shown))
 
 
 def at_most(ctx: Context, run: str, check: TargetCheck) -> tuple[bool | None, str]:
