@@ -50,8 +50,9 @@ def test_met_when_every_named_difference_exceeds_table_3s_seed_spread(tmp_path: 
             "concat-rerendered vs stack 20.0, concat-rerendered vs concat-full 5.0, concat-rerendered vs "
             "abm_clip_hash 10.0)") in text
     # unseen: nothing evaluated, so neither the spread nor the rows: not measured, and never "met"
-    assert ("every unseen difference the README names > the seed spread: not measured yet (no unseen average of "
-            "the seed spread of Table 3, concat-rerendered, stack, concat-full, abm_clip_hash)") in text
+    assert ("every unseen difference the README names > the seed spread: not measured yet (missing on unseen: "
+            "Table 3's seed spread, concat-rerendered's average, stack's average, concat-full's average, "
+            "abm_clip_hash's average)") in text
 
 
 def test_not_met_names_the_differences_within_the_spread(tmp_path: Path) -> None:
@@ -69,10 +70,10 @@ def test_a_missing_cell_is_not_measured_yet(tmp_path: Path) -> None:
     cells = _table_3({"concat-rerendered": 60.0, "concat-rerendered_seed1": 58.0, "stack": 40.0, "concat-full": 30.0,
                       "abm_clip_hash": 20.0})
     del cells[("stack", TASKS[0], "seen")]  # one task of one row not evaluated: no average
-    assert "seen difference the README names > the seed spread: not measured yet (no seen average of stack)" in \
-        _verdicts(cells, tmp_path)
+    assert "seen difference the README names > the seed spread: not measured yet (missing on seen: stack's " \
+           "average)" in _verdicts(cells, tmp_path)
     del cells[("concat-rerendered_seed1", TASKS[0], "seen")]  # nor the spread
-    assert "not measured yet (no seen average of the seed spread of Table 3, stack)" in _verdicts(cells, tmp_path)
+    assert "not measured yet (missing on seen: Table 3's seed spread, stack's average)" in _verdicts(cells, tmp_path)
 
 
 def test_a_margin_raises_the_bar_and_misses_are_no_runs_to_diagnose(tmp_path: Path) -> None:

@@ -793,17 +793,18 @@ def _pairs(reader: _Reader, known: set[str]) -> tuple[tuple[str, str], ...]:
 
 def _check_spread_targets(reader: _Reader, report: ReportSpec) -> None:
     """Every ``exceeds_spread`` check names rows of its table (``of_table``), which has a ``seeds`` section."""
-    sections = (*report.summary, *report.details, *(s for block in report.blocks.values() for s in block))
-    for section in sections:
-        for check in (c for c in section.checks if c.kind == SPREAD_CHECK):
+    parts = {"summary": report.summary, "details": report.details,
+             **{f"blocks.{name}": block for name, block in report.blocks.items()}}
+    sections = [s for part in parts.values() for s in part]
+    for key, part in parts.items():
+        for check in (c for section in part for c in section.checks if c.kind == SPREAD_CHECK):
             table = next((s for s in sections if s.table == check.of_table), None)
             if table is None or not any(s.kind == "seeds" and s.of_table == check.of_table for s in sections):
                 raise reader.error(f"{check.text!r}: table {check.of_table} has no seeds section to measure its seed "
-                                   "spread", "summary")
+                                   "spread", key)
             stray = sorted({r for pair in check.pairs for r in pair} - set(table.runs))
             if stray:
-                raise reader.error(f"{check.text!r}: {', '.join(stray)} is no row of table {check.of_table}",
-                                   "summary")
+                raise reader.error(f"{check.text!r}: {', '.join(stray)} is no row of table {check.of_table}", key)
 
 
 def _sections(reader: _Reader, key: str, runs: Sequence[str]) -> tuple[Section, ...]:

@@ -79,8 +79,9 @@ def exceeds_spread(ctx: Context, check: TargetCheck, digits: int) -> str:
     averages = {r: ctx.average(r, check.split) for pair in check.pairs for r in pair}
     missing = [r for r, v in averages.items() if v is None]
     if spread is None or missing:
-        lacking = ([f"the seed spread of Table {check.of_table}"] if spread is None else []) + missing
-        return f"{check.text}: not measured yet (no {check.split} average of {', '.join(lacking)})"
+        lacking = ([f"Table {check.of_table}'s seed spread"] if spread is None else []) + [f"{r}'s average"
+                                                                                          for r in missing]
+        return f"{check.text}: not measured yet (missing on {check.split}: {', '.join(lacking)})"
     values = {r: v for r, v in averages.items() if v is not None}
     bar = spread + check.value
     shown, ok = [], True
