@@ -28,11 +28,11 @@ from abm.sim.frustum_culling import FrustumCulling  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _frames(rig: CameraRig, data: mujoco.MjData) -> dict[str, tuple[np.ndarray, ...]]:
+def _frames(rig: CameraRig, data: mujoco.MjData) -> dict[str, tuple[np.ndarray | None, ...]]:
     return {name: (f.rgb, f.depth, f.segmentation) for name, f in rig.render(data).items()}
 
 
-def _same(a: dict[str, tuple[np.ndarray, ...]], b: dict[str, tuple[np.ndarray, ...]]) -> None:
+def _same(a: dict[str, tuple[np.ndarray | None, ...]], b: dict[str, tuple[np.ndarray | None, ...]]) -> None:
     for name in a:
         for x, y, what in zip(a[name], b[name], ("rgb", "depth", "segmentation"), strict=True):
             assert np.array_equal(x, y), (name, what)

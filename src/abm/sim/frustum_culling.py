@@ -107,7 +107,8 @@ class FrustumCulling:
         distance = centres @ normals.T + offsets  # (n, 6): > 0 on the outer side of each plane
         along = np.abs(np.einsum("pk,nkj->npj", normals, rotations))  # |plane normal . box axis j|
         reach = np.einsum("npj,nj->np", along, self._box_half[meshes])  # (n, 6): the box's half-extent
-        return np.any(distance > MARGIN_SCALE * reach + MARGIN_M, axis=1)
+        outside: np.ndarray = np.any(distance > MARGIN_SCALE * reach + MARGIN_M, axis=1)
+        return outside
 
 
 def _frustum_planes(scene: Any, aspect: float) -> tuple[np.ndarray, np.ndarray]:
