@@ -28,11 +28,14 @@ from abm.sim.frustum_culling import FrustumCulling  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _frames(rig: CameraRig, data: mujoco.MjData) -> dict[str, tuple[np.ndarray | None, ...]]:
-    return {name: (f.rgb, f.depth, f.segmentation) for name, f in rig.render(data).items()}
+def _frames(rig: CameraRig, data: mujoco.MjData) -> dict[str, tuple[np.ndarray, ...]]:
+    """Each camera's colour, depth and segmentation (the rigs here draw it)."""
+    frames = rig.render(data)
+    assert all(f.segmentation is not None for f in frames.values())
+    return {name: (f.rgb, f.depth, np.asarray(f.segmentation)) for name, f in frames.items()}
 
 
-def _same(a: dict[str, tuple[np.ndarray | None, ...]], b: dict[str, tuple[np.ndarray | None, ...]]) -> None:
+def _same(a: dict[str, tuple[np.ndarray, ...]], b: dict[str, tuple[np.ndarray, ...]]) -> None:
     for name in a:
         for x, y, what in zip(a[name], b[name], ("rgb", "depth", "segmentation"), strict=True):
             assert np.array_equal(x, y), (name, what)
