@@ -54,13 +54,15 @@ def test_the_estimate_multiplies_what_is_left_by_measured_rates_and_says_where_t
     _carry_a_training(engine, "abm_oracle", 2, 10.0)  # 5 s per step; 1 step left of 3
     (tmp_path / "docs/results").mkdir(parents=True)
     (tmp_path / "docs/results/rollout_speed.json").write_text(json.dumps(
-        [{"stage": "total", "seconds_per_rollout": 4.0}, {"stage": "total", "seconds_per_rollout": 6.0},
-         {"stage": "render", "seconds_per_rollout": 100.0}]))
+        [{"commit": "old", "stage": "total", "seconds_per_rollout": 40.0},  # a baseline measured beside it
+         {"commit": "new", "stage": "total", "seconds_per_rollout": 4.0},
+         {"commit": "new", "stage": "total", "seconds_per_rollout": 6.0},
+         {"commit": "new", "stage": "render", "seconds_per_rollout": 100.0}]))
     lines = estimate(spec, layout, engine.status())
     assert lines[1] == ("  training: 2 job(s), 4 steps left × 5.00 s per step = 0.3 min (~0.2 min with 2 at a "
                         "time); measured from the training logs of abm_oracle")
     assert lines[2] == ("  evaluation: 2 job(s), 4 episodes left × 5.00 s per episode = 0.3 min (~0.3 min with 1 "
-                        "worker(s)); measured from docs/results/rollout_speed.json (2 measurements)")
+                        "worker(s)); measured from docs/results/rollout_speed.json (2 measurements at new)")
     assert lines[0] == "estimate of what is left: 0.7 min of CPU work"
     OutcomeLog(layout.eval_dir("abm_oracle", "seen") / "outcomes.jsonl").append(_outcomes([9.0])[0])
     rate = episode_rate(spec, layout)  # the spec's own episodes come first, and count as done

@@ -1,6 +1,6 @@
 """What ``abm experiment status`` says beside each job's state: a finished job's minutes where no job log of this
-working folder has them, the edition's time per stage (:func:`stage_time_lines`), what is kept and carried (files
-and sizes), and an estimate of what is left.
+working folder has them, the edition's time per stage (:func:`stage_time_lines`), what the report's README gate
+waits for (:func:`readme_gate_lines`), what is kept and carried (files and sizes), and an estimate of what is left.
 
 Minutes of a finished job (:func:`kept_minutes`), when OUT/jobs.jsonl has none (a fresh clone): a training's
 ``train_minutes`` from the zoo index or ``KEPT/runs.json``, an evaluation's episodes' seconds summed (the
@@ -27,6 +27,7 @@ from statistics import mean
 from typing import Any, Protocol
 
 from abm.evaluation.results import OUTCOME_ARCHIVE, OutcomeLog, read_outcome_archive
+from abm.experiments.report import Context, Outcomes, collect_cells, status_line
 from abm.experiments.spec import STAGES, ExperimentSpec
 from abm.experiments.state import Layout, job_events, last_logged_step, pid_alive, span_minutes, stage_spans
 
@@ -155,6 +156,15 @@ def stage_time_lines(layout: Layout, jobs: Sequence[StatusJob]) -> list[str]:
     return lines
 
 
+# ------------------------------------------------------------------------------------------- README gate
+def readme_gate_lines(spec: ExperimentSpec, layout: Layout) -> list[str]:
+    """Whether the report's README gate (``report.readme_when``) is open, and if not what it waits for, from the
+    cells evaluated here or kept (:func:`abm.experiments.report.gate.status_line`; ``[]`` without a gate)."""
+    if spec.report.readme_when is None:
+        return []
+    return status_line(Context(spec, Outcomes(cells=collect_cells(spec, layout, kept=True)), layout))
+
+
 # --------------------------------------------------------------------------------------------- estimate
 def _logged_rate(log: Path) -> tuple[int, float] | None:
     """``(step, elapsed seconds)`` of a training log's last row (``None``: no row with a time)."""
@@ -187,16 +197,19 @@ def step_rate(spec: ExperimentSpec, layout: Layout) -> Rate | None:
 
 def episode_rate(spec: ExperimentSpec, layout: Layout) -> Rate | None:
     """Seconds per evaluation episode: this spec's evaluated episodes, else the repository's rollout-speed
-    measurement (its ``total`` rows); ``None`` when neither exists."""
+    measurement (the ``total`` rows of the commit measured last); ``None`` when neither exists."""
     seconds = [s for name in [*spec.runs, *(v.name for v in spec.evaluation.variants)]
                for split in spec.evaluation.splits for s in episode_seconds(layout, name, split.split)]
     if seconds:
         return Rate(mean(seconds), f"{len(seconds)} episodes evaluated by this spec")
     speed = layout.root / ROLLOUT_SPEED
     rows = [r for r in json.loads(speed.read_text()) if r.get("stage") == "total"] if speed.is_file() else []
-    if rows:
-        return Rate(mean(r["seconds_per_rollout"] for r in rows), f"{ROLLOUT_SPEED} ({len(rows)} measurements)")
-    return None
+    if not rows:
+        return None
+    newest = rows[-1].get("commit")  # the file grows at its end: the latest code's rollouts, not its baselines'
+    rows = [r for r in rows if r.get("commit") == newest]
+    at = f" at {newest}" if newest else ""
+    return Rate(mean(r["seconds_per_rollout"] for r in rows), f"{ROLLOUT_SPEED} ({len(rows)} measurements{at})")
 
 
 def steps_done(layout: Layout, run: str) -> int:
