@@ -2,7 +2,8 @@
 paper_tables_v3): the second edition's runs with the progress input on every model, the destination mask on the mask
 variants and the early stop of a flat curve, second seeds of abm_clip, rvt_clip and the best fusion, issue 54's
 targets (with Table 3's differences against its seed spread), the destination's grounding quality in the
-diagnosis, no README block yet, and a dry run that plans every job without writing anything."""
+diagnosis, its README blocks and zoo README behind a gate until Tables 1 and 2 are complete, and a dry run that
+plans every job without writing anything."""
 
 from __future__ import annotations
 
@@ -58,7 +59,7 @@ def test_the_runs_are_the_tables_models_with_the_recipes_settings() -> None:
     assert V3.training_order()[:2] == ["abm_clip", "rvt_clip"] and V3.training_order()[-3:] == second_seeds
 
 
-def test_the_edition_evaluates_like_the_second_and_writes_no_readme_block_yet(tmp_path: Path) -> None:
+def test_the_edition_evaluates_like_the_second_and_gates_its_readme_blocks(tmp_path: Path) -> None:
     assert (V3.out, V3.kept, V3.zoo, V3.zoo_suffix, V3.edition, V3.carry) == (
         "runs/paper_v3", "docs/results/paper_tables_v3", "models", "_v3", 3, "models/carry/paper_tables_v3")
     assert V3.data == replace(V2.data, folder="runs/paper_v2/data")  # the second edition's demonstrations
@@ -77,10 +78,13 @@ def test_the_edition_evaluates_like_the_second_and_writes_no_readme_block_yet(tm
     assert V3.diagnose.destination_grounding is not None and V2.diagnose.destination_grounding is None
     kinds = [s.kind for s in V3.report.summary]
     assert kinds.index("heading") < kinds.index("destination_grounding") < kinds.index("diagnosis")
-    assert (V3.report.readme, V3.report.blocks, V3.report.zoo_readme) == ("", {}, False)
+    # the README's blocks and the zoo's README, written once Tables 1 and 2 are complete (tests/test_readme_gate.py)
+    assert (V3.report.readme, V3.report.block, list(V3.report.blocks), V3.report.zoo_readme) == (
+        "README.md", "paper-tables", ["headline"], True)
+    assert V3.report.readme_when is not None and V3.report.readme_when.complete == (1, 2)
     written = {path.relative_to(tmp_path).as_posix() for path, _ in report_files(V3, Layout.of(V3, tmp_path))}
-    assert "README.md" not in written and "models/README.md" not in written  # the second edition's stay
-    assert {"docs/results/paper_tables_v3.md", "docs/results/paper_tables_v3.json", "models/index.json"} <= written
+    assert {"docs/results/paper_tables_v3.md", "docs/results/paper_tables_v3.json", "models/index.json",
+            "README.md", "models/README.md"} <= written
     seeds = {s.of_table: dict(s.seeds) for s in V3.report.summary if s.kind == "seeds"}
     assert seeds == {1: {"abm_clip": "abm_clip_seed1", "rvt_clip": "rvt_clip_seed1"},
                      3: {"concat-rerendered": "concat-rerendered_seed1"}}

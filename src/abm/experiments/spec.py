@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import functools
 import re
+import string
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath
@@ -342,7 +343,8 @@ class Section:
         table: the table's number in the records (``paper_tables.json``).
         names: row names replacing a run's name.
         paper: the paper's averages per run (one per split).
-        of_table: the table a ``spread`` sentence summarises.
+        of_table: the table a ``spread`` sentence summarises, a ``seeds`` section measures, or whose seed spread a
+            ``headline`` text holds its differences to (:func:`headline_fields`).
         checks: the ``targets`` checks.
         task: the task an ``approach_yaw`` sentence names.
         note: a sentence appended to the section.
@@ -474,6 +476,8 @@ class ReportSpec:
         figures: figures drawn from the kept outcomes.
         zoo_readme: also write the zoo's index and README (``ZOO/index.json``, ``ZOO/README.md``).
         zoo_note: what the zoo's README says about its models after naming what wrote it.
+        readme_when: when the README's blocks and the zoo's README are written (``None``: every time the report
+            runs); until then the report leaves them as they are (another edition's).
     """
 
     title: str
@@ -488,6 +492,22 @@ class ReportSpec:
     figures: tuple[FigureSpec, ...] = ()
     zoo_readme: bool = False
     zoo_note: str = ""
+    readme_when: ReadmeGate | None = None
+
+
+@dataclass(frozen=True)
+class ReadmeGate:
+    """The gate of a report's README blocks and zoo README (``report.readme_when``): a spec declares them before
+    it has results, and the report writes them only once the gate is open, so an edition that has not run leaves
+    the README and the zoo's README to the edition before (:mod:`abm.experiments.report.gate`).
+
+    Attributes:
+        complete: the tables (their ``table:`` numbers) that must have every cell evaluated first: every row on
+            every task of each split of the table, and the runs of the table's seed pairs (its ``seeds``
+            sections) on theirs, so the README's differences can be held to the seed spread.
+    """
+
+    complete: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -775,11 +795,53 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
                       only=reader.choice("only", ("readme", "document")) if reader.has("only") else "")
     if kind == "headline" and (not section_runs or not splits):
         raise reader.error("a 'headline' section needs its runs and splits", "runs")
+    if kind == "headline":
+        try:
+            unknown = sorted(template_fields(section.text) - headline_fields(section))
+        except ValueError as err:
+            raise reader.error(f"a template with unbalanced braces ({err})", "text") from None
+        if unknown:
+            raise reader.error(f"{', '.join('{' + f + '}' for f in unknown)}: no such value (a headline fills in "
+                               "{RUN_SPLIT}, {RUN_SPLIT_paper}, {RUN_SPLIT_minus_OTHER} and, with of_table, "
+                               "{RUN_SPLIT_minus_OTHER_vs_spread} of its runs and splits)", "text")
     if kind == "seeds" and (not seeds or section.of_table is None):
         raise reader.error("a 'seeds' section needs seeds (RUN: RUN_OTHER_SEED) and the table it measures (of_table)",
                            "seeds")
     reader.done()
     return section
+
+
+SPREAD_FIELD = "_vs_spread"  #: suffix of a headline placeholder: a difference held to the seed spread
+
+
+def difference_field(run: str, split: str, other: str) -> str:
+    """The ``headline`` placeholder of ``run``'s ``split`` average less ``other``'s (points)."""
+    return f"{run}_{split}_minus_{other}"
+
+
+def headline_fields(section: Section) -> set[str]:
+    """The placeholders a ``headline`` section's text may use: ``{RUN_SPLIT}`` (the run's average, %),
+    ``{RUN_SPLIT_paper}`` (the paper's), ``{RUN_SPLIT_minus_OTHER}`` (:func:`difference_field`: the run's average
+    less another row's, points) and, with ``of_table``, ``{RUN_SPLIT_minus_OTHER_vs_spread}`` (whether that
+    difference exceeds table ``of_table``'s seed spread on the split)."""
+    fields = set()
+    for run in section.runs:
+        for split in section.splits:
+            fields |= {f"{run}_{split}", f"{run}_{split}_paper"}
+            for other in (r for r in section.runs if r != run):
+                fields.add(difference_field(run, split, other))
+                if section.of_table is not None:
+                    fields.add(difference_field(run, split, other) + SPREAD_FIELD)
+    return fields
+
+
+def template_fields(text: str) -> set[str]:
+    """The ``{NAME}`` placeholders of a template (``{{`` and ``}}`` are braces).
+
+    Raises:
+        ValueError: unbalanced braces.
+    """
+    return {name for _, name, _, _ in string.Formatter().parse(text) if name is not None}
 
 
 def _pairs(reader: _Reader, known: set[str]) -> tuple[tuple[str, str], ...]:
@@ -792,19 +854,22 @@ def _pairs(reader: _Reader, known: set[str]) -> tuple[tuple[str, str], ...]:
 
 
 def _check_spread_targets(reader: _Reader, report: ReportSpec) -> None:
-    """Every ``exceeds_spread`` check names rows of its table (``of_table``), which has a ``seeds`` section."""
+    """Every ``exceeds_spread`` check, and every ``headline`` whose differences are held to a seed spread
+    (``of_table``), names rows of its table, which has a ``seeds`` section."""
     parts = {"summary": report.summary, "details": report.details,
              **{f"blocks.{name}": block for name, block in report.blocks.items()}}
     sections = [s for part in parts.values() for s in part]
     for key, part in parts.items():
-        for check in (c for section in part for c in section.checks if c.kind == SPREAD_CHECK):
-            table = next((s for s in sections if s.table == check.of_table), None)
-            if table is None or not any(s.kind == "seeds" and s.of_table == check.of_table for s in sections):
-                raise reader.error(f"{check.text!r}: table {check.of_table} has no seeds section to measure its seed "
-                                   "spread", key)
-            stray = sorted({r for pair in check.pairs for r in pair} - set(table.runs))
+        held = [(repr(c.text), c.of_table, {r for pair in c.pairs for r in pair}) for section in part
+                for c in section.checks if c.kind == SPREAD_CHECK]
+        held += [("the headline", s.of_table, set(s.runs)) for s in part if s.kind == "headline" and s.of_table]
+        for what, number, runs in held:
+            table = next((s for s in sections if s.table == number), None)
+            if table is None or not any(s.kind == "seeds" and s.of_table == number for s in sections):
+                raise reader.error(f"{what}: table {number} has no seeds section to measure its seed spread", key)
+            stray = sorted(runs - set(table.runs))
             if stray:
-                raise reader.error(f"{check.text!r}: {', '.join(stray)} is no row of table {check.of_table}", key)
+                raise reader.error(f"{what}: {', '.join(stray)} is no row of table {number}", key)
 
 
 def _sections(reader: _Reader, key: str, runs: Sequence[str]) -> tuple[Section, ...]:
@@ -813,6 +878,26 @@ def _sections(reader: _Reader, key: str, runs: Sequence[str]) -> tuple[Section, 
         raise reader.error(f"expected a list of sections, got {shown(raw)}", key)
     return tuple(_section(reader.at(item, f"{key}[{i}]"), runs)
                  for i, item in enumerate(raw))
+
+
+def _readme_gate(reader: _Reader, report: ReportSpec) -> ReadmeGate | None:
+    """``report.readme_when`` (``None`` when absent): ``complete:`` a list of the report's table numbers."""
+    if not reader.has("readme_when"):
+        return None
+    gate = reader.sub("readme_when")
+    raw = gate.raw("complete")
+    if not isinstance(raw, list) or not raw or not all(isinstance(n, int) and not isinstance(n, bool) for n in raw):
+        raise gate.error(f"expected a list of the report's table numbers, got {shown(raw)}", "complete")
+    tables = sorted({s.table for s in (*report.summary, *report.details) if s.table is not None})
+    unknown = [n for n in raw if n not in tables]
+    if unknown:
+        raise gate.error(f"{', '.join(map(str, unknown))}: no table of this report (its tables: "
+                         f"{', '.join(map(str, tables)) or 'none'})", "complete")
+    gate.done()
+    if not report.readme and not report.zoo_readme:
+        raise reader.error("holds back nothing: it gates the README's blocks (readme) and the zoo's README "
+                           "(zoo_readme)", "readme_when")
+    return ReadmeGate(complete=tuple(dict.fromkeys(raw)))
 
 
 def _readme_blocks(reader: _Reader, runs: Sequence[str]) -> dict[str, tuple[Section, ...]]:
@@ -1003,6 +1088,7 @@ def parse_spec(data: Any, path: Path, *, check_tasks: bool = True) -> Experiment
                         summary=_sections(rep, "summary", rows), details=_sections(rep, "details", rows),
                         blocks=_readme_blocks(rep, rows),
                         figures=tuple(figures), zoo_readme=rep.flag("zoo_readme"), zoo_note=rep.text("zoo_note", ""))
+    report = replace(report, readme_when=_readme_gate(rep, report))
     if report.readme and not _MARKER.match(report.block):
         raise rep.error(f"a README block needs a marker name (lower case, digits, -), got {report.block!r}", "block")
     if report.blocks and not report.readme:

@@ -49,7 +49,7 @@ from abm.experiments.jobs import (
     TypedJob,
     ZooEvalJob,
 )
-from abm.experiments.report import keep_training_log, write_report, zoo_index
+from abm.experiments.report import held_back, keep_training_log, write_report, zoo_index
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Runner, Source
 from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, DestinationGroundingSpec, ExperimentSpec
 from abm.experiments.state import (
@@ -667,13 +667,15 @@ class Engine:
                 LOG.info("report: would write %s", self.spec.report.document or self.spec.report.readme)
                 return True
             keep(self.spec, self.layout)
-            write_report(self.spec, self.layout)
+            report = write_report(self.spec, self.layout)
             written = [self.spec.report.document] if self.spec.report.document else []
-            if self.spec.report.readme:
+            if self.spec.report.readme and not report.waits:
                 names = [self.spec.report.block, *self.spec.report.blocks]
                 written.append(f"the {' and '.join(names)} block{'s' if len(names) > 1 else ''} of "
                                f"{self.spec.report.readme}")
-            LOG.info("report: wrote %s", " and ".join(written))
+            LOG.info("report: wrote %s", " and ".join(written) or "no document")
+            if report.waits:  # the README gate (report.readme_when) is closed
+                LOG.info("report: left %s unchanged until %s", held_back(self.spec, self.layout), report.waits)
             return True
         if stage == "carry":
             if not dry_run:

@@ -10,7 +10,7 @@ from types import FrameType
 from abm.experiments.scheduler import Source
 from abm.experiments.spec import builtin_specs, load_spec
 from abm.experiments.stages import Engine
-from abm.experiments.status import carried_lines, estimate, kept_line, stage_time_lines
+from abm.experiments.status import carried_lines, estimate, kept_line, readme_gate_lines, stage_time_lines
 
 
 def _engine(args: argparse.Namespace) -> Engine:
@@ -52,8 +52,8 @@ def status(args: argparse.Namespace) -> int:
     spec, layout = engine.spec, engine.layout
     sources = [s.source for s in (*spec.report.summary, *spec.report.details,
                                   *(s for b in spec.report.blocks.values() for s in b)) if s.source]
-    for line in (*stage_time_lines(layout, jobs), kept_line(layout, sources), *carried_lines(layout),
-                 *estimate(spec, layout, jobs)):
+    for line in (*stage_time_lines(layout, jobs), *readme_gate_lines(spec, layout), kept_line(layout, sources),
+                 *carried_lines(layout), *estimate(spec, layout, jobs)):
         print(line)
     return 0
 

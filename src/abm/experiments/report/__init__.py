@@ -7,6 +7,8 @@
   detail sections;
 * the README block between ``<!-- BLOCK:start -->`` and ``<!-- BLOCK:end -->`` (the summary sections and a
   link to the document), and the further blocks of ``report.blocks`` in the same README (e.g. a headline);
+  with a README gate (``report.readme_when``, :mod:`~abm.experiments.report.gate`), only once the tables it
+  names are complete, as the zoo's README below;
 * the records (``report.records``, e.g. ``docs/results/paper_tables.json``): one record per (table, run,
   task, split) cell with ``successes`` and ``episodes`` (plus mean, std and per-repeat rates);
 * the zoo's index and README (``ZOO/index.json``, ``ZOO/README.md``) when the spec exports into a zoo:
@@ -27,7 +29,8 @@ folder) and rewritten relative to the document's folder in the document.
 The modules: :mod:`~abm.experiments.report.outcomes` (what a report is written from), ``runs`` (what a run
 folder tells), ``numbers`` (cells and averages), ``context`` (what a section writer sees), ``keyframes`` (the
 keyframe diagnosis as the report reads it), ``kinds`` and ``sections`` (the section kinds), ``texts`` (the texts,
-:func:`~abm.experiments.report.texts.compose`) and ``files`` (writing them, only into files the report owns).
+:func:`~abm.experiments.report.texts.compose`), ``gate`` (when the README's blocks and the zoo's README are
+written) and ``files`` (writing them, only into files the report owns).
 """
 
 from typing import TYPE_CHECKING
@@ -47,6 +50,7 @@ if TYPE_CHECKING:  # the exports; each is imported on first use (abm.lazy), so t
         report_files,
         write_report,
     )
+    from abm.experiments.report.gate import held_back, status_line, waits
     from abm.experiments.report.keyframes import approach_yaw, keyframe_table, kind_medians, weakest_keyframes
     from abm.experiments.report.numbers import Cells, average, standard_error
     from abm.experiments.report.outcomes import (
@@ -77,8 +81,9 @@ if TYPE_CHECKING:  # the exports; each is imported on first use (abm.lazy), so t
 __getattr__, __dir__ = lazy_exports(__name__, __file__)
 
 __all__ = ["Cells", "Context", "NotOwnedError", "Outcomes", "Written", "approach_yaw", "average", "block_of", "blocks",
-           "check_owned", "collect", "collect_cells", "compose", "describe_run", "draw_figures", "keep_training_log",
-           "keyframe_summaries", "keyframe_table", "kept_run_summaries", "kind_medians", "newest_edition",
-           "provenance", "records", "relink", "replace_block", "report_files", "seed_spread", "shows_dash",
-           "skill_text_probes", "spec_name", "standard_error", "training_summary", "weakest_keyframes",
-           "write_report", "write_section", "zoo_index", "zoo_readme"]
+           "check_owned", "collect", "collect_cells", "compose", "describe_run", "draw_figures", "held_back",
+           "keep_training_log", "keyframe_summaries", "keyframe_table", "kept_run_summaries", "kind_medians",
+           "newest_edition", "provenance", "records", "relink", "replace_block", "report_files",
+           "seed_spread", "shows_dash", "skill_text_probes", "spec_name", "standard_error", "status_line",
+           "training_summary", "waits", "weakest_keyframes", "write_report", "write_section", "zoo_index",
+           "zoo_readme"]

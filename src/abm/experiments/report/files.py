@@ -183,7 +183,8 @@ def draw_figures(spec: ExperimentSpec, layout: Layout, cells: Cells) -> list[Pat
 
 
 def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> Written:
-    """Write every generated file of the report (see the module docstring); returns their texts."""
+    """Write every generated file of the report (see the module docstring; the README's blocks and the zoo's
+    README only once the spec's README gate is open, :mod:`abm.experiments.report.gate`); returns their texts."""
     for path, what in report_files(spec, layout):  # before anything is written: a refusal leaves every file as is
         check_owned(path, spec, layout, what)
     if layout.zoo is None:  # an experiment without a zoo keeps its runs' summaries itself
@@ -199,7 +200,7 @@ def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> 
     written = compose(spec, layout, outcomes)
     if written.zoo is not None and layout.zoo is not None:
         _write(layout.zoo / "index.json", json.dumps(written.zoo, indent=2) + "\n")
-        if spec.report.zoo_readme and newest_edition(spec, written.zoo):
+        if spec.report.zoo_readme and not written.waits and newest_edition(spec, written.zoo):
             _write(layout.zoo / "README.md", written.zoo_readme)
     if spec.report.records:
         _write(layout.root / spec.report.records, json.dumps(written.records, indent=1) + "\n")
@@ -208,7 +209,7 @@ def write_report(spec: ExperimentSpec, layout: Layout, figures: bool = True) -> 
         _write(layout.root / spec.report.arm_records, json.dumps(records_of_arms, indent=1) + "\n")
     if spec.report.document:
         _write(layout.root / spec.report.document, written.document)
-    if spec.report.readme:
+    if spec.report.readme and not written.waits:  # the README gate is open (or there is none)
         readme = layout.root / spec.report.readme
         text = replace_block(readme.read_text(), spec.report.block, written.block, spec.report.readme)
         for name, body in written.blocks.items():

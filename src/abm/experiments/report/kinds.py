@@ -63,8 +63,9 @@ register_section("targets", SectionKind(
 register_section("target_diagnosis", SectionKind(
     (), "what the diagnosis shows of each run that misses a target of an explaining targets section"))
 register_section("headline", SectionKind(
-    ("text", "runs", "splits", "paper", "names", "column", "digits"),
-    "the result in a paragraph and a small table, ours beside the paper's", reproduce=False))
+    ("text", "runs", "splits", "paper", "names", "column", "digits", "of_table"),
+    "the result in a paragraph (its differences held to a table's seed spread) and a small table, ours beside the "
+    "paper's", reproduce=False))
 register_section("caveats", SectionKind((), "the caveats of the runs that have cells"))
 register_section("weakest_keyframes", SectionKind(
     ("splits",), "each run's keyframe kinds by position error, worst first"))

@@ -11,7 +11,7 @@ from abm.experiments.arm_records import Loops, loop_counts
 from abm.experiments.report.numbers import Cells
 from abm.experiments.report.runs import describe_run, minutes_at_steps, training_summary
 from abm.experiments.spec import ExperimentSpec
-from abm.experiments.state import Layout, machines, stage_minutes
+from abm.experiments.state import Layout, kept_pairs, machines, stage_minutes
 from abm.files import sha256_file
 
 
@@ -47,12 +47,15 @@ class Outcomes:
     destination_grounding: list[dict[str, Any]] = field(default_factory=list)
 
 
-def collect_cells(spec: ExperimentSpec, layout: Layout) -> Cells:
-    """``(run, task, split) -> rate`` from every evaluation JSON of the spec's runs and variants under OUT."""
+def collect_cells(spec: ExperimentSpec, layout: Layout, kept: bool = False) -> Cells:
+    """``(run, task, split) -> rate`` from every evaluation JSON of the spec's runs and variants under OUT (with
+    ``kept``, one OUT lacks from its committed copy in KEPT: what a fresh clone has before a run restores it)."""
+    copies = dict(kept_pairs(spec, layout)) if kept else {}
     cells: Cells = {}
     for name in [*spec.runs, *(v.name for v in spec.evaluation.variants)]:
         for split in spec.evaluation.splits:
             path = layout.eval_dir(name, split.split) / "results.json"
+            path = path if path.is_file() else copies.get(path, path)
             if path.is_file():
                 for rate in json.loads(path.read_text()):
                     cells[(name, rate["task"], rate["split"])] = rate

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from abm.experiments.report.context import Context
+from abm.experiments.report.gate import waits
 from abm.experiments.report.kinds import SECTIONS
 from abm.experiments.report.numbers import Cells, successes, table_head, table_row
 from abm.experiments.report.outcomes import Outcomes
@@ -87,7 +88,9 @@ def relink(text: str, folder: str) -> str:
 
 @dataclass
 class Written:
-    """The texts of one report (what :func:`write_report` writes)."""
+    """The texts of one report (what :func:`write_report` writes); ``waits``: what the README gate
+    (``report.readme_when``) waits for before the README's blocks and the zoo's README are written ("": open, or
+    no gate; :func:`abm.experiments.report.gate.waits`)."""
 
     summary: str
     document: str
@@ -96,6 +99,7 @@ class Written:
     records: list[dict[str, Any]]
     zoo: list[dict[str, Any]] | None
     zoo_readme: str
+    waits: str = ""
 
 
 def records(spec: ExperimentSpec, cells: Cells) -> list[dict[str, Any]]:
@@ -170,4 +174,4 @@ def compose(spec: ExperimentSpec, layout: Layout, outcomes: Outcomes) -> Written
     zoo = (outcomes.index if outcomes.index is not None else outcomes.entries) if layout.zoo is not None else None
     return Written(summary=summary, document=document, block=block, blocks=extra,
                    records=records(spec, outcomes.cells),
-                   zoo=zoo, zoo_readme=zoo_readme(spec, layout, zoo) if zoo is not None else "")
+                   zoo=zoo, zoo_readme=zoo_readme(spec, layout, zoo) if zoo is not None else "", waits=waits(ctx))
