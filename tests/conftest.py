@@ -10,6 +10,8 @@
   the episode is shared, so tests must only read it.
 * ``TINY_POLICY`` (a constant, ``from conftest import TINY_POLICY`` where module-level helpers need it).
 * ``cli_errors``: the ``abm: error:`` lines a command printed (and no traceback).
+* every test leaves ``LP_NUM_THREADS`` as it found it (an in-process ``run_job`` sets it:
+  ``abm.sim.cameras.single_threaded_rasterizer``).
 """
 
 from __future__ import annotations
@@ -33,6 +35,16 @@ os.environ.setdefault("ABM_EXPERT_CACHE", tempfile.mkdtemp(prefix="abm-tests-exp
 
 TINY_POLICY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
                "decoder_channels": 4, "lang_dim": 16}
+
+
+@pytest.fixture(autouse=True)
+def _rasterizer_threads_restored() -> Iterator[None]:
+    before = os.environ.get("LP_NUM_THREADS")
+    yield
+    if before is None:
+        os.environ.pop("LP_NUM_THREADS", None)
+    else:
+        os.environ["LP_NUM_THREADS"] = before
 
 
 @pytest.fixture

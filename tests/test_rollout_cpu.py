@@ -72,40 +72,63 @@ MJCF = """
     <light pos="0 0 3" dir="0 0 -1" castshadow="{castshadow}"/>
     <geom name="floor" type="plane" size="2 2 .1" material="floor"/>
     <camera name="eye" pos="0 0 2" xyaxes="1 0 0 0 1 0" fovy="40"/>
+    <camera name="sensor" pos="0 0 2" xyaxes="1 0 0 0 1 0" sensorsize=".02 .01" resolution="64 64"
+            focal="{focal} {focal}"/>
     <geom name="seen" type="mesh" mesh="cube" pos="0 0 .5" rgba="1 0 0 1"/>
     <geom name="edge" type="mesh" mesh="cube" pos="{edge} 0 .5" rgba="0 1 0 1"/>
+    <geom name="wide" type="mesh" mesh="cube" pos="-.9 0 .5" rgba="1 0 1 1"/>
     <geom name="aside" type="mesh" mesh="cube" pos="1.5 0 .5" rgba="0 0 1 1"/>
     <geom name="behind" type="mesh" mesh="cube" pos="0 0 2.5" rgba="1 1 0 1"/>
   </worldbody>
 </mujoco>
 """
-# the camera sees 2 * 1.5 m * tan(20 deg) ~ 1.09 m wide at the cubes' height: the edge cube's box reaches 1 cm in
-EDGE_X = 1.5 * np.tan(np.radians(20)) + 0.1 - 0.01
+# Both cameras look straight down from 2 m at the cubes (half-size 0.1 m, centres 1.5 m deep). "eye" sees
+# tan(20 deg) * width / height of the depth to either side; "sensor" (a 2:1 sensor at this focal length) sees
+# 2 * tan(20 deg) whatever the picture's size. "wide" (x = -0.9) is in view only where that tangent is 2 * tan(20).
+TAN_20 = float(np.tan(np.radians(20)))
+SENSOR_FOCAL_M = 0.005 / TAN_20  # the sensor's half-height over its focal length is tan(20 deg)
+HALF, DEPTH = 0.1, 1.5
+EDGE_INSIDE_M = 0.002
 
 
-def _toy(reflectance: float = 0.0, shadows: bool = False) -> mujoco.MjModel:
+def _edge_x(tangent: float) -> float:
+    """Where the edge cube's centre goes for its deepest corner (x - 0.1 m, 1.6 m deep) to lie 2 mm inside the
+    frustum's right side of half-angle ``atan(tangent)``."""
+    return HALF + tangent * (DEPTH + HALF) - EDGE_INSIDE_M * float(np.hypot(1.0, tangent))
+
+
+def _toy(reflectance: float = 0.0, shadows: bool = False, edge_x: float = 0.5) -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_string(MJCF.format(
-        reflectance=reflectance, castshadow=str(shadows).lower(), shadowsize=1024 if shadows else 0, edge=EDGE_X))
+        reflectance=reflectance, castshadow=str(shadows).lower(), shadowsize=1024 if shadows else 0, edge=edge_x,
+        focal=SENSOR_FOCAL_M))
 
 
-def test_only_the_geoms_outside_the_view_are_left_out_and_the_picture_is_the_same() -> None:
-    model = _toy()
+@pytest.mark.parametrize(("camera", "height", "width", "tangent", "wide_seen"), [
+    ("eye", 64, 64, TAN_20, False),
+    ("eye", 48, 96, 2 * TAN_20, True),  # twice as wide as high: a width / height swap culls "edge" and "wide"
+    ("sensor", 64, 64, 2 * TAN_20, True),  # its frustum_width, not the picture's aspect, sets its width
+])
+def test_only_the_geoms_outside_the_view_are_left_out_and_the_picture_is_the_same(
+        camera: str, height: int, width: int, tangent: float, wide_seen: bool) -> None:
+    model = _toy(edge_x=_edge_x(tangent))
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     geom_to_object = np.arange(model.ngeom, dtype=np.int32)
-    rig = CameraRig(model, ["eye"], 64, 64, geom_to_object)
+    rig = CameraRig(model, [camera], height, width, geom_to_object)
     try:
         assert rig.culling is not None
         culled = _frames(rig, data)
         scene = rig._renderer._scene
         left_out = {model.geom(g.objid).name for g in scene.geoms[:scene.ngeom] if g.dataid == -1}
-        assert left_out == {"aside", "behind"}
-        assert rig.culling.triangles_culled == 2 * 12  # two cubes of 12 triangles, left out of both draws
+        expected = {"aside", "behind"} | (set() if wide_seen else {"wide"})
+        assert left_out == expected  # "edge" kept: 2 mm of its box are in view
+        assert rig.culling.triangles_culled == 12 * len(expected)  # cubes of 12 triangles
         rig.culling = None
         drawn = _frames(rig, data)
         _same(culled, drawn)
-        seg = drawn["eye"][2]
-        assert {0, 1, 2} <= set(np.unique(seg))  # floor, the cube in view and the one at the edge are drawn
+        shown = set(np.unique(drawn[camera][2]).tolist())
+        assert {model.geom("floor").id, model.geom("seen").id} <= shown
+        assert (model.geom("wide").id in shown) == wide_seen
     finally:
         rig.close()
 
@@ -124,7 +147,8 @@ def test_an_evaluation_rollout_sets_the_rasterizer_threads_unless_the_user_did(
 
     missing = str(tmp_path / "no_model.pt")
     job = EvalJob(missing, "m", "place_food", "seen", 0, 0, 0, checkpoint=missing)
-    monkeypatch.delenv(RASTERIZER_THREADS, raising=False)
+    monkeypatch.setenv(RASTERIZER_THREADS, "")  # recorded: the variable's own state comes back after the test
+    monkeypatch.delenv(RASTERIZER_THREADS)
     assert run_job(job, EvalSettings()).error  # the policy cannot load: the setting came first
     assert os.environ[RASTERIZER_THREADS] == "0"
     monkeypatch.setenv(RASTERIZER_THREADS, "2")

@@ -1,13 +1,15 @@
 """Per-camera frustum culling of a MuJoCo scene's mesh geoms: what no pixel of a camera can show is not drawn.
 
-Mesa's llvmpipe (the CPU renderer of a headless machine) spends most of a 128² draw on the scene's ~190k mesh
-triangles, also on those outside the camera's view, which it transforms and clips before dropping them. A mesh
-geom whose bounding box lies entirely outside a camera's view frustum draws no pixel of that camera, so
-:meth:`FrustumCulling.apply` takes it out of the camera's ``mujoco.MjvScene`` (after ``update_scene``, before the
-draws): its display list is not called. The colour, depth and segmentation of every pixel stay the same, as long
-as nothing outside the view is seen through something inside it: :meth:`FrustumCulling.for_model` refuses models
-with reflecting geoms (MuJoCo draws the scene mirrored in them) or shadow-casting lights (a shadow map draws the
-scene from the light).
+Mesa's llvmpipe (the CPU renderer of a headless machine) spends most of a 128² draw on the scene's mesh triangles
+(~185k in a place_food scene: ``benchmarks/frustum_culling.py``), also on those outside the camera's view, which it
+transforms and clips before dropping them. A mesh geom whose bounding box lies entirely outside a camera's view
+frustum draws no pixel of that camera, so :meth:`FrustumCulling.apply` takes it out of the camera's
+``mujoco.MjvScene`` (after ``update_scene``, before the draws): its display list is not called. The frustum is the
+one ``mjr_render`` projects with (:func:`_frustum_planes`: the eye cameras' average, as wide as the viewport's
+aspect asks or, for a camera with a ``sensorsize``, as its ``frustum_width`` says). The colour, depth and
+segmentation of every pixel stay the same, as long as nothing outside the view is seen through something inside
+it: :meth:`FrustumCulling.for_model` refuses models with reflecting geoms (MuJoCo draws the scene mirrored in
+them) or shadow-casting lights (a shadow map draws the scene from the light).
 """
 
 from __future__ import annotations
@@ -47,6 +49,15 @@ def casts_shadows(model: mujoco.MjModel) -> bool:
     return bool(model.vis.quality.shadowsize > 0 and np.any(model.light_castshadow))
 
 
+def mesh_slots(scene: mujoco.MjvScene) -> list[int]:
+    """Indices into ``scene.geoms`` of the model's mesh geoms that draw a mesh (``dataid``: a display list)."""
+    import mujoco
+
+    mesh, geom = int(mujoco.mjtGeom.mjGEOM_MESH), int(mujoco.mjtObj.mjOBJ_GEOM)
+    return [i for i, g in enumerate(scene.geoms[:scene.ngeom]) if g.type == mesh and g.objtype == geom
+            and g.dataid >= 0]
+
+
 class FrustumCulling:
     """Takes the mesh geoms outside a camera's view frustum out of a scene before it is drawn.
 
@@ -56,11 +67,7 @@ class FrustumCulling:
     """
 
     def __init__(self, model: mujoco.MjModel) -> None:
-        import mujoco
-
         self.model = model
-        self._mesh_type = int(mujoco.mjtGeom.mjGEOM_MESH)
-        self._geom_type = int(mujoco.mjtObj.mjOBJ_GEOM)
         centres, halves = np.zeros((model.nmesh, 3)), np.zeros((model.nmesh, 3))
         for mesh in range(model.nmesh):
             start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
@@ -84,8 +91,7 @@ class FrustumCulling:
         if scene.enabletransform or scene.stereo:
             return 0
         geoms = scene.geoms[:scene.ngeom]
-        slots = [i for i, g in enumerate(geoms) if g.type == self._mesh_type and g.objtype == self._geom_type
-                 and g.dataid >= 0]
+        slots = mesh_slots(scene)
         if not slots:
             return 0
         geom_ids = np.array([geoms[i].objid for i in slots])
@@ -113,21 +119,24 @@ class FrustumCulling:
 
 def _frustum_planes(scene: Any, aspect: float) -> tuple[np.ndarray, np.ndarray]:
     """``(6, 3)`` unit outward normals and ``(6,)`` offsets (world frame) of the view frustum ``mjr_render`` sets
-    for ``scene``'s camera in a viewport of width / height ``aspect``: the average of the scene's two eye cameras
-    (``mjv_averageCamera``), its frustum widened to the viewport's aspect. A point ``p`` is outside when
-    ``normals @ p + offsets > 0`` for some plane."""
-    eyes = scene.camera
-    position = (np.asarray(eyes[0].pos, np.float64) + np.asarray(eyes[1].pos, np.float64)) / 2
-    forward = np.asarray(eyes[0].forward, np.float64) + np.asarray(eyes[1].forward, np.float64)
+    for ``scene``'s camera in a viewport of width / height ``aspect``, as MuJoCo's ``setView`` computes it: the
+    average of the scene's two eye cameras (``mujoco.mjv_averageCamera``), whose half-width at the near plane is
+    its ``frustum_width`` when that is non-zero (a camera with a ``sensorsize``: its intrinsics fix the width,
+    whatever the viewport), else the frustum's height times half the viewport's ``aspect``. A point ``p`` is
+    outside when ``normals @ p + offsets > 0`` for some plane."""
+    import mujoco
+
+    cam = mujoco.mjv_averageCamera(scene.camera[0], scene.camera[1])
+    position = np.asarray(cam.pos, np.float64)
+    forward = np.asarray(cam.forward, np.float64)
     forward /= np.linalg.norm(forward)
-    up = np.asarray(eyes[0].up, np.float64) + np.asarray(eyes[1].up, np.float64)
+    up = np.asarray(cam.up, np.float64)
     up -= forward * (up @ forward)
     up /= np.linalg.norm(up)
     right = np.cross(forward, up)
-    cam = eyes[0]
     near, far = float(cam.frustum_near), float(cam.frustum_far)
     top, bottom = float(cam.frustum_top), float(cam.frustum_bottom)
-    half_width = 0.5 * aspect * (top - bottom)
+    half_width = float(cam.frustum_width) or 0.5 * aspect * (top - bottom)
     left_edge, right_edge = cam.frustum_center - half_width, cam.frustum_center + half_width
     if cam.orthographic:  # sides parallel to the view axis
         local = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, -1], [0, 0, 1]], np.float64)
