@@ -20,7 +20,8 @@ RUN = Path(__file__).parent / "data" / "checkpoints_v1" / "run_oracle"  # a tiny
 
 
 def test_every_diagnosis_is_registered_with_a_request_of_its_kind() -> None:
-    assert DIAGNOSES.names() == ("keyframe_accuracy", "skill_text", "rotation_fit", "failure_reasons")
+    assert DIAGNOSES.names() == ("keyframe_accuracy", "skill_text", "rotation_fit", "failure_reasons",
+                                 "destination_grounding")
     for name, entry in DIAGNOSES.items():
         assert entry.request_class().kind == name
 

@@ -81,8 +81,12 @@ def test_a_tiny_experiment_runs_end_to_end_and_reports(tmp_path: Path, capsys, m
     assert "job(s)" not in out.err, out.err
     assert main(["experiment", "status", str(tmp_path / "tiny.yaml"), "--root", str(tmp_path)]) == 0
     status = capsys.readouterr().out
-    # the counts (data, 2 trainings, 2 exports, 2 evaluations, report), then what is kept and carried; nothing left,
-    # so no estimate
-    counts, kept_files, carried = status.splitlines()[-3:]
+    # the counts (data, 2 trainings, 2 exports, 2 evaluations, report), the time per stage, then what is kept and
+    # carried; nothing left, so no estimate
+    counts, wall, jobs, kept_files, carried = status.splitlines()[-5:]
     assert counts == "done 8" and carried == "carried: nothing (this experiment keeps no carry)", status
+    assert wall.startswith("wall time per stage, every session added up (min): data ") and "train " in wall, status
+    assert re.search(r"eval \d+; \d+ in all$", wall), status
+    assert jobs.startswith("job time per stage, each job's own minutes added up (min): "), status
+    assert "train " in jobs and "(2 jobs)" in jobs, status
     assert re.fullmatch(r"kept: docs/results/tiny/ \(8 files, \d+ kB\)", kept_files), status
