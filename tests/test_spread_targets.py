@@ -115,3 +115,17 @@ def test_other_kinds_take_no_pairs(tmp_path: Path) -> None:
     bad.write_text(yaml.safe_dump(data, allow_unicode=True))
     with pytest.raises(SpecError, match="pairs"):
         load_spec(bad)
+
+
+def test_a_seeds_section_only_in_a_readme_block_measures_nothing(tmp_path: Path) -> None:
+    # the report measures a table's seed spread from the summary and details only (seed_spread), so the spec refuses
+    # a held difference whose table's seeds section sits in a README block
+    data = yaml.safe_load(V3.path.read_text())
+    for part in ("summary", "details"):
+        seeds = [s for s in data["report"].get(part, []) if s["kind"] == "seeds" and s["of_table"] == 1]
+        data["report"][part] = [s for s in data["report"].get(part, []) if s not in seeds]
+        data["report"]["blocks"]["headline"] += seeds
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data, allow_unicode=True))
+    with pytest.raises(SpecError, match="the headline: table 1 has no seeds section to measure its seed spread"):
+        load_spec(bad)

@@ -855,10 +855,12 @@ def _pairs(reader: _Reader, known: set[str]) -> tuple[tuple[str, str], ...]:
 
 def _check_spread_targets(reader: _Reader, report: ReportSpec) -> None:
     """Every ``exceeds_spread`` check, and every ``headline`` whose differences are held to a seed spread
-    (``of_table``), names rows of its table, which has a ``seeds`` section."""
+    (``of_table``), names rows of its table, which has a ``seeds`` section. The table and its ``seeds`` section are
+    looked up in the summary and details only (where the report measures the spread: ``seed_spread``), also for a
+    check in a README block."""
     parts = {"summary": report.summary, "details": report.details,
              **{f"blocks.{name}": block for name, block in report.blocks.items()}}
-    sections = [s for part in parts.values() for s in part]
+    sections = [*report.summary, *report.details]
     for key, part in parts.items():
         held = [(repr(c.text), c.of_table, {r for pair in c.pairs for r in pair}) for section in part
                 for c in section.checks if c.kind == SPREAD_CHECK]

@@ -64,5 +64,5 @@ def write_destination(ctx: Context, section: Section) -> list[str]:
     note = (f"The benchmark CLIP (`{ctx.spec.clip}`) grounder in its default configuration, on the first observation "
             "of each evaluation scene (held-out seeds); IoU: the mask's points against the simulator's segmentation "
             "of the true object; hit: the mask's centre inside the object's box grown by 1 cm; –: the task names no "
-            f"destination. JSON: `{kept}`.")
+            f"destination (both cells), or no IoU (neither mask had a point). JSON: `{kept}`.")
     return [section.title, "\n".join(lines), note]
