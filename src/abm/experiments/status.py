@@ -128,9 +128,9 @@ def kept_minutes(spec: ExperimentSpec, layout: Layout, job: StatusJob) -> float 
 def stage_time_lines(layout: Layout, jobs: Sequence[StatusJob]) -> list[str]:
     """The edition's time per stage: the wall time (the stage times of OUT and KEPT, every session added up,
     :func:`abm.experiments.state.stage_minutes`, where the report's setup states OUT's only; a stage running now in a
-    live engine on this host counted up to now) and the jobs' own minutes added up per stage (each job's minutes as the status
-    shows them: this working folder's job log, else what is kept; a job not done yet adds the spans its sessions
-    logged; trainings side by side each add theirs)."""
+    live engine on this host counted up to now) and the jobs' own minutes added up per stage (each job's minutes as
+    the status shows them: this working folder's job log, else what is kept; a job not done yet adds the spans its
+    sessions logged; trainings side by side each add theirs)."""
     wall, started = stage_spans(layout.times, layout.kept / layout.times.name)
     running = set()
     for (stage, session), start in started.items():
