@@ -108,6 +108,40 @@ def test_adamw_optimizer_trains_and_resumes_and_unknown_optimizer_fails(episodes
         train(_cfg(tmp_path / "sgd", optimizer="sgd"), episodes)
 
 
+def test_adamw_is_fused_and_a_restored_per_tensor_state_continues_fused() -> None:
+    """make_optimizer's AdamW runs torch's fused kernel; the state of a per-tensor AdamW (a checkpoint from before)
+    loads into it and continues the same updates within float rounding."""
+    from abm.train.loop import make_optimizer, use_fused_adamw
+
+    torch.manual_seed(0)
+    start = [torch.randn(5, 3), torch.randn(7)]
+    grads = [[torch.randn_like(p) for p in start] for _ in range(6)]
+
+    def run(opt: torch.optim.Optimizer, params: list[torch.Tensor], steps: range) -> None:
+        for i in steps:
+            for p, g in zip(params, grads[i], strict=True):
+                p.grad = g.clone()
+            opt.step()
+
+    ref = [torch.nn.Parameter(p.clone()) for p in start]
+    ref_opt = torch.optim.AdamW(ref, lr=1e-2, weight_decay=0.1)
+    run(ref_opt, ref, range(6))
+    old = [torch.nn.Parameter(p.clone()) for p in start]
+    old_opt = torch.optim.AdamW(old, lr=1e-2, weight_decay=0.1)  # per-tensor, as saved before
+    run(old_opt, old, range(3))
+    new = [torch.nn.Parameter(p.detach().clone()) for p in old]
+    opt = make_optimizer("adamw", new, lr=1e-2, weight_decay=0.1)
+    assert opt.param_groups[0]["fused"]
+    opt.load_state_dict(old_opt.state_dict())
+    assert not opt.param_groups[0]["fused"]  # the saved group's flag
+    use_fused_adamw(opt)
+    assert opt.param_groups[0]["fused"]
+    run(opt, new, range(3, 6))
+    for a, b in zip(new, ref, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+        assert not torch.equal(a, torch.zeros_like(a))
+
+
 @pytest.fixture(scope="module")
 def trained(episodes, tmp_path_factory) -> Path:
     """A 2-step abm run of ``_cfg`` (one checkpoint, at step 2), trained once for the module."""
