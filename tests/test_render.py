@@ -42,6 +42,24 @@ def test_known_point_lands_on_expected_pixel_and_depth():
     assert out.depth[0, 0, 0, 0, 0].item() == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("views", [("front", "back", "left", "right", "top"), ("top", "right", "front")])
+def test_each_point_lands_on_the_pixel_project_gives(views):
+    """render() places a point at the rounded pixel of project() in every view (its own arithmetic on the signed
+    world axes must agree with the projection's matrix product, on pixel borders too)."""
+    r = OrthographicRenderer(Workspace(center=(0.3, -0.1, 0.2), size=0.64), resolution=32, views=views)
+    gen = torch.Generator().manual_seed(3)
+    pts = (torch.rand(300, 1, 3, generator=gen) - 0.5) * 0.64 + r.center  # one point per batch entry
+    pts[:100] = torch.round(pts[:100] / 0.01) * 0.01 + 0.005  # 1 cm grid + 0.5 cm: pixel borders of 2 cm pixels
+    out = r.render(pts, torch.ones(300, 1, 3))
+    uv, _ = r.project(pts[:, 0])  # (300, V, 2)
+    inside = ((pts[:, 0] >= r.center - r.half) & (pts[:, 0] <= r.center + r.half)).all(-1)
+    assert int(inside.sum()) > 250
+    for i in torch.nonzero(inside)[:, 0].tolist():
+        for vi in range(len(views)):
+            col, row = torch.floor(uv[i, vi] + 0.5).int().clamp(0, 31).tolist()
+            assert out.occupied[i, vi].sum() == 1 and bool(out.occupied[i, vi, row, col]), (i, views[vi])
+
+
 def test_nearer_point_occludes_farther_one_in_every_view():
     # two points on the line of sight of each view: render both orders, the nearer always wins
     r = OrthographicRenderer(WS, resolution=64)
