@@ -139,3 +139,21 @@ def test_local_rotation_features_tell_pixels_of_one_token_apart(local: bool) -> 
     assert torch.equal(outs[0], outs[1]) is not local
     extra = cfg.decoder_channels * cfg.num_views if local else 0
     assert model.global_head[0].in_features == 2 * cfg.width * cfg.num_views + extra
+
+
+def test_a_block_restricted_to_the_first_queries_gives_their_outputs() -> None:
+    """The last joint block computes only the view tokens' outputs (Block(x, queries=k)): the same values as the
+    whole block's first k outputs, and gradients reach every token through the keys and values."""
+    from abm.policy.mvt import Block
+
+    torch.manual_seed(0)
+    block = Block(32, 4, 2.0, 0.0)
+    x = torch.randn(3, 20, 32, requires_grad=True)
+    full = block(x)[:, :13]
+    part = block(x, queries=13)
+    assert part.shape == (3, 13, 32)
+    torch.testing.assert_close(part, full, rtol=1e-5, atol=1e-6)
+    grad_full = torch.autograd.grad(full.square().sum(), x)[0]
+    grad_part = torch.autograd.grad(part.square().sum(), x)[0]
+    torch.testing.assert_close(grad_part, grad_full, rtol=1e-5, atol=1e-6)
+    assert grad_part[:, 13:].abs().sum() > 0  # the other tokens still matter, as keys and values

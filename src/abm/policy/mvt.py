@@ -77,12 +77,21 @@ class Attention(nn.Module):
         self.proj = nn.Linear(width, width)
         self.dropout = dropout
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``x`` ``(B, T, d)`` -> ``(B, T, d)``."""
+    def forward(self, x: torch.Tensor, queries: int | None = None) -> torch.Tensor:
+        """``x`` ``(B, T, d)`` -> ``(B, T, d)``; with ``queries`` only the outputs of the first ``queries`` tokens
+        ``(B, queries, d)`` (every token is still a key and a value; the other tokens' queries are not computed)."""
         b, t, d = x.shape
-        q, k, v = self.qkv(x).view(b, t, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
-        out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
-        projected: torch.Tensor = self.proj(out.transpose(1, 2).reshape(b, t, d))
+        dropout = self.dropout if self.training else 0.0
+        if queries is None or queries == t:
+            q, k, v = self.qkv(x).view(b, t, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
+            out = F.scaled_dot_product_attention(q, k, v, dropout_p=dropout)
+            projected: torch.Tensor = self.proj(out.transpose(1, 2).reshape(b, t, d))
+            return projected
+        weight, bias = self.qkv.weight, self.qkv.bias  # rows: the query's d, the key's d, the value's d
+        q = F.linear(x[:, :queries], weight[:d], bias[:d]).view(b, queries, self.heads, d // self.heads)
+        k, v = F.linear(x, weight[d:], bias[d:]).view(b, t, 2, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
+        out = F.scaled_dot_product_attention(q.transpose(1, 2), k, v, dropout_p=dropout)
+        projected = self.proj(out.transpose(1, 2).reshape(b, queries, d))
         return projected
 
 
@@ -97,8 +106,13 @@ class Block(nn.Module):
         self.norm2 = nn.LayerNorm(width)
         self.mlp = nn.Sequential(nn.Linear(width, hidden), nn.GELU(), nn.Dropout(dropout), nn.Linear(hidden, width))
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = x + self.attn(self.norm1(x))
+    def forward(self, x: torch.Tensor, queries: int | None = None) -> torch.Tensor:
+        """``x`` ``(B, T, d)`` -> ``(B, T, d)``, or with ``queries`` the outputs of the first ``queries`` tokens only
+        (the same values: a token's output depends on the others only through their keys and values)."""
+        h = self.norm1(x)
+        if queries is not None:
+            x = x[:, :queries]
+        x = x + self.attn(h, queries)
         out: torch.Tensor = x + self.mlp(self.norm2(x))
         return out
 
@@ -292,8 +306,8 @@ class MultiViewTransformer(nn.Module):
             tok = blk(tok)
         lang_tok = self.lang_proj(lang) + self.lang_pos
         seq = torch.cat([tok.reshape(b, v * g * g, d), lang_tok], dim=1)
-        for blk in self.joint:
-            seq = blk(seq)
+        for i, blk in enumerate(self.joint):  # the last block: only the view tokens' outputs are read
+            seq = blk(seq, queries=v * g * g if i == len(self.joint) - 1 else None)
         tok = self.norm(seq[:, : v * g * g]).reshape(b * v, g * g, d)
 
         # translation heatmap: pixel-shuffle tokens to full resolution (token t's channel k * p * p + i * p + j
