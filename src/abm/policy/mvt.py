@@ -312,8 +312,12 @@ class MultiViewTransformer(nn.Module):
 
         # translation heatmap: pixel-shuffle tokens to full resolution (token t's channel k * p * p + i * p + j
         # goes to pixel (i, j) of its patch, channel k), skip-connect the fused stem features
+        # (the up-projection's output rows are taken in (i, j, k) order, so the shuffle copies runs of p * dc values)
         dc = cfg.decoder_channels
-        up = self.up(tok).reshape(b * v, g, g, dc, p, p).permute(0, 1, 4, 2, 5, 3).reshape(b * v, h, w, dc)
+        up_weight = self.up.weight.view(dc, p, p, d).permute(1, 2, 0, 3).reshape(p * p * dc, d)
+        up_bias = self.up.bias.view(dc, p, p).permute(1, 2, 0).reshape(p * p * dc)
+        up = F.linear(tok, up_weight, up_bias).reshape(b * v, g, g, p, p, dc).permute(0, 1, 3, 2, 4, 5)
+        up = up.reshape(b * v, h, w, dc)
         fine = up + _pointwise(self.skip, feat)  # (BV, H, W, dc)
         act1, conv3, act2, conv1 = self.decode
         hidden = conv3(act1(fine).permute(0, 3, 1, 2))  # channels-last (BV, dc, H, W)
