@@ -88,6 +88,35 @@ def test_a_finished_job_s_minutes_come_from_what_is_kept_on_a_fresh_clone(tmp_pa
     assert rate is not None and rate.seconds == 250.0 and rate.source == "the minutes of the finished runs abm_oracle"
 
 
+def test_a_spec_that_trained_nothing_yet_takes_the_rate_of_the_zoo_s_models_with_its_network_sizes(
+        tmp_path: Path) -> None:
+    spec, _ = _spec(tmp_path)
+    layout = Engine(spec, root=tmp_path).layout
+    config = spec.runs["abm_oracle"].config
+    policy = config.policy
+    recipe = {"batch": config.batch, "resolution": policy.resolution, "patch_size": policy.patch_size}
+    if policy.rotation_crop:
+        recipe["rotation_crop"] = policy.rotation_crop
+    if policy.zoom_size:
+        recipe |= {"zoom_size": policy.zoom_size, "zoom_resolution": policy.zoom_resolution,
+                   "zoom_patch_size": policy.zoom_patch_size}
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models/index.json").write_text(json.dumps([
+        {"name": "earlier", "recipe": recipe, "train_minutes": 10.0, "steps": 100},  # 6 s per step
+        {"name": "earlier_too", "recipe": recipe, "train_minutes": 20.0, "steps": 100},  # 12
+        {"name": "bigger_views", "recipe": recipe | {"resolution": 2 * policy.resolution}, "train_minutes": 900.0,
+         "steps": 100},
+        {"name": "zoomed", "recipe": recipe | {"zoom_size": 0.3, "zoom_resolution": 32, "zoom_patch_size": 4},
+         "train_minutes": 900.0, "steps": 100},
+        {"name": "never_trained", "recipe": recipe, "steps": 100},
+    ]))
+    rate = step_rate(spec, layout)
+    assert rate is not None and rate.seconds == 9.0, rate
+    assert rate.source == "the zoo's models with this spec's network sizes: earlier, earlier_too"
+    _carry_a_training(Engine(spec, root=tmp_path), "abm_oracle", 2, 10.0)  # its own log comes first
+    assert step_rate(spec, layout) is not None and step_rate(spec, layout).seconds == 5.0
+
+
 def test_the_carry_stage_removes_a_carried_training_once_its_evaluations_are_kept(tmp_path: Path) -> None:
     data = _with(runs={"abm_oracle": TINY["runs"]["abm_oracle"]}, evaluation__from_zoo=False,
                  report__summary=[{"kind": "per_task", "table": 1, "runs": ["abm_oracle"], "splits": ["seen"]}])

@@ -9,7 +9,8 @@ rollouts' own time, over every worker).
 The estimate (:func:`estimate`) multiplies what is left by a measured rate and names where the rate comes from:
 training steps left (the budget less the step the run's log or carried checkpoint reached) × seconds per step of
 this spec's runs (their logs' ``elapsed_s`` in OUT or the carry, else its finished runs' minutes in the zoo index or
-``KEPT/runs.json``); evaluation episodes left × seconds per episode of this spec's evaluated episodes (OUT, the
+``KEPT/runs.json``, else the minutes of the zoo's models of an earlier edition trained with the same network sizes:
+:func:`network_of`); evaluation episodes left × seconds per episode of this spec's evaluated episodes (OUT, the
 carry, the kept archives), else of ``docs/results/rollout_speed.json`` (``benchmarks/rollout_speed.py``).
 """
 
@@ -192,7 +193,37 @@ def step_rate(spec: ExperimentSpec, layout: Layout) -> Rate | None:
     if finished:
         return Rate(mean(60 * float(e["train_minutes"]) / int(e["steps"]) for e in finished.values()),
                     "the minutes of the finished runs " + ", ".join(finished))
+    alike = _same_network_models(spec, layout)
+    if alike:
+        return Rate(mean(60 * float(e["train_minutes"]) / int(e["steps"]) for e in alike),
+                    "the zoo's models with this spec's network sizes: " + ", ".join(e["name"] for e in alike))
     return None
+
+
+NETWORK_KEYS = ("batch", "resolution", "patch_size", "rotation_crop", "zoom_size", "zoom_resolution",
+                "zoom_patch_size")
+"""The recipe entries of the zoo index (:func:`abm.experiments.report.runs.describe_run`) that set a training step's
+cost; an entry it leaves out is off (0) in that recipe."""
+
+
+def network_of(recipe: dict[str, Any]) -> tuple[Any, ...]:
+    """A recipe's network sizes (:data:`NETWORK_KEYS`, an absent key as 0): what a step's cost depends on."""
+    return tuple(recipe.get(key) or 0 for key in NETWORK_KEYS)
+
+
+def _same_network_models(spec: ExperimentSpec, layout: Layout) -> list[dict[str, Any]]:
+    """The zoo index's trained models (with ``train_minutes`` and ``steps``) whose network sizes are those of one
+    of this spec's runs: an earlier edition's rate for a spec none of whose runs has trained yet."""
+    index = layout.zoo / "index.json" if layout.zoo is not None else None
+    if index is None or not index.is_file():
+        return []
+    wanted = set()
+    for run in spec.runs.values():
+        policy = run.config.policy
+        zoom = (policy.zoom_size, policy.zoom_resolution, policy.zoom_patch_size) if policy.zoom_size else (0, 0, 0)
+        wanted.add((run.config.batch, policy.resolution, policy.patch_size, policy.rotation_crop or 0, *zoom))
+    return [e for e in json.loads(index.read_text()) if isinstance(e.get("recipe"), dict)
+            and e.get("train_minutes") is not None and e.get("steps") and network_of(e["recipe"]) in wanted]
 
 
 def episode_rate(spec: ExperimentSpec, layout: Layout) -> Rate | None:
