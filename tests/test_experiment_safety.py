@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 from tests.test_experiments import FakeRunner, _one_run, _touch_checkpoint, _with
 
@@ -32,7 +33,7 @@ from abm.experiments.state import (
     stage_minutes,
 )
 from abm.files import FolderBusyError, FolderLock, sha256_file
-from abm.policy.checkpoint import save_checkpoint
+from abm.policy.checkpoint import load_checkpoint, save_checkpoint
 
 
 def _write_spec(root: Path, data: dict, name: str = "tiny.yaml") -> Path:
@@ -189,6 +190,31 @@ def _carried(tmp_path: Path) -> tuple[Layout, Layout, Path]:
     _touch_checkpoint(layout, "abm_oracle", 1)
     assert carry_unfinished(spec, layout) == ["abm_oracle"]
     return layout, Layout.of(spec, tmp_path, tmp_path / "fresh"), tmp_path / "models/carry/abm_oracle"
+
+
+def test_a_finished_training_is_carried_without_its_training_state(tmp_path: Path) -> None:
+    spec = load_spec(_write_spec(tmp_path, _one_run()))
+    layout = Layout.of(spec, tmp_path)
+    steps = spec.runs["abm_oracle"].config.steps
+    folder = layout.run_dir("abm_oracle") / "checkpoints"
+    folder.mkdir(parents=True)
+    weights = {"w": torch.arange(6.0)}
+    state = {"step": steps - 1, "model": weights, "optimizer": {"state": {0: {"exp_avg": torch.ones(100_000)}}},
+             "scheduler": {"last_epoch": steps - 1}, "rng": {"seed": 0}}
+    save_checkpoint(folder / f"step_{steps - 1:08d}.pt", state)
+    assert carry_unfinished(spec, layout) == ["abm_oracle"]  # unfinished: everything, to continue from
+    carried = tmp_path / "models/carry/abm_oracle"
+    assert "optimizer" in load_checkpoint(carried / f"step_{steps - 1:08d}.pt")
+    save_checkpoint(folder / f"step_{steps:08d}.pt", state | {"step": steps})
+    assert carry_unfinished(spec, layout) == ["abm_oracle"]  # finished: the weights and records only
+    (ckpt,) = (p for p in carried.iterdir() if p.suffix == ".pt")
+    slim = load_checkpoint(ckpt)
+    assert ckpt.name == f"step_{steps:08d}.pt" and slim["step"] == steps and torch.equal(slim["model"]["w"],
+                                                                                          weights["w"])
+    assert not {"optimizer", "scheduler", "rng"} & set(slim) and ckpt.stat().st_size < 100_000
+    fresh = Layout.of(spec, tmp_path, tmp_path / "fresh")
+    restore_training(fresh, "abm_oracle")  # its manifest matches, and the engine sees the run trained
+    assert Engine(spec, root=tmp_path, out=tmp_path / "fresh").trained("abm_oracle")
 
 
 def test_a_changed_renamed_or_unsealed_carried_checkpoint_is_refused(tmp_path: Path) -> None:

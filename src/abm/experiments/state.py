@@ -452,7 +452,9 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
     Unfinished evaluations leave their outcomes so far (``CARRY/eval/RUN/SPLIT/outcomes.jsonl``, each checkpoint
     relative to the working folder: :func:`abm.evaluation.results.portable_path`; and ``evaluation.json``);
     trainings without a zoo file yet their latest checkpoint and log (``CARRY/RUN/``): an unfinished one continues
-    from it, a finished one (its export had not run) is exported from it."""
+    from it, a finished one (its export had not run) is exported from it. A finished training's checkpoint is carried
+    without its training state (:func:`abm.policy.checkpoint.export_checkpoint`: about a third of the bytes; the
+    optimizer's moments continue nothing), its step and records kept, so the engine sees it trained."""
     if layout.carry is None:
         return []
     copied = []
@@ -474,7 +476,14 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
             continue
         target = layout.carry / run
         _fresh_carry_folder(target)
-        shutil.copyfile(found[-1][1], target / found[-1][1].name)
+        latest = found[-1][1]
+        finished = (checkpoint_step(latest) or 0) >= spec.runs[run].config.steps or stopped_early(latest)
+        if finished:
+            from abm.policy.checkpoint import export_checkpoint  # torch: only when a finished training is carried
+
+            export_checkpoint(latest, target / latest.name)
+        else:
+            shutil.copyfile(latest, target / latest.name)
         if (layout.run_dir(run) / "log.csv").is_file():
             shutil.copyfile(layout.run_dir(run) / "log.csv", target / "log.csv")
         _seal_carry_folder(target, carried_by=f"abm experiment run {spec.name}")
