@@ -13,7 +13,7 @@ from tests.test_experiments import TINY, _spec, _touch_checkpoint, _with
 from abm.cli import main
 from abm.evaluation.results import EpisodeOutcome, OutcomeLog, write_outcome_archive
 from abm.experiments.stages import DONE, Engine
-from abm.experiments.status import carried_lines, episode_rate, estimate, kept_minutes, step_rate
+from abm.experiments.status import carried_lines, episode_rate, estimate, kept_minutes, not_estimated, step_rate
 
 
 def _carry_a_training(engine: Engine, run: str, step: int, elapsed_s: float) -> None:
@@ -132,3 +132,11 @@ def test_the_carry_stage_removes_a_carried_training_once_its_evaluations_are_kep
     (engine.layout.kept / "abm_oracle_seen.json").write_text("[]")  # its only evaluation is kept
     assert engine.served() == ["abm_oracle"]
     assert engine.carry(strict=True) == [] and not carried.exists()  # removed, not carried again
+
+
+def test_the_jobs_without_an_estimate_are_counted_past_three_of_a_stage() -> None:
+    diagnoses = [f"diagnose/run{i}" for i in range(36)]
+    assert not_estimated(["data", "ground/masks", "ground/features", "eval/zoo", *diagnoses]) == (
+        "data, ground/masks, ground/features, eval/zoo, diagnose/run0, diagnose/run1, diagnose/run2 and 33 more "
+        "diagnose jobs")
+    assert not_estimated(diagnoses[:4]) == "diagnose/run0, diagnose/run1, diagnose/run2, diagnose/run3"  # 1 more

@@ -277,6 +277,20 @@ def _cost(what: str, jobs: int, left: int, unit: str, rate: Rate | None, paralle
             f"{parallel} {how}); measured from {rate.source}", minutes)
 
 
+def not_estimated(ids: Sequence[str], shown: int = 3) -> str:
+    """The jobs without an estimate, each stage's first ``shown`` by name and the rest counted (``diagnose/a,
+    diagnose/b, diagnose/c and 33 more diagnose jobs``)."""
+    stages: dict[str, list[str]] = {}
+    for job in ids:
+        stages.setdefault(job.split("/")[0], []).append(job)
+    parts = []
+    for stage, found in stages.items():
+        more = len(found) - shown
+        parts.append(", ".join(found[:shown]) + (f" and {more} more {stage} jobs" if more > 1 else
+                                                  f", {found[shown]}" if more == 1 else ""))
+    return ", ".join(parts)
+
+
 def estimate(spec: ExperimentSpec, layout: Layout, jobs: Sequence[StatusJob]) -> list[str]:
     """The estimated cost of the jobs not done (trainings and evaluations; see the module docstring), each with
     where its rate was measured; ``[]`` when nothing is left."""
@@ -297,7 +311,7 @@ def estimate(spec: ExperimentSpec, layout: Layout, jobs: Sequence[StatusJob]) ->
         lines, minutes = [*lines, line], minutes + cost
     others = [j.id for j in open_jobs if j.stage in ("data", "ground", "diagnose") or j.id == "eval/zoo"]
     if others:
-        lines.append(f"  not estimated: {', '.join(others)}")
+        lines.append(f"  not estimated: {not_estimated(others)}")
     if not lines:
         return []
     return [f"estimate of what is left: {_minutes(minutes)} of CPU work" if minutes else
