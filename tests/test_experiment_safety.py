@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -212,9 +213,34 @@ def test_a_finished_training_is_carried_without_its_training_state(tmp_path: Pat
     assert ckpt.name == f"step_{steps:08d}.pt" and slim["step"] == steps and torch.equal(slim["model"]["w"],
                                                                                           weights["w"])
     assert not {"optimizer", "scheduler", "rng"} & set(slim) and ckpt.stat().st_size < 100_000
-    fresh = Layout.of(spec, tmp_path, tmp_path / "fresh")
-    restore_training(fresh, "abm_oracle")  # its manifest matches, and the engine sees the run trained
-    assert Engine(spec, root=tmp_path, out=tmp_path / "fresh").trained("abm_oracle")
+    full = folder / f"step_{steps:08d}.pt"
+    assert slim["slimmed_from_sha256"] == sha256_file(full)
+
+
+def test_the_outcomes_of_a_finished_training_are_restored_with_its_slimmed_checkpoint(tmp_path: Path,
+                                                                                        monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    spec = load_spec(_write_spec(tmp_path, _one_run()))
+    layout = Layout.of(spec, tmp_path)
+    steps = spec.runs["abm_oracle"].config.steps
+    full = layout.run_dir("abm_oracle") / "checkpoints" / f"step_{steps:08d}.pt"
+    full.parent.mkdir(parents=True)
+    save_checkpoint(full, {"step": steps, "model": {"w": torch.ones(3)}, "optimizer": {"m": torch.ones(50_000)}})
+    log = OutcomeLog(layout.eval_dir("abm_oracle", "seen") / "outcomes.jsonl")
+    shown = layout.show(full)
+    for episode in (0, 1):  # evaluated with the full file before the session ended
+        log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, episode, 1 + episode, True, checkpoint=shown))
+    log.append(EpisodeOutcome("abm", "pick_block", "seen", 0, 2, 3, True, checkpoint=shown,
+                              checkpoint_sha256="another file's"))
+    assert sorted(carry_unfinished(spec, layout)) == ["abm_oracle", "eval/abm_oracle/seen"]
+    digest = sha256_file(full)
+    shutil.rmtree(layout.out)  # the next session, on a fresh machine: only the carry is left
+    assert restore_training(layout, "abm_oracle")  # the engine sees the run trained
+    assert Engine(spec, root=tmp_path).trained("abm_oracle")
+    assert full.is_file() and sha256_file(full) != digest  # slimmed: other bytes, the same weights
+    assert restore_evaluation(layout, "abm_oracle", "seen", layout.run_dir("abm_oracle"))
+    rows = OutcomeLog(layout.eval_dir("abm_oracle", "seen") / "outcomes.jsonl").read()
+    assert [o.episode for o in rows] == [0, 1]  # the full file's rows kept, the other file's refused
 
 
 def test_a_changed_renamed_or_unsealed_carried_checkpoint_is_refused(tmp_path: Path) -> None:

@@ -454,7 +454,9 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
     trainings without a zoo file yet their latest checkpoint and log (``CARRY/RUN/``): an unfinished one continues
     from it, a finished one (its export had not run) is exported from it. A finished training's checkpoint is carried
     without its training state (:func:`abm.policy.checkpoint.export_checkpoint`: about a third of the bytes; the
-    optimizer's moments continue nothing), its step and records kept, so the engine sees it trained."""
+    optimizer's moments continue nothing), its step and records kept, so the engine sees it trained, and the sha256
+    of the file it came from (``slimmed_from_sha256``), so the outcomes evaluated with that file are restored with
+    it (:func:`restore_evaluation`)."""
     if layout.carry is None:
         return []
     copied = []
@@ -481,7 +483,7 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
         if finished:
             from abm.policy.checkpoint import export_checkpoint  # torch: only when a finished training is carried
 
-            export_checkpoint(latest, target / latest.name)
+            export_checkpoint(latest, target / latest.name, records={SLIMMED_FROM: sha256_file(latest)})
         else:
             shutil.copyfile(latest, target / latest.name)
         if (layout.run_dir(run) / "log.csv").is_file():
@@ -551,6 +553,21 @@ def _checkpoint_record(path: Path) -> tuple[int | None, bool]:
 
 _RECORDS: dict[tuple[str, int, int], tuple[int | None, bool]] = {}
 
+SLIMMED_FROM = "slimmed_from_sha256"
+"""The record of a finished training's checkpoint carried without its training state: the sha256 of the file it
+was made from, whose weights it holds (:func:`carry_unfinished`)."""
+
+
+def slimmed_from(path: Path) -> str:
+    """The sha256 of the checkpoint a carried checkpoint was slimmed from (``""``: none, or an unreadable file)."""
+    from abm.policy.checkpoint import load_checkpoint  # torch: only when a checkpoint is read
+
+    try:
+        found = load_checkpoint(path).get(SLIMMED_FROM, "")
+    except (AbmError, OSError, ValueError, RuntimeError, EOFError):
+        return ""
+    return found if isinstance(found, str) else ""
+
 
 def restore_training(layout: Layout, run: str) -> bool:
     """On a fresh clone, continue a training from its carried checkpoint (when OUT has no checkpoint of it),
@@ -611,6 +628,7 @@ def restore_evaluation(layout: Layout, name: str, split: str, model: Path | None
     files = verify_carried(carried)
     checkpoint = model_file(model) if model is not None else None
     digest = sha256_file(checkpoint) if checkpoint is not None else ""
+    same = {digest, slimmed_from(checkpoint)} - {""} if checkpoint is not None else set()
     shown = layout.show(checkpoint) if checkpoint is not None else "?"
     kept, refused = [], 0
     for line in (carried / "outcomes.jsonl").read_text().splitlines() if "outcomes.jsonl" in files else []:
@@ -619,7 +637,7 @@ def restore_evaluation(layout: Layout, name: str, split: str, model: Path | None
         except json.JSONDecodeError:
             refused += 1
             continue
-        if isinstance(row, dict) and digest and row.get("checkpoint_sha256") == digest and \
+        if isinstance(row, dict) and digest and row.get("checkpoint_sha256") in same and \
                 row.get("checkpoint") == shown:
             kept.append(line)
         else:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -137,16 +138,19 @@ def check_zoo_sha256(path: str | Path) -> None:
 TRAINING_STATE_KEYS = ("optimizer", "scheduler", "rng")
 
 
-def export_checkpoint(run_or_ckpt: str | Path, out: str | Path, dtype: torch.dtype | None = None) -> Path:
+def export_checkpoint(run_or_ckpt: str | Path, out: str | Path, dtype: torch.dtype | None = None,
+                      records: Mapping[str, Any] | None = None) -> Path:
     """Write an inference checkpoint: the weights and what loading needs, without the training state.
 
     The optimizer's moments are about twice the weights, so this is ~3x smaller; ``dtype`` (e.g.
     ``torch.bfloat16``) halves it again by casting the floating-point weights. Loading casts them back to
     the model's dtype, so an exported file is used exactly like a training checkpoint
-    (``abm eval --run FILE``, ``KeyframePolicy.from_checkpoint``).
+    (``abm eval --run FILE``, ``KeyframePolicy.from_checkpoint``). ``records`` are added to the file (e.g. the
+    experiment carry's ``slimmed_from_sha256``).
     """
     data = load_checkpoint(run_or_ckpt)
     payload = {k: v for k, v in data.items() if k not in (*TRAINING_STATE_KEYS, "path", "format", "version")}
+    payload |= dict(records or {})
     if dtype is not None:
         for key in ("model", "zoom_model"):  # the network, and the zoomed stage's of a two-stage policy
             if key in data:
