@@ -56,9 +56,9 @@ from abm.experiments.state import (
     CarryError,
     Layout,
     carry_unfinished,
-    checkpoint_step,
     checkpoints,
     drop_carry,
+    finished_training,
     folder_busy,
     folder_holder,
     holder_pid,
@@ -74,7 +74,6 @@ from abm.experiments.state import (
     restore_training,
     span_minutes,
     stamp,
-    stopped_early,
 )
 from abm.experiments.status import kept_minutes
 from abm.files import FolderBusyError, FolderLock
@@ -231,7 +230,7 @@ class Engine:
         if self.exported(run):
             return True
         found = checkpoints(self.layout.run_dir(run))
-        return bool(found) and ((checkpoint_step(found[-1][1]) or 0) >= self.steps or stopped_early(found[-1][1]))
+        return bool(found) and finished_training(found[-1][1], self.steps)
 
     def model(self, run: str) -> Path | None:
         """What evaluations load: the zoo file (``from_zoo``) or the run folder, once it is finished."""

@@ -479,8 +479,7 @@ def carry_unfinished(spec: ExperimentSpec, layout: Layout) -> list[str]:
         target = layout.carry / run
         _fresh_carry_folder(target)
         latest = found[-1][1]
-        finished = (checkpoint_step(latest) or 0) >= spec.runs[run].config.steps or stopped_early(latest)
-        if finished:
+        if finished_training(latest, spec.runs[run].config.steps):
             from abm.policy.checkpoint import export_checkpoint  # torch: only when a finished training is carried
 
             export_checkpoint(latest, target / latest.name, records={SLIMMED_FROM: sha256_file(latest)})
@@ -532,11 +531,23 @@ def stopped_early(path: Path) -> bool:
     return _checkpoint_record(path)[1]
 
 
-def _checkpoint_record(path: Path) -> tuple[int | None, bool]:
+def finished_training(path: Path, steps: int) -> bool:
+    """Whether a training's latest checkpoint holds a finished run: the last of its ``steps`` (the step it records,
+    not its name), or the step where it stopped, its curve flat."""
+    return (checkpoint_step(path) or 0) >= steps or stopped_early(path)
+
+
+def slimmed_from(path: Path) -> str:
+    """The sha256 of the checkpoint a carried checkpoint was slimmed from (``""``: none, or an unreadable file).
+    Read like :func:`checkpoint_step`."""
+    return _checkpoint_record(path)[2]
+
+
+def _checkpoint_record(path: Path) -> tuple[int | None, bool, str]:
     try:
         stat = path.stat()
     except OSError:
-        return None, False
+        return None, False, ""
     key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
     if key not in _RECORDS:
         from abm.policy.checkpoint import load_checkpoint  # torch: only when a checkpoint is read
@@ -545,28 +556,17 @@ def _checkpoint_record(path: Path) -> tuple[int | None, bool]:
             ckpt = load_checkpoint(path)
         except (AbmError, OSError, ValueError, RuntimeError, EOFError):
             ckpt = {}
-        step = ckpt.get("step")
+        step, source = ckpt.get("step"), ckpt.get(SLIMMED_FROM, "")
         _RECORDS[key] = (step if isinstance(step, int) and not isinstance(step, bool) else None,
-                         ckpt.get("stopped") == "flat")
+                         ckpt.get("stopped") == "flat", source if isinstance(source, str) else "")
     return _RECORDS[key]
 
 
-_RECORDS: dict[tuple[str, int, int], tuple[int | None, bool]] = {}
+_RECORDS: dict[tuple[str, int, int], tuple[int | None, bool, str]] = {}
 
 SLIMMED_FROM = "slimmed_from_sha256"
 """The record of a finished training's checkpoint carried without its training state: the sha256 of the file it
 was made from, whose weights it holds (:func:`carry_unfinished`)."""
-
-
-def slimmed_from(path: Path) -> str:
-    """The sha256 of the checkpoint a carried checkpoint was slimmed from (``""``: none, or an unreadable file)."""
-    from abm.policy.checkpoint import load_checkpoint  # torch: only when a checkpoint is read
-
-    try:
-        found = load_checkpoint(path).get(SLIMMED_FROM, "")
-    except (AbmError, OSError, ValueError, RuntimeError, EOFError):
-        return ""
-    return found if isinstance(found, str) else ""
 
 
 def restore_training(layout: Layout, run: str) -> bool:

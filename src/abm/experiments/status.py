@@ -220,8 +220,8 @@ def _same_network_models(spec: ExperimentSpec, layout: Layout) -> list[dict[str,
     wanted = set()
     for run in spec.runs.values():
         policy = run.config.policy
-        zoom = (policy.zoom_size, policy.zoom_resolution, policy.zoom_patch_size) if policy.zoom_size else (0, 0, 0)
-        wanted.add((run.config.batch, policy.resolution, policy.patch_size, policy.rotation_crop or 0, *zoom))
+        keys = NETWORK_KEYS[1:] if policy.zoom_size else [k for k in NETWORK_KEYS[1:] if not k.startswith("zoom")]
+        wanted.add(network_of({"batch": run.config.batch, **{key: getattr(policy, key) for key in keys}}))
     return [e for e in json.loads(index.read_text()) if isinstance(e.get("recipe"), dict)
             and e.get("train_minutes") is not None and e.get("steps") and network_of(e["recipe"]) in wanted]
 
