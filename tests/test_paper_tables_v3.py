@@ -30,13 +30,13 @@ MASK_RUNS = {"abm_clip", "abm_clip_hash", "abm_oracle", "stack", "concat-rerende
 
 def _as_second_edition(config: TrainConfig) -> TrainConfig:
     """A third-edition run's config without what the third edition adds."""
-    return replace(config, stop_when_flat=None,
+    return replace(config, stop_when_flat=None, compile=False,
                    policy=replace(config.policy, progress_input=False, destination_mask=False))
 
 
-def test_the_recipe_is_the_second_editions_plus_the_progress_input_and_the_flat_stop() -> None:
+def test_the_recipe_is_the_second_editions_plus_the_progress_input_the_flat_stop_and_the_compile() -> None:
     v2, v3 = load_recipe("paper_tables_v2"), load_recipe("paper_tables_v3")
-    assert v3 == {**v2, "stop_when_flat": 1000, "policy": {**v2["policy"], "progress_input": True}}
+    assert v3 == {**v2, "stop_when_flat": 1000, "compile": True, "policy": {**v2["policy"], "progress_input": True}}
     assert "flat_tolerance" not in v3 and "flat_after" not in v3  # the documented defaults: 0.02, half the steps
     rule = V3.runs["abm_clip"].config.flat_rule
     assert rule is not None and (rule.window, rule.tolerance, rule.first_step) == (1000, 0.02, 3000)
@@ -49,7 +49,7 @@ def test_the_runs_are_the_tables_models_with_the_recipes_settings() -> None:
         config = run.config
         assert config.policy.progress_input, name
         assert config.policy.destination_mask == (name in MASK_RUNS) == config.policy.spec.uses_mask, name
-        assert (config.steps, config.stop_when_flat) == (6000, 1000)
+        assert (config.steps, config.stop_when_flat, config.compile) == (6000, 1000, True)
         first = V2.runs.get(name.removesuffix("_seed1"))
         assert first is not None
         assert _as_second_edition(config) == replace(first.config, seed=config.seed), name
