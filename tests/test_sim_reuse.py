@@ -1,5 +1,6 @@
 """What a worker keeps between episodes changes nothing an episode sees or does: the thread's GL context (each
-scene's renderer draws in it), the IK model compiled once per process, the one-draw depth check made once.
+scene's renderer draws in it), the IK model compiled once per process, the one-draw depth check made once (the
+scenes it keeps for other models: tests/test_scene_cache.py).
 
 An episode after another in the same process renders the same pixels, depth and segmentation as a renderer with
 its own GL context, executes the same motions as with a freshly compiled IK model, and an evaluation rollout gives
@@ -33,6 +34,9 @@ def fresh_process_state(monkeypatch: pytest.MonkeyPatch) -> Any:
     IK model compiled again, the one-draw check made again."""
 
     def fresh() -> None:
+        from abm.evaluation.scene_cache import forget_scenes
+
+        forget_scenes()
         monkeypatch.setattr(cameras, "scene_renderer", cameras.make_renderer)
         monkeypatch.setattr(cameras, "_ONE_PASS_VERIFIED", False)
         arm_control.ik_model.cache_clear()

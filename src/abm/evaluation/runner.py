@@ -51,6 +51,7 @@ from abm.evaluation.results import (
     write_json,
     write_outcome_archive,
 )
+from abm.evaluation.scene_cache import forget_scenes, kept_scene
 from abm.evaluation.settings import EvalSettings
 from abm.evaluation.step_records import episode_failure, expert_keyframes, step_record
 from abm.files import write_text_atomic
@@ -96,11 +97,13 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
 
     The outcome depends on the job's checkpoint, task, split and seed and on ``settings`` only: the rollout gets
     a fresh copy of the policy, one torch thread and RNGs seeded from the scene seed
-    (:func:`abm.evaluation.policies.rollout_state`), in whichever process it runs; with a GIF it acts through
+    (:func:`abm.evaluation.policies.rollout_state`), in whichever process it runs, and the scene as built fresh
+    (the process keeps the last scenes' compiled models and renderers for the next rollout on the same scene:
+    :mod:`abm.evaluation.scene_cache`); with a GIF it acts through
     ``explain()``, whose action is :meth:`act`'s. The process's GL rasterizer runs in the drawing thread
     (:func:`abm.sim.cameras.single_threaded_rasterizer`, unless the user set ``LP_NUM_THREADS``).
     """
-    from abm.sim.env import make_env, run_policy  # mujoco (optional `sim` extra)
+    from abm.sim.env import run_policy  # mujoco (optional `sim` extra)
 
     single_threaded_rasterizer()  # before the process's first GL context
 
@@ -113,8 +116,8 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
         expert_move = _expert_move(job, settings)  # before the rollout's RNGs are seeded: they stay untouched
         with rollout_state(job.seed):
             policy = _load_policy(job.checkpoint or job.run, settings)
-            with make_env(job.task, job.split, job.seed, settings.resolution, max_steps=settings.max_steps,
-                          splits_path=settings.splits_path, segmentation=needs_segmentation(policy)) as env:
+            with kept_scene(job.task, job.split, job.seed, settings.resolution, settings.max_steps,
+                            settings.splits_path, needs_segmentation(policy)) as env:
                 instruction, target = env.instruction, ", ".join(env.target_names)
                 policy.reset()
                 explained: list[Any] = []
@@ -383,20 +386,26 @@ def evaluate(
     check_same_evaluation(log.read(), plan, out)
     bar = Progress(len(jobs), f"eval {split}", "episodes", bar=progress)
     successes = 0
-    if in_process:
-        for job in jobs:
-            outcome = runner(job, settings)
+
+    def record(outcomes: Sequence[EpisodeOutcome]) -> None:
+        nonlocal successes
+        for outcome in outcomes:
             log.append(outcome)
             successes += outcome.success
             bar.update(1, success=f"{successes}/{bar.n + 1}")
+
+    groups = scene_groups(jobs)  # every model's rollout of a scene in one process, one after another
+    if in_process:
+        try:
+            for group in groups:
+                record(run_group(runner, group, settings))
+        finally:
+            forget_scenes()
     else:
         with _pool(backend, workers, ray_address) as pool:
-            futures = [pool.submit(runner, job, settings) for job in jobs]
+            futures = [pool.submit(run_group, runner, group, settings) for group in groups]
             for fut in as_completed(futures):
-                outcome = fut.result()
-                log.append(outcome)
-                successes += outcome.success
-                bar.update(1, success=f"{successes}/{bar.n + 1}")
+                record(fut.result())
     bar.close()
     planned = {j.key for j in plan}
     latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
@@ -405,6 +414,22 @@ def evaluate(
     run_loss_curves({j.method: j.run for j in plan}, out / "training.png")
     write_outcome_archive(latest.values(), out / OUTCOME_ARCHIVE)  # what the tables count, step by step
     return write_reports(list(latest.values()), out)
+
+
+def scene_groups(jobs: Sequence[EvalJob]) -> list[list[EvalJob]]:
+    """``jobs`` grouped by scene (task, split, seed), the groups in the order of each scene's first job and the
+    jobs of a group in their given order: a process rolling out a group builds its scene once
+    (:mod:`abm.evaluation.scene_cache`), not once per model. The outcomes do not depend on the order."""
+    groups: dict[tuple[str, str, int], list[EvalJob]] = {}
+    for job in jobs:
+        groups.setdefault((job.task, job.split, job.seed), []).append(job)
+    return list(groups.values())
+
+
+def run_group(runner: Callable[[EvalJob, EvalSettings], EpisodeOutcome], jobs: Sequence[EvalJob],
+              settings: EvalSettings) -> list[EpisodeOutcome]:
+    """``runner`` on each job of one scene group (:func:`scene_groups`), in order, in this process."""
+    return [runner(job, settings) for job in jobs]
 
 
 def crash_summary(outcomes: Sequence[EpisodeOutcome]) -> str:

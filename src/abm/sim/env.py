@@ -46,11 +46,15 @@ class TaskEnv:
         camera_names: cameras rendered into observations.
         segmentation: render the cameras' segmentation (``False``: the observations have none, for policies
             that never read it; one draw less per camera).
+        reuse: an earlier environment whose simulation this one takes over at its first :meth:`reset` when it is
+            the same scene (its compiled model and camera renderer; the state is made anew, so the episode is the
+            one a fresh build gives: :class:`abm.sim.simulation.Simulation`'s ``reuse``); ``reuse`` is closed then.
     """
 
     def __init__(self, task: str | Task, split: str = "seen", seed: int = 0, resolution: int = 128,
                  max_steps: int = DEFAULT_MAX_STEPS, splits_path: str | Path | None = None,
-                 camera_names: Sequence[str] = CAMERA_NAMES, segmentation: bool = True) -> None:
+                 camera_names: Sequence[str] = CAMERA_NAMES, segmentation: bool = True,
+                 reuse: TaskEnv | None = None) -> None:
         self.task = task if isinstance(task, Task) else get_task(task, load_splits(splits_path))
         self.split, self.seed = split, int(seed)
         self.resolution, self.max_steps = int(resolution), int(max_steps)
@@ -59,6 +63,7 @@ class TaskEnv:
         self.instance: TaskInstance = self.task.sample(self.seed, split)
         self.sim: Simulation | None = None
         self.steps = 0
+        self._reuse = reuse
 
     @property
     def instruction(self) -> str:
@@ -75,7 +80,11 @@ class TaskEnv:
     def reset(self) -> Observation:
         """Build (first call) or reset the scene and return the first observation."""
         if self.sim is None:
-            self.sim = Simulation(self.instance.scene, self.resolution, self.camera_names, self.segmentation)
+            earlier, self._reuse = self._reuse, None
+            self.sim = Simulation(self.instance.scene, self.resolution, self.camera_names, self.segmentation,
+                                  reuse=earlier.sim if earlier is not None else None)
+            if earlier is not None:
+                earlier.close()
         else:
             self.sim.reset()
         self.steps = 0
@@ -124,6 +133,9 @@ class TaskEnv:
         if self.sim is not None:
             self.sim.close()
             self.sim = None
+        if self._reuse is not None:
+            self._reuse.close()
+            self._reuse = None
 
     def __enter__(self) -> TaskEnv:
         return self
