@@ -98,7 +98,7 @@ def run_job(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
     The outcome depends on the job's checkpoint, task, split and seed and on ``settings`` only: the rollout gets
     a fresh copy of the policy, one torch thread and RNGs seeded from the scene seed
     (:func:`abm.evaluation.policies.rollout_state`), in whichever process it runs, and the scene as built fresh
-    (the process keeps the last scenes' compiled models and renderers for the next rollout on the same scene:
+    (the process keeps the last scene's compiled model and renderer for the next rollout on it, another model's:
     :mod:`abm.evaluation.scene_cache`); with a GIF it acts through
     ``explain()``, whose action is :meth:`act`'s. The process's GL rasterizer runs in the drawing thread
     (:func:`abm.sim.cameras.single_threaded_rasterizer`, unless the user set ``LP_NUM_THREADS``).
