@@ -19,6 +19,7 @@ from abm.experiments.report.sections.headline import against_spread
 from abm.experiments.spec import SpecError, load_spec
 from abm.experiments.stages import Engine
 from abm.experiments.state import Layout
+from abm.zoo import pick
 
 REPO = Path(__file__).resolve().parents[1]
 V3 = load_spec("paper_tables_v3")
@@ -57,6 +58,19 @@ def _evaluate(layout: Layout, success: dict[tuple[str, str], float], kept: bool 
         path.write_text(json.dumps([_rate(t, split, [value] * 3) for t in tasks]))
 
 
+def _export_v3(root: Path) -> None:
+    """The third edition's abm_clip and rvt_clip as exported (stand-in files) and indexed by their export."""
+    for run in ("abm_clip", "rvt_clip"):
+        (root / "models" / f"{run}_v3.pt").write_bytes(run.encode())
+    Engine(V3, root=root).write_zoo_index()
+
+
+def _zoo_eval_models(root: Path) -> dict[str, str]:
+    """The models ``abm zoo eval`` would run (:func:`abm.zoo.pick` on the root's index)."""
+    entries = json.loads((root / "models/index.json").read_text())  # (read_index refuses the linked files)
+    return {method: pick(entries, method)["name"] for method in ("abm", "rvt")}
+
+
 def _status(root: Path, capsys: pytest.CaptureFixture[str]) -> str:
     capsys.readouterr()
     assert main(["experiment", "status", "paper_tables_v3", "--root", str(root)]) == 0
@@ -67,10 +81,16 @@ def test_a_closed_gate_leaves_the_readme_and_the_zoo_readme_as_they_are(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture) -> None:
     root = _root(tmp_path)
     before = {name: (root / name).read_bytes() for name in GATED}
+    _export_v3(root)
     _evaluate(Layout.of(V3, root), SUCCESS)  # Tables 1 and 2 complete, but not Table 1's seed pairs
     with caplog.at_level("INFO"):
         assert Engine(V3, root=root).run(["report"]) == 0
     assert {name: (root / name).read_bytes() for name in GATED} == before  # the second edition's, byte for byte
+    # the exported third-edition models are in the index, but abm zoo eval keeps the second edition's until the gate
+    assert _zoo_eval_models(root) == {"abm": "abm_clip_v2", "rvt": "rvt_clip_v2"}
+    index = json.loads((root / "models/index.json").read_text())
+    assert {e["name"]: e["compared"] for e in index if e.get("edition") == 3} == {"abm_clip_v3": False,
+                                                                               "rvt_clip_v3": False}
     assert "**Table 1**" in (root / V3.report.document).read_text()  # the edition's own page is written
     waiting = "Tables 1 and 2 are complete (Table 1: 80 of 112 cells evaluated, its seed pairs' included)"
     assert f"report: left README.md's paper-tables and headline blocks and models/README.md unchanged until " \
@@ -93,8 +113,10 @@ def test_the_status_counts_the_kept_cells_of_a_fresh_clone(tmp_path: Path, capsy
 def test_the_gate_opens_once_table_1s_seed_pairs_are_in_and_the_headline_holds_differences_to_the_spread(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     root = _root(tmp_path)
+    _export_v3(root)
     _evaluate(Layout.of(V3, root), {**SUCCESS, **SEED_PAIRS})
     assert Engine(V3, root=root).run(["report"]) == 0
+    assert _zoo_eval_models(root) == {"abm": "abm_clip_v3", "rvt": "rvt_clip_v3"}  # switched with the README
     readme = (root / "README.md").read_text()
     headline = rep.block_of(readme, "headline")
     # Table 1's seed spread: seen 3 (rvt 50 / 47), unseen 5 (abm 55 / 50)

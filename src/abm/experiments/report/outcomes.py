@@ -82,14 +82,15 @@ def skill_text_probes(spec: ExperimentSpec, layout: Layout) -> dict[tuple[str, s
     return found
 
 
-def zoo_index(spec: ExperimentSpec, layout: Layout) -> list[dict[str, Any]]:
+def zoo_index(spec: ExperimentSpec, layout: Layout, gate_open: bool | None = None) -> list[dict[str, Any]]:
     """Every exported model of the spec (and the benchmark CLIP) as the zoo index describes it, with the
     entries other specs exported into the same zoo (another edition's: other names) kept as they are.
 
     A model's entry keeps what the index knew (on a fresh clone the run folder is gone) and is refreshed from
     its run folder when that is here; the file's size and sha256 are read anew. A later edition's entries
     also record their ``edition``, ``experiment``, ``run`` and whether ``abm zoo eval`` compares them
-    (``compared``: the spec's ``evaluation.zoo_eval``; :func:`abm.zoo.pick`). Order: the index's, with the
+    (``compared``: the spec's ``evaluation.zoo_eval``; :func:`abm.zoo.pick`; for a spec with a README gate only
+    once ``gate_open``, see :func:`compared_now`). Order: the index's, with the
     spec's models together in the spec's order where its first one stood (at the end when new), the
     benchmark CLIP last."""
     assert layout.zoo is not None
@@ -108,7 +109,7 @@ def zoo_index(spec: ExperimentSpec, layout: Layout) -> list[dict[str, Any]]:
                       "sha256": sha256_file(file)})
         if spec.edition > 1 or spec.zoo_suffix:
             entry.update({"edition": spec.edition, "experiment": spec.name, "run": name,
-                          "compared": name in spec.evaluation.zoo_eval})
+                          "compared": compared_now(spec, name, gate_open, entry.get("compared") is True)})
         entry.update(describe_run(layout.run_dir(name)))
         entries.append(entry)
     ordered: list[dict[str, Any]] = []
@@ -155,6 +156,25 @@ def kept_run_summaries(spec: ExperimentSpec, layout: Layout) -> list[dict[str, A
         if entry:
             entries.append(entry)
     return entries
+
+
+def compared_now(spec: ExperimentSpec, run: str, gate_open: bool | None, was: bool = False) -> bool:
+    """Whether ``abm zoo eval`` runs the spec's model of ``run`` (its index entry's ``compared``): a model of the
+    spec's ``evaluation.zoo_eval``, and for a spec with a README gate (``report.readme_when``) only once the gate
+    is open, so the zoo's evaluation switches to an edition together with the README's tables. ``gate_open``
+    ``None`` (an export, which does not know the gate) keeps what the index said (``was``)."""
+    if run not in spec.evaluation.zoo_eval:
+        return False
+    if spec.report.readme_when is None:
+        return True
+    return was if gate_open is None else gate_open
+
+
+def mark_compared(spec: ExperimentSpec, entries: list[dict[str, Any]], gate_open: bool) -> list[dict[str, Any]]:
+    """``entries`` (a zoo index) with the spec's own models marked ``compared`` as :func:`compared_now` says for
+    ``gate_open``; other specs' entries unchanged."""
+    return [{**e, "compared": compared_now(spec, e["run"], gate_open)}
+            if e.get("experiment") == spec.name and "run" in e else e for e in entries]
 
 
 def collect(spec: ExperimentSpec, layout: Layout) -> Outcomes:

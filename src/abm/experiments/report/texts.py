@@ -14,7 +14,7 @@ from abm.experiments.report.context import Context
 from abm.experiments.report.gate import waits
 from abm.experiments.report.kinds import SECTIONS
 from abm.experiments.report.numbers import Cells, successes, table_head, table_row
-from abm.experiments.report.outcomes import Outcomes
+from abm.experiments.report.outcomes import Outcomes, mark_compared
 from abm.experiments.spec import SPECS, ExperimentSpec, Section
 from abm.experiments.state import Layout
 from abm.registry import resolve
@@ -171,7 +171,10 @@ def compose(spec: ExperimentSpec, layout: Layout, outcomes: Outcomes) -> Written
         block = relink(block, folder)
     extra = {name: relink("\n\n".join(blocks(ctx, sections, "readme")) + "\n", folder)
              for name, sections in spec.report.blocks.items()}
+    waiting = waits(ctx)
     zoo = (outcomes.index if outcomes.index is not None else outcomes.entries) if layout.zoo is not None else None
+    if zoo is not None:  # abm zoo eval takes a gated edition's models once its gate is open
+        zoo = mark_compared(spec, zoo, gate_open=not waiting)
     return Written(summary=summary, document=document, block=block, blocks=extra,
                    records=records(spec, outcomes.cells),
-                   zoo=zoo, zoo_readme=zoo_readme(spec, layout, zoo) if zoo is not None else "", waits=waits(ctx))
+                   zoo=zoo, zoo_readme=zoo_readme(spec, layout, zoo) if zoo is not None else "", waits=waiting)
