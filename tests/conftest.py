@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import atexit
 import os
 import shutil
 import tempfile
@@ -31,7 +32,9 @@ import pytest
 os.environ.setdefault("ABM_BENCHMARK_CLIP", str(Path(tempfile.gettempdir()) / "abm-tests-no-benchmark-clip"))
 # The expert keyframes' disk cache (abm.evaluation.expert_cache) of the tests is their own, so a run computes them
 # with the code under test and leaves the user's cache alone.
-os.environ.setdefault("ABM_EXPERT_CACHE", tempfile.mkdtemp(prefix="abm-tests-expert-keyframes-"))
+if "ABM_EXPERT_CACHE" not in os.environ:
+    os.environ["ABM_EXPERT_CACHE"] = tempfile.mkdtemp(prefix="abm-tests-expert-keyframes-")
+    atexit.register(shutil.rmtree, os.environ["ABM_EXPERT_CACHE"], True)  # not left in the temporary folder
 
 TINY_POLICY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
                "decoder_channels": 4, "lang_dim": 16}
