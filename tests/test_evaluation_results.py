@@ -300,7 +300,8 @@ def test_eval_command_defaults_to_trained_tasks_on_seen_and_unseen(tmp_path, cap
                               job.episode == 0 or job.split == "seen", checkpoint=job.checkpoint,
                               settings=job.settings)
 
-    monkeypatch.setattr(command, "evaluate", functools.partial(runner.evaluate, runner=fake, progress=False))
+    monkeypatch.setattr(command, "evaluate_together", functools.partial(runner.evaluate_together, runner=fake,
+                                                                        progress=False))
     assert cli_main(["eval", "--run", str(run), "--episodes", "2", "--repeats", "1", "--workers", "1"]) == 0
     out = capsys.readouterr()
     assert "tasks seen: pick_block; unseen: pick_block (trained on: pick_block" in caplog.text

@@ -18,7 +18,7 @@ from abm.cli import main
 from abm.errors import ConfigError
 from abm.evaluation.results import EpisodeOutcome
 from abm.experiments import scheduler
-from abm.experiments.jobs import DataJob, ExportJob, TrainJob
+from abm.experiments.jobs import DataJob, EvaluationJob, ExportJob, TrainJob, read_job
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Source
 from abm.experiments.spec import SpecError, builtin_specs, load_spec, parse_spec
 from abm.experiments.stages import BLOCKED, DONE, LEFT, Engine
@@ -228,12 +228,12 @@ class FakeRunner:
                 out.mkdir(parents=True, exist_ok=True)
                 save_checkpoint(out / "step_00000003.pt", {"step": 3})
             elif cmd.job.startswith("eval/"):
-                out = self.root / cmd.work.request.out
-                out.mkdir(parents=True, exist_ok=True)
-                task = cmd.work.request.tasks[0]
-                (out / "results.json").write_text(json.dumps([{
-                    "method": "abm", "task": task, "split": "seen", "per_repeat": [100.0], "episodes": 1,
-                    "errors": 0, "mean": 100.0, "std": 0.0}]))
+                for request in (cmd.work.request, *getattr(cmd.work, "together", ())):  # a split's models at once
+                    out = self.root / request.out
+                    out.mkdir(parents=True, exist_ok=True)
+                    (out / "results.json").write_text(json.dumps([{
+                        "method": "abm", "task": request.tasks[0], "split": "seen", "per_repeat": [100.0],
+                        "episodes": 1, "errors": 0, "mean": 100.0, "std": 0.0}]))
             codes[cmd.job] = 1 if cmd.job == self.fail else 0
             if cmd.job == self.fail:  # what a failing command writes last: its one error line, then a blank
                 cmd.log.parent.mkdir(parents=True, exist_ok=True)
@@ -309,6 +309,30 @@ def _fake_export(tmp_path: Path, ran: list[str]):
                 cmd.after(0)
         return {cmd.job: 0 for cmd in commands}
     return run
+
+
+def test_a_splits_evaluations_run_as_one_job_each_into_its_own_folder(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    spec, _ = _spec(tmp_path, _two_oracle_runs())
+    runner = FakeRunner(tmp_path)
+    monkeypatch.setattr(LocalRunner, "run", _fake_export(tmp_path, runner.ran))
+    assert Engine(spec, root=tmp_path, runner=runner).run(["train", "export"]) == 0
+    runner.ran.clear()
+    engine = Engine(spec, root=tmp_path, runner=runner)
+    planned = [j.id for j in engine.plan("eval")]
+    assert planned == ["eval/abm_oracle/seen", "eval/abm_oracle_seed1/seen"]  # status and carry stay per model
+    assert engine.run(["eval"]) == 0
+    assert runner.ran == ["eval/abm_oracle/seen"]  # one process: every scene built once for both models
+    job = read_job(Layout.of(spec, tmp_path).job_file("eval/abm_oracle/seen"))
+    assert isinstance(job, EvaluationJob) and job.command() is None
+    assert [r.out.as_posix() for r in (job.request, *job.together)] == [
+        "runs/tiny/eval/abm_oracle/seen", "runs/tiny/eval/abm_oracle_seed1/seen"]
+    assert {j.id: j.state for j in Engine(spec, root=tmp_path).plan("eval")} == {
+        "eval/abm_oracle/seen": DONE, "eval/abm_oracle_seed1/seen": DONE}
+    runner.ran.clear()
+    assert Engine(spec, root=tmp_path, runner=runner).run(["eval"]) == 0 and runner.ran == []
+    alone = EvaluationJob(job.request)
+    assert EvaluationJob.from_dict(job.to_dict()) == job and alone.command()[0] == "eval"
 
 
 def test_each_training_is_exported_as_soon_as_it_ends(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -175,3 +175,52 @@ def test_scene_groups_keep_the_plan_order_within_and_between_scenes() -> None:
     groups = scene_groups(jobs)
     assert [[(j.run, j.task, j.episode) for j in g] for g in groups] == [
         [("a", t, e), ("b", t, e)] for t in ("x", "y") for e in (0, 1)]
+
+
+def test_evaluations_into_their_own_folders_share_the_scenes_and_give_each_ones_own_outcomes(
+        tmp_path: Path, compiles) -> None:
+    pytest.importorskip("torch")
+    models = [ZOO / "abm_oracle_v2.pt", ZOO / "abm_oracle.pt"]
+    if not all(m.is_file() for m in models):
+        pytest.skip("the committed model zoo is not in this checkout")
+    import json
+
+    from abm.evaluation.session import EvalRequest, run_evaluations
+
+    def request(model: Path, out: Path) -> EvalRequest:
+        return EvalRequest((model,), tasks=("place_food",), splits=("seen",), episodes=1, repeats=1, workers=1,
+                           out=out, settings=EvalSettings(max_steps=1))
+
+    def outcomes(folder: Path) -> list[tuple[Any, ...]]:
+        lines = [json.loads(line) for line in (folder / "outcomes.jsonl").read_text().splitlines()]
+        return [(o["checkpoint"], o["success"], o["steps"], o["trajectory"]) for o in lines]
+
+    run_evaluations([request(m, tmp_path / "together" / m.stem) for m in models])
+    assert len(compiles) == 1  # the one scene, built once for both models
+    for m in models:
+        scene_cache.forget_scenes()
+        run_evaluations([request(m, tmp_path / "alone" / m.stem)])
+        assert outcomes(tmp_path / "together" / m.stem) == outcomes(tmp_path / "alone" / m.stem)
+        assert (tmp_path / "together" / m.stem / "results.json").is_file()
+    assert [Path(c).name for c, *_ in outcomes(tmp_path / "together" / "abm_oracle")] == ["abm_oracle.pt"]
+
+
+def test_evaluate_together_sends_each_outcome_to_its_own_folder(tmp_path: Path) -> None:
+    from abm.evaluation.runner import EvalCell, evaluate_together
+
+    calls: list[tuple[str, str, int]] = []
+
+    def runner(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
+        calls.append((job.run, job.task, job.seed))
+        return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, job.run == "a",
+                              1, 0.0, checkpoint=job.checkpoint, settings=job.settings)
+
+    cells = [EvalCell([run], ["pick_block"], "seen", tmp_path / run, episodes=2, repeats=1, labels={run: run.upper()})
+             for run in "ab"]
+    rates = evaluate_together(cells, runner=runner, progress=False)
+    assert calls == [(run, "pick_block", eval_seed(0, e)) for e in (0, 1) for run in "ab"]  # scene by scene
+    assert [[(r.method, r.mean) for r in cell] for cell in rates] == [[("A", 100.0)], [("B", 0.0)]]
+    for run in "ab":
+        lines = (tmp_path / run / "outcomes.jsonl").read_text().splitlines()
+        assert len(lines) == 2 and all(f'"method": "{run.upper()}"' in line or f'"method":"{run.upper()}"' in line
+                                       for line in lines)

@@ -19,7 +19,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar, cast
 
 from abm.errors import ConfigError, OutputError
 from abm.evaluation import expert_cache
@@ -64,6 +64,8 @@ from abm.progress import Progress
 from abm.ray_pool import RayActorPool
 from abm.sim.cameras import single_threaded_rasterizer
 from abm.workers import die_with_parent
+
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -363,73 +365,133 @@ def evaluate(
         success rates of every (method, task) on ``split``, from the outcomes of exactly the planned
         rollouts (same checkpoints, same settings); older lines of the log are kept but not reported.
     """
-    settings = settings or EvalSettings()
-    runs = same_file_runs(runs)
-    labels = labels or method_labels(runs)
+    cell = EvalCell(runs, tasks, split, Path(out_dir), episodes, repeats, settings or EvalSettings(), gifs, labels)
+    return evaluate_together([cell], workers, progress, runner, backend, ray_address,
+                             [collect] if collect is not None else None)[0]
+
+
+@dataclass(frozen=True)
+class EvalCell:
+    """One results folder of :func:`evaluate_together`: runs on the tasks of one split, with its protocol and
+    settings (:func:`evaluate`'s arguments of the same names)."""
+
+    runs: Sequence[str | Path]
+    tasks: Sequence[str]
+    split: str
+    out_dir: Path
+    episodes: int = 25
+    repeats: int = 5
+    settings: EvalSettings = EvalSettings()
+    gifs: int = 0
+    labels: dict[str, str] | None = None
+
+
+@dataclass
+class _Planned:
+    """A cell's outcome log, its whole plan and the rollouts of the plan its log does not hold yet."""
+
+    cell: EvalCell
+    log: OutcomeLog
+    plan: list[EvalJob]
+    jobs: list[EvalJob]
+
+
+def _plan_cell(cell: EvalCell) -> _Planned:
+    runs = same_file_runs(cell.runs)
+    labels = cell.labels or method_labels(runs)
     check_labels(runs, labels)
-    if backend not in ("local", "ray"):
-        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
-    out = Path(out_dir)
-    log = OutcomeLog(out / "outcomes.jsonl")
+    log = OutcomeLog(cell.out_dir / "outcomes.jsonl")
     done = log.done()
     checkpoints = {str(r): checkpoint_of(r) for r in runs}
-    plan = [replace(j, checkpoint=checkpoints[j.run], settings=settings.signature())
-            for j in plan_jobs(runs, tasks, split, episodes, repeats, out, gifs, labels)]
-    check_same_evaluation(log.read(), plan, out, record=False)
-    jobs = [j for j in plan if j.key not in done]
+    plan = [replace(j, checkpoint=checkpoints[j.run], settings=cell.settings.signature())
+            for j in plan_jobs(runs, cell.tasks, cell.split, cell.episodes, cell.repeats, cell.out_dir, cell.gifs,
+                               labels)]
+    check_same_evaluation(log.read(), plan, cell.out_dir, record=False)
+    return _Planned(cell, log, plan, [j for j in plan if j.key not in done])
+
+
+def evaluate_together(
+    cells: Sequence[EvalCell],
+    workers: int = 1,
+    progress: bool = True,
+    runner: Callable[[EvalJob, EvalSettings], EpisodeOutcome] = run_job,
+    backend: str = "local",
+    ray_address: str | None = None,
+    collect: Sequence[list[EpisodeOutcome]] | None = None,
+) -> list[list[SuccessRate]]:
+    """:func:`evaluate` of several results folders at once (e.g. each model of a split in its own folder, as the
+    experiment engine keeps them): every folder's rollouts of a scene go to one process one after another, so the
+    scene is built once for all of them (:mod:`abm.evaluation.scene_cache`); each outcome goes to its own folder's
+    log and each folder gets its tables as :func:`evaluate` writes them. ``collect``: one list per cell. Returns
+    each cell's success rates, in the cells' order. The outcomes are those of evaluating each cell alone."""
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
+    planned = [_plan_cell(cell) for cell in cells]
     in_process = workers <= 1 and backend == "local"
-    if jobs and runner is run_job:  # fail before any rollout (and any file written) on a policy that cannot load
-        check_policies(list(dict.fromkeys(j.checkpoint or j.run for j in jobs)), settings)
+    if runner is run_job and any(p.jobs for p in planned):  # fail before any rollout (and any file) on a bad policy
+        for p in planned:
+            if p.jobs:
+                check_policies(list(dict.fromkeys(j.checkpoint or j.run for j in p.jobs)), p.cell.settings)
         if not in_process:
             forget_policies()  # the workers load their own
-    out.mkdir(parents=True, exist_ok=True)
-    check_same_evaluation(log.read(), plan, out)
-    bar = Progress(len(jobs), f"eval {split}", "episodes", bar=progress)
+    for p in planned:
+        p.cell.out_dir.mkdir(parents=True, exist_ok=True)
+        check_same_evaluation(p.log.read(), p.plan, p.cell.out_dir)
+    pending = [(i, job) for i, p in enumerate(planned) for job in p.jobs]
+    splits = ", ".join(dict.fromkeys(cell.split for cell in cells))
+    bar = Progress(len(pending), f"eval {splits}", "episodes", bar=progress)
     successes = 0
 
-    def record(outcomes: Sequence[EpisodeOutcome]) -> None:
+    def record(group: Sequence[tuple[int, EvalJob]], outcomes: Sequence[EpisodeOutcome]) -> None:
         nonlocal successes
-        for outcome in outcomes:
-            log.append(outcome)
+        for (i, _), outcome in zip(group, outcomes, strict=True):
+            planned[i].log.append(outcome)
             successes += outcome.success
             bar.update(1, success=f"{successes}/{bar.n + 1}")
 
-    groups = scene_groups(jobs)  # every model's rollout of a scene in one process, one after another
+    # every model's (every cell's) rollout of a scene in one process, one after another
+    groups = scene_groups(pending, job_of=lambda item: item[1])
     if in_process:
         try:
             for group in groups:
-                record(run_group(runner, group, settings))
+                record(group, run_group(runner, [(job, planned[i].cell.settings) for i, job in group]))
         finally:
             forget_scenes()
     else:
         with _pool(backend, workers, ray_address) as pool:
-            futures = [pool.submit(run_group, runner, group, settings) for group in groups]
+            futures = {pool.submit(run_group, runner, [(job, planned[i].cell.settings) for i, job in group]): group
+                       for group in groups}
             for fut in as_completed(futures):
-                record(fut.result())
+                record(futures[fut], fut.result())
     bar.close()
-    planned = {j.key for j in plan}
-    latest = {o.key: o for o in log.read() if o.key in planned}  # the log may hold older checkpoints too
-    if collect is not None:
-        collect.extend(latest.values())
-    run_loss_curves({j.method: j.run for j in plan}, out / "training.png")
-    write_outcome_archive(latest.values(), out / OUTCOME_ARCHIVE)  # what the tables count, step by step
-    return write_reports(list(latest.values()), out)
+    rates = []
+    for i, p in enumerate(planned):
+        wanted = {j.key for j in p.plan}
+        latest = {o.key: o for o in p.log.read() if o.key in wanted}  # the log may hold older checkpoints too
+        if collect is not None:
+            collect[i].extend(latest.values())
+        run_loss_curves({j.method: j.run for j in p.plan}, p.cell.out_dir / "training.png")
+        write_outcome_archive(latest.values(), p.cell.out_dir / OUTCOME_ARCHIVE)  # what the tables count
+        rates.append(write_reports(list(latest.values()), p.cell.out_dir))
+    return rates
 
 
-def scene_groups(jobs: Sequence[EvalJob]) -> list[list[EvalJob]]:
-    """``jobs`` grouped by scene (task, split, seed), the groups in the order of each scene's first job and the
-    jobs of a group in their given order: a process rolling out a group builds its scene once
-    (:mod:`abm.evaluation.scene_cache`), not once per model. The outcomes do not depend on the order."""
-    groups: dict[tuple[str, str, int], list[EvalJob]] = {}
-    for job in jobs:
-        groups.setdefault((job.task, job.split, job.seed), []).append(job)
+def scene_groups(items: Sequence[_T], job_of: Callable[[_T], EvalJob] | None = None) -> list[list[_T]]:
+    """``items`` (jobs, or what ``job_of`` reads a job from) grouped by their job's scene (task, split, seed), the
+    groups in the order of each scene's first item and a group's items in their given order: a process rolling out
+    a group builds its scene once (:mod:`abm.evaluation.scene_cache`), not once per model. The outcomes do not
+    depend on the order."""
+    groups: dict[tuple[str, str, int], list[_T]] = {}
+    for item in items:
+        job = job_of(item) if job_of is not None else cast(EvalJob, item)
+        groups.setdefault((job.task, job.split, job.seed), []).append(item)
     return list(groups.values())
 
 
-def run_group(runner: Callable[[EvalJob, EvalSettings], EpisodeOutcome], jobs: Sequence[EvalJob],
-              settings: EvalSettings) -> list[EpisodeOutcome]:
-    """``runner`` on each job of one scene group (:func:`scene_groups`), in order, in this process."""
-    return [runner(job, settings) for job in jobs]
+def run_group(runner: Callable[[EvalJob, EvalSettings], EpisodeOutcome],
+              jobs: Sequence[tuple[EvalJob, EvalSettings]]) -> list[EpisodeOutcome]:
+    """``runner`` on each (job, settings) of one scene group (:func:`scene_groups`), in order, in this process."""
+    return [runner(job, settings) for job, settings in jobs]
 
 
 def crash_summary(outcomes: Sequence[EpisodeOutcome]) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -22,17 +23,20 @@ from abm.evaluation.policies import checkpoint_clips
 from abm.evaluation.results import (
     EpisodeOutcome,
     OutcomeLog,
+    SuccessRate,
     combined_table,
     eval_seed,
     markdown_table,
     write_json,
 )
 from abm.evaluation.runner import (
+    EvalCell,
     EvalJob,
     check_same_evaluation,
     checkpoint_of,
     crash_summary,
     evaluate,
+    evaluate_together,
     method_labels,
     plan_jobs,
     run_job,
@@ -145,6 +149,23 @@ def run_evaluation(request: EvalRequest) -> None:
             evaluate; ExternalError: CUDA asked for and missing, or an episode that crashed (the tables are
             written first); OutputError: an output folder that is a file.
     """
+    run_evaluations([request])
+
+
+@dataclass
+class _Prepared:
+    """A checked request: its runs, tasks per split, settings, output folder per split and protocol."""
+
+    request: EvalRequest
+    plan: dict[str, list[str]]
+    outs: dict[str, Path]
+    parent: Path
+    single: bool
+    protocol: dict[str, Any]
+
+
+def _prepare(request: EvalRequest) -> _Prepared:
+    """Check a request (see :func:`run_evaluation`'s errors) and say where each split's outcomes go."""
     for r in request.runs:
         if not Path(r).exists():
             raise ConfigError(f"run {r} does not exist (give a training run folder or a checkpoint file)")
@@ -178,36 +199,62 @@ def run_evaluation(request: EvalRequest) -> None:
     logging.getLogger("abm").info("abm eval: protocol: %d episodes x %d repeats per task and split, scene seeds %s "
                                   "(the same for every method and task), settings %s", episodes, repeats,
                                   protocol["seeds_text"], protocol["settings"])
-    rates = []
-    outcomes: list[EpisodeOutcome] = []
-    for split, tasks in plan.items():
-        with FolderLock(outs[split], "abm eval"):  # one writer per results folder
-            (outs[split] / "protocol.json").write_text(json.dumps(protocol, indent=1) + "\n")
-            found_now: list[EpisodeOutcome] = []
-            found = evaluate(runs, tasks, split, outs[split], episodes, repeats, request.workers, settings,
-                             backend=request.backend, ray_address=request.ray_address, collect=found_now)
-            outcomes += found_now
-            if request.gifs:
-                record_gifs(runs, tasks, split, outs[split], episodes, request.gifs, settings, found_now)
-        rates += [r for r in found if r.split == split and r.task in tasks]
-    if single:
+    return _Prepared(request, plan, outs, parent, single, protocol)
+
+
+def run_evaluations(requests: Sequence[EvalRequest]) -> None:
+    """:func:`run_evaluation` of several requests at once (the experiment engine: each model of a split into its
+    own folder), their rollouts of a scene one after another in one process, so each scene is built once for all
+    (:func:`abm.evaluation.runner.evaluate_together`); the parallelism is the first request's (``workers``,
+    ``backend``). Each request's folders, tables and printout are those :func:`run_evaluation` gives it alone;
+    a crash in any fails the call once every table is written."""
+    if not requests:
+        return
+    prepared = [_prepare(r) for r in requests]
+    first = prepared[0].request
+    cells = [(p, split, EvalCell(p.request.runs, tasks, split, p.outs[split], p.request.episodes, p.request.repeats,
+                                 p.request.settings))
+             for p in prepared for split, tasks in p.plan.items()]
+    found_now: list[list[EpisodeOutcome]] = [[] for _ in cells]
+    with ExitStack() as locks:
+        for p, split, _ in cells:
+            locks.enter_context(FolderLock(p.outs[split], "abm eval"))  # one writer per results folder
+            (p.outs[split] / "protocol.json").write_text(json.dumps(p.protocol, indent=1) + "\n")
+        found = evaluate_together([cell for _, _, cell in cells], first.workers, backend=first.backend,
+                                  ray_address=first.ray_address, collect=found_now)
+        for (p, split, _), now in zip(cells, found_now, strict=True):
+            if p.request.gifs:
+                record_gifs(list(p.request.runs), p.plan[split], split, p.outs[split], p.request.episodes,
+                            p.request.gifs, p.request.settings, now)
+    outcomes = [o for now in found_now for o in now]
+    for p in prepared:
+        rates = [r for (q, split, _), rates_of in zip(cells, found, strict=True) if q is p
+                 for r in rates_of if r.split == split and r.task in p.plan[split]]
+        _print_tables(p, rates)
+    crashes = crash_summary(outcomes)
+    if crashes:  # a crash is not a measurement: the tables are written, but the command fails
+        folders = [p.outs[split] / "outcomes.jsonl" for p in prepared for split in p.plan]
+        raise ExternalError(f"{crashes}; outcomes: {', '.join(str(f) for f in folders)}")
+
+
+def _print_tables(p: _Prepared, rates: list[SuccessRate]) -> None:
+    """Print a request's table (with several splits also written as the combined table) and where its files are."""
+    if p.single:
         print(markdown_table(rates))
     else:
         table = combined_table(rates)
-        (parent / "eval_summary.md").write_text(
+        repeats, episodes = p.request.repeats, p.request.episodes
+        (p.parent / "eval_summary.md").write_text(
             f"Success, % ({f'mean ± std over {repeats} repeats' if repeats > 1 else 'one repeat'}; "
             f"successes / episodes); {episodes} "
-            f"episodes per task, split and repeat; settings {settings.signature()}; per-split folders: "
-            + ", ".join(f"[{o.name}]({o.name}/results.md)" for o in outs.values()) + "\n\n" + table + "\n")
-        write_json(rates, parent / "eval_summary.json")
+            f"episodes per task, split and repeat; settings {p.request.settings.signature()}; per-split folders: "
+            + ", ".join(f"[{o.name}]({o.name}/results.md)" for o in p.outs.values()) + "\n\n" + table + "\n")
+        write_json(rates, p.parent / "eval_summary.json")
         print(table)
-    for split, out in outs.items():
+    for split, out in p.outs.items():
         print(f"results {split}: {out / 'results.md'} (also .json, .csv; per-episode outcomes in outcomes.jsonl)")
-    if not single:
-        print(f"combined table: {parent / 'eval_summary.md'} (also eval_summary.json)")
-    crashes = crash_summary(outcomes)
-    if crashes:  # a crash is not a measurement: the tables are written, but the command fails
-        raise ExternalError(f"{crashes}; outcomes: {', '.join(str(o / 'outcomes.jsonl') for o in outs.values())}")
+    if not p.single:
+        print(f"combined table: {p.parent / 'eval_summary.md'} (also eval_summary.json)")
 
 
 def default_eval_base(run: Path) -> Path:

@@ -26,7 +26,7 @@ import socket
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -156,6 +156,48 @@ def shown(work: TypedJob | None) -> str:
         return ""
     words = work.command()
     return " ".join([sys.executable, "-m", "abm.cli", *words]) if words else json.dumps(work.to_dict())
+
+
+def evaluated_together(jobs: Sequence[Job]) -> list[Job]:
+    """``jobs`` with the evaluations of each split (the same workers and backend) run as one job: the first one's,
+    whose work evaluates the others too (:attr:`abm.experiments.jobs.EvaluationJob.together`), so every scene is
+    built once for all the split's models (:mod:`abm.evaluation.scene_cache`); each evaluation keeps its own
+    folder, so what is done, carried or restored is still per model. The first job runs the others' ``before``
+    and ``after`` with its own and sets their state; its log holds all of them. Other jobs are left as they are."""
+    kept: list[Job] = []
+    groups: dict[tuple[Any, ...], list[Job]] = {}
+    for job in jobs:
+        work = job.work
+        if isinstance(work, EvaluationJob) and len(work.request.splits) == 1 and not work.together:
+            r = work.request
+            key = (r.splits[0], r.workers, r.backend, r.ray_address)
+            if key not in groups:
+                kept.append(job)
+            groups.setdefault(key, []).append(job)
+        else:
+            kept.append(job)
+    for lead, *others in groups.values():
+        if not others:
+            continue
+        assert isinstance(lead.work, EvaluationJob)
+        lead.work = replace(lead.work, together=tuple(o.work.request for o in others
+                                                      if isinstance(o.work, EvaluationJob)))
+        members = [lead, *others]
+        befores = [j.before for j in members if j.before is not None]
+        afters = [(j, j.after) for j in members]
+
+        def before(befores: list[Callable[[], None]] = befores) -> None:
+            for call in befores:
+                call()
+
+        def after(code: int, afters: list[tuple[Job, Callable[[int], None] | None]] = afters) -> None:
+            for job, call in afters:
+                if call is not None:
+                    call(code)
+                job.state = DONE if code == 0 else FAILED
+
+        lead.before, lead.after = before, after
+    return kept
 
 
 class Engine:
@@ -696,6 +738,8 @@ class Engine:
             for job in todo:
                 LOG.info("  %s: %s", job.id, shown(job.work))
             return True
+        if stage == "eval":
+            todo = evaluated_together(todo)
         stamp(self.layout, f"{stage}_start")
         record_machine(self.layout)
         slots, cpus = self.slots(stage)

@@ -13,7 +13,8 @@ Each kind calls what its ``abm`` command calls:
 * ``ground`` (:class:`GroundJob`): :func:`abm.data.stores.ground_store`, as ``abm data ground``;
 * ``train`` (:class:`TrainJob`): :func:`abm.train.loop.train`, then the loss curve, as ``abm train``;
 * ``export`` (:class:`ExportJob`): :func:`abm.policy.export.export_model`, as ``abm export``;
-* ``eval`` (:class:`EvaluationJob`): :func:`abm.evaluation.session.run_evaluation`, as ``abm eval``;
+* ``eval`` (:class:`EvaluationJob`): :func:`abm.evaluation.session.run_evaluation`, as ``abm eval`` (several
+  models' evaluations of a split at once: :func:`abm.evaluation.session.run_evaluations`);
 * ``zoo_eval`` (:class:`ZooEvalJob`): :func:`abm.evaluation.session.evaluate_zoo`, as ``abm zoo eval``;
 * ``diagnose`` (:class:`DiagnoseJob`): a diagnosis request's ``run`` (:mod:`abm.evaluation.diagnose`).
 
@@ -34,7 +35,7 @@ from abm.errors import ConfigError
 from abm.evaluation.diagnose import from_dict as diagnosis_from_dict
 from abm.evaluation.diagnose.request import DiagnosisRequest
 from abm.evaluation.plots import run_loss_curves
-from abm.evaluation.session import EvalRequest, evaluate_zoo, run_evaluation
+from abm.evaluation.session import EvalRequest, evaluate_zoo, run_evaluations
 from abm.evaluation.settings import ZOO_EVAL_EPISODES, ZOO_EVAL_MAX_STEPS, ZOO_EVAL_TASKS
 from abm.geometry import Workspace
 from abm.policy.config import PolicyConfig
@@ -213,15 +214,22 @@ class ExportJob(TypedJob):
 @dataclass(frozen=True)
 class EvaluationJob(TypedJob):
     """One evaluation (:func:`abm.evaluation.session.run_evaluation`); it resumes from the outcomes its folder
-    holds."""
+    holds. With ``together`` (other evaluations of the same split, each into its own folder: the engine's other
+    models) all are run at once, every scene built once for all of them
+    (:func:`abm.evaluation.session.run_evaluations`)."""
 
     kind: ClassVar[str] = "eval"
     request: EvalRequest
+    together: tuple[EvalRequest, ...] = ()
 
     def run(self) -> None:
-        run_evaluation(self.request)
+        run_evaluations([self.request, *self.together])
 
-    def command(self) -> list[str]:
+    def command(self) -> list[str] | None:
+        """``abm eval ...`` of the request (``None`` with ``together``: no one ``abm eval`` writes several
+        folders)."""
+        if self.together:
+            return None
         r, s = self.request, self.request.settings
         words = ["eval", *(w for run in r.runs for w in ("--run", Path(run).as_posix())),
                  *(["--tasks", *r.tasks] if r.tasks else []), "--split", *r.splits, "--episodes", str(r.episodes),
