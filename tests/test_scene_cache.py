@@ -151,13 +151,20 @@ def test_models_rolled_out_on_one_scene_give_the_outcomes_of_fresh_builds(compil
     assert fresh == shared and shared[0] != shared[1]  # two different models, each as if alone
 
 
-def test_an_evaluation_rolls_out_every_models_episode_of_a_scene_together(tmp_path: Path) -> None:
-    calls: list[tuple[str, str, int]] = []
+def _recording_runner(calls: list[tuple[str, str, int]]) -> Any:
+    """A rollout stand-in that records (run, task, seed) and succeeds for run ``a`` only."""
 
     def runner(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
         calls.append((job.run, job.task, job.seed))
         return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, job.run == "a",
                               1, 0.0, checkpoint=job.checkpoint, settings=job.settings)
+
+    return runner
+
+
+def test_an_evaluation_rolls_out_every_models_episode_of_a_scene_together(tmp_path: Path) -> None:
+    calls: list[tuple[str, str, int]] = []
+    runner = _recording_runner(calls)
 
     rates = evaluate(["a", "b"], ["pick_block", "place_food"], "seen", tmp_path, episodes=2, repeats=1,
                      labels={"a": "A", "b": "B"}, runner=runner, progress=False)
@@ -209,11 +216,7 @@ def test_evaluate_together_sends_each_outcome_to_its_own_folder(tmp_path: Path) 
     from abm.evaluation.runner import EvalCell, evaluate_together
 
     calls: list[tuple[str, str, int]] = []
-
-    def runner(job: EvalJob, settings: EvalSettings) -> EpisodeOutcome:
-        calls.append((job.run, job.task, job.seed))
-        return EpisodeOutcome(job.method, job.task, job.split, job.repeat, job.episode, job.seed, job.run == "a",
-                              1, 0.0, checkpoint=job.checkpoint, settings=job.settings)
+    runner = _recording_runner(calls)
 
     cells = [EvalCell([run], ["pick_block"], "seen", tmp_path / run, episodes=2, repeats=1, labels={run: run.upper()})
              for run in "ab"]
