@@ -32,6 +32,7 @@ from abm.experiments.state import (
 )
 from abm.files import sha256_file
 from abm.policy.checkpoint import save_checkpoint
+from abm.zoo import ZooError
 
 TINY: dict = {
     "name": "tiny",
@@ -352,6 +353,23 @@ def test_each_training_is_exported_as_soon_as_it_ends(tmp_path: Path, monkeypatc
     (tmp_path / "runs/tiny/abm_oracle_seed1/checkpoints/step_00000003.pt").unlink()
     Engine(spec, root=tmp_path, runner=runner).run(["train"])
     assert runner.ran == ["train/abm_oracle_seed1"] and not list((tmp_path / "models").glob("*.pt"))
+
+
+def test_a_zoo_file_that_is_not_the_indexed_model_stops_the_engine(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """A zoo file counts as an exported training only when it is the model its index entry records: an 8-byte
+    file committed in place of the weights would otherwise mark the training done, and nothing would train it."""
+    spec, _ = _spec(tmp_path, _two_oracle_runs())
+    runner = FakeRunner(tmp_path)
+    monkeypatch.setattr(LocalRunner, "run", _fake_export(tmp_path, runner.ran))
+    assert Engine(spec, root=tmp_path, runner=runner).run(["train", "export"]) == 0
+    assert {j.id: j.state for j in Engine(spec, root=tmp_path).plan("export")}["export/abm_oracle"] == DONE
+    (tmp_path / "models/abm_oracle.pt").write_text("abm_oracle")
+    with pytest.raises(ZooError, match=r"abm_oracle\.pt is not the model .*index\.json records for abm_oracle \(10 "
+                                       r"bytes, the index says 5; or another sha256\): restore it with git checkout"):
+        Engine(spec, root=tmp_path).plan("train")
+    (tmp_path / "models/abm_oracle.pt").write_text("model")  # the same bytes again: done
+    assert {j.id: j.state for j in Engine(spec, root=tmp_path).plan("export")}["export/abm_oracle"] == DONE
 
 
 def test_a_finished_training_not_exported_yet_is_carried_and_exported_on_a_fresh_clone(

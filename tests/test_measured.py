@@ -98,7 +98,10 @@ def test_zoo_eval_points_at_its_models_edition_page() -> None:
     from abm.evaluation.session import edition_page
     from abm.zoo import edition, read_index
 
-    editions = {edition(e) for e in read_index(ROOT / "models") if e.get("method")}
+    # the editions abm zoo eval can run: the first's, and those whose models are compared (a gated edition's page
+    # is written with its tables, when its gate opens)
+    editions = {edition(e) for e in read_index(ROOT / "models")
+                if e.get("method") and (edition(e) == 1 or e.get("compared") is True)}
     assert editions >= {1, 2}
     for number in editions:
         assert (ROOT / edition_page(number)).is_file()

@@ -106,3 +106,15 @@ def test_an_edition_that_is_not_a_whole_number_is_refused(tmp_path: Path) -> Non
     (zoo / "index.json").write_text(json.dumps(entries))
     with pytest.raises(ZooError, match="'edition' is '2', expected a whole number"):
         read_index(zoo)
+
+
+def test_every_committed_zoo_file_is_the_model_its_index_records() -> None:
+    """What a fresh clone's ``abm zoo eval`` and every load check: caught here, a copy error that commits
+    another file in place of a model's weights does not wait for a load to fail."""
+    zoo = Path(__file__).parents[1] / "models"
+    entries = read_index(zoo)
+    assert len(entries) >= 10
+    for entry in entries:
+        path = verify(zoo, entry)
+        size = (path / "model.safetensors" if path.is_dir() else path).stat().st_size
+        assert size == entry["size_bytes"], entry["name"]

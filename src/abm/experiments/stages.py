@@ -76,9 +76,10 @@ from abm.experiments.state import (
     stamp,
 )
 from abm.experiments.status import kept_minutes
-from abm.files import FolderBusyError, FolderLock
+from abm.files import FolderBusyError, FolderLock, sha256_file
 from abm.grounding.config import GROUNDERS
 from abm.policy.config import PolicyConfig
+from abm.zoo import ZooError
 
 LOG = logging.getLogger("abm")
 DONE, RUNNING, LEFT, BLOCKED, FAILED = "done", "running", "left", "blocked", "failed"
@@ -241,6 +242,7 @@ class Engine:
         self._open: set[str] = set()  # jobs started and not ended yet
         self._export_with_training = False  # export each training as it ends (run() with train and export)
         self._kept = dict(kept_pairs(spec, self.layout))
+        self._zoo_checked: set[tuple[str, int, int]] = set()  # zoo files matched to their index entry
 
     # ------------------------------------------------------------------------------------------- helpers
     def rel(self, path: Path) -> str:
@@ -264,7 +266,34 @@ class Engine:
         return self.rel(self.layout.clip) if self.layout.clip is not None else ""
 
     def exported(self, run: str) -> bool:
-        return self.layout.zoo is not None and self.layout.zoo_file(run).is_file()
+        """Whether ``run``'s zoo file is there; one the zoo index lists must match the size and sha256 it records
+        (:meth:`check_zoo_file`), or the engine would skip a training whose weights it does not have."""
+        if self.layout.zoo is None or not self.layout.zoo_file(run).is_file():
+            return False
+        self.check_zoo_file(run)
+        return True
+
+    def check_zoo_file(self, run: str) -> None:
+        """Check ``run``'s zoo file against its entry in ``ZOO/index.json`` (none: an export whose index is not
+        written yet, accepted), each file hashed once while its size and modification time stay the same.
+
+        Raises:
+            ZooError: the file's size or sha256 is not what the index records (a partial copy, another file).
+        """
+        assert self.layout.zoo is not None
+        file = self.layout.zoo_file(run)
+        stat = file.stat()
+        key = (str(file), stat.st_size, stat.st_mtime_ns)
+        if key in self._zoo_checked:
+            return
+        index = self.layout.zoo / "index.json"
+        listed = json.loads(index.read_text()) if index.is_file() else []
+        entry = next((e for e in listed if isinstance(e, dict) and e.get("name") == self.spec.zoo_name(run)), None)
+        if entry is not None and (entry.get("size_bytes") != stat.st_size or entry.get("sha256") != sha256_file(file)):
+            raise ZooError(f"{file} is not the model {index} records for {run} ({stat.st_size} bytes, the index says "
+                           f"{entry.get('size_bytes')}; or another sha256): restore it with git checkout, or remove "
+                           f"it and its index entry to train {run} again")
+        self._zoo_checked.add(key)
 
     def trained(self, run: str) -> bool:
         """Finished: exported, or its latest checkpoint holds the last step (the step it records, not its name) or
