@@ -274,8 +274,9 @@ class Engine:
         return True
 
     def check_zoo_file(self, run: str) -> None:
-        """Check ``run``'s zoo file against its entry in ``ZOO/index.json`` (none: an export whose index is not
-        written yet, accepted), each file hashed once while its size and modification time stay the same.
+        """Check ``run``'s zoo file against the size and sha256 its entry in ``ZOO/index.json`` records (no entry:
+        an export whose index is not written yet, accepted), each file hashed once while its size and
+        modification time stay the same.
 
         Raises:
             ZooError: the file's size or sha256 is not what the index records (a partial copy, another file).
@@ -289,7 +290,8 @@ class Engine:
         index = self.layout.zoo / "index.json"
         listed = json.loads(index.read_text()) if index.is_file() else []
         entry = next((e for e in listed if isinstance(e, dict) and e.get("name") == self.spec.zoo_name(run)), None)
-        if entry is not None and (entry.get("size_bytes") != stat.st_size or entry.get("sha256") != sha256_file(file)):
+        if entry is not None and (entry.get("size_bytes", stat.st_size) != stat.st_size
+                                  or entry.get("sha256", "") not in ("", sha256_file(file))):
             raise ZooError(f"{file} is not the model {index} records for {run} ({stat.st_size} bytes, the index says "
                            f"{entry.get('size_bytes')}; or another sha256): restore it with git checkout, or remove "
                            f"it and its index entry to train {run} again")
