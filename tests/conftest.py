@@ -36,6 +36,37 @@ if "ABM_EXPERT_CACHE" not in os.environ:
     os.environ["ABM_EXPERT_CACHE"] = tempfile.mkdtemp(prefix="abm-tests-expert-keyframes-")
     atexit.register(shutil.rmtree, os.environ["ABM_EXPERT_CACHE"], True)  # not left in the temporary folder
 
+REPO_MODELS = Path(__file__).resolve().parents[1] / "models"
+
+
+def _committed_models() -> dict[str, tuple[int, int]]:
+    """``{path: (size, mtime_ns)}`` of every file under the checkout's models/ (the zoo, its CLIP, the carry)."""
+    return {str(p.relative_to(REPO_MODELS)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in sorted(REPO_MODELS.rglob("*")) if p.is_file() and not p.is_symlink()}
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    session.config.stash[_MODELS_BEFORE] = _committed_models()
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Fail the run when a test wrote into the checkout's models/: a scratch root that links the zoo's files and a
+    test that writes a stand-in through such a link replace the committed weights (it happened, and a commit took
+    the 8-byte stand-ins for the models)."""
+    before = session.config.stash.get(_MODELS_BEFORE, None)
+    if before is None or hasattr(session.config, "workerinput"):  # the controller checks, once
+        return
+    after = _committed_models()
+    changed = sorted(name for name in before.keys() | after.keys() if before.get(name) != after.get(name))
+    if changed:
+        session.config.get_terminal_writer().line(
+            f"the tests changed files of the checkout's models/: {', '.join(changed[:10])} (restore them with git "
+            "checkout; a test must write into its own folder, never through a link to the checkout)", red=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+_MODELS_BEFORE = pytest.StashKey[dict[str, tuple[int, int]]]()
+
 TINY_POLICY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
                "decoder_channels": 4, "lang_dim": 16}
 

@@ -61,7 +61,9 @@ def _evaluate(layout: Layout, success: dict[tuple[str, str], float], kept: bool 
 def _export_v3(root: Path) -> None:
     """The third edition's abm_clip and rvt_clip as exported (stand-in files) and indexed by their export."""
     for run in ("abm_clip", "rvt_clip"):
-        (root / "models" / f"{run}_v3.pt").write_bytes(run.encode())
+        stand_in = root / "models" / f"{run}_v3.pt"
+        stand_in.unlink(missing_ok=True)  # a link to the checkout's model (_root): never written through
+        stand_in.write_bytes(run.encode())
     Engine(V3, root=root).write_zoo_index()
 
 
