@@ -434,6 +434,8 @@ def test_a_stopped_stage_closes_its_spans_and_leaves_the_job_to_do(tmp_path: Pat
     last = [json.loads(line) for line in engine.layout.jobs.read_text().splitlines()][-1]
     assert last["job"] == "train/abm_oracle" and last["event"] == "end" and last["stopped"] and last["rc"] is None
     assert engine.layout.times.read_text().split()[0::3] == ["train_start", "train_end"]  # the stage's minutes count
+    kept = engine.layout.kept / "times.txt"  # kept with the carry: a fresh clone counts this session's minutes
+    assert kept.read_text() == engine.layout.times.read_text() and (engine.layout.kept / "machines.txt").is_file()
     status = {j.id: j for j in Engine(spec, root=tmp_path).status()}
     assert status["train/abm_oracle"].state == LEFT  # neither failed nor done: the next run resumes it
     assert (tmp_path / "models/carry/abm_oracle/step_00000001.pt").is_file()

@@ -193,6 +193,21 @@ def restore(spec: ExperimentSpec, layout: Layout) -> int:
     return copied
 
 
+def keep_times(layout: Layout) -> int:
+    """Merge OUT's stage times and machines into KEPT (what :func:`keep` does for them), so a session stopped
+    before its report still counts on a fresh clone; returns how many files changed."""
+    changed = 0
+    for made in (layout.times, layout.machines):
+        copy = layout.kept / made.name
+        if made.is_file():
+            data = merge_lines(made, copy)
+            if not copy.is_file() or copy.read_bytes() != data:
+                copy.parent.mkdir(parents=True, exist_ok=True)
+                copy.write_bytes(data)
+                changed += 1
+    return changed
+
+
 def keep(spec: ExperimentSpec, layout: Layout) -> int:
     """Copy every finished result of OUT into KEPT (the committed copy); returns how many changed."""
     changed = 0
