@@ -37,6 +37,7 @@ if "ABM_EXPERT_CACHE" not in os.environ:
     atexit.register(shutil.rmtree, os.environ["ABM_EXPERT_CACHE"], True)  # not left in the temporary folder
 
 REPO_MODELS = Path(__file__).resolve().parents[1] / "models"
+_MODELS_BEFORE = pytest.StashKey[dict[str, tuple[int, int]]]()  # models/ at the session's start
 
 
 def _committed_models() -> dict[str, tuple[int, int]]:
@@ -64,8 +65,6 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
             "checkout; a test must write into its own folder, never through a link to the checkout)", red=True)
         session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
-
-_MODELS_BEFORE = pytest.StashKey[dict[str, tuple[int, int]]]()
 
 TINY_POLICY = {"resolution": 32, "width": 32, "heads": 2, "layers_within": 1, "layers_joint": 1, "stem_channels": 8,
                "decoder_channels": 4, "lang_dim": 16}

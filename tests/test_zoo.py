@@ -109,7 +109,7 @@ def test_an_edition_that_is_not_a_whole_number_is_refused(tmp_path: Path) -> Non
 
 
 def test_every_committed_zoo_file_is_the_model_its_index_records() -> None:
-    """What a fresh clone's ``abm zoo eval`` and every load check: caught here, a copy error that commits
+    """What a fresh clone's ``abm zoo eval`` and every load check: caught here, a commit that holds
     another file in place of a model's weights does not wait for a load to fail."""
     zoo = Path(__file__).parents[1] / "models"
     entries = read_index(zoo)

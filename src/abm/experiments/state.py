@@ -193,33 +193,29 @@ def restore(spec: ExperimentSpec, layout: Layout) -> int:
     return copied
 
 
+def _keep_file(made: Path, copy: Path, merged: bool) -> bool:
+    """Write OUT's ``made`` to KEPT's ``copy`` (its lines merged into the copy's when ``merged``: the stage times
+    and machines of every session); returns whether the copy changed."""
+    if not made.is_file():
+        return False
+    data = merge_lines(made, copy) if merged else made.read_bytes()
+    if copy.is_file() and copy.read_bytes() == data:
+        return False
+    copy.parent.mkdir(parents=True, exist_ok=True)
+    copy.write_bytes(data)
+    return True
+
+
 def keep_times(layout: Layout) -> int:
     """Merge OUT's stage times and machines into KEPT (what :func:`keep` does for them), so a session stopped
     before its report still counts on a fresh clone; returns how many files changed."""
-    changed = 0
-    for made in (layout.times, layout.machines):
-        copy = layout.kept / made.name
-        if made.is_file():
-            data = merge_lines(made, copy)
-            if not copy.is_file() or copy.read_bytes() != data:
-                copy.parent.mkdir(parents=True, exist_ok=True)
-                copy.write_bytes(data)
-                changed += 1
-    return changed
+    return sum(_keep_file(made, layout.kept / made.name, True) for made in (layout.times, layout.machines))
 
 
 def keep(spec: ExperimentSpec, layout: Layout) -> int:
     """Copy every finished result of OUT into KEPT (the committed copy); returns how many changed."""
-    changed = 0
     merged = (layout.times, layout.machines)
-    for made, copy in kept_pairs(spec, layout):
-        if made.is_file():
-            data = merge_lines(made, copy) if made in merged else made.read_bytes()
-            if not copy.is_file() or copy.read_bytes() != data:
-                copy.parent.mkdir(parents=True, exist_ok=True)
-                copy.write_bytes(data)
-                changed += 1
-    return changed
+    return sum(_keep_file(made, copy, made in merged) for made, copy in kept_pairs(spec, layout))
 
 
 # ------------------------------------------------------------------------------------------ times, machines
