@@ -15,6 +15,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
 
@@ -107,9 +108,12 @@ def test_relative_clip_paths_resolve_from_the_model_folder_upwards(tmp_path, tin
 
 def test_every_rollout_gets_a_fresh_policy_one_thread_and_seeded_rngs(tiny_run) -> None:
     first = load_policy(tiny_run, EvalSettings())
-    first.encode_language(["pick up the red block"])  # fills the policy's language cache
+    tokens = first.encode_language(["pick up the red block"])  # fills the language cache the copies share
     second = load_policy(tiny_run, EvalSettings())
-    assert second is not first and "pick up the red block" not in second._lang_cache
+    assert second is not first
+    assert all(a.data_ptr() != b.data_ptr() for a, b in zip(first.parameters(), second.parameters(), strict=True))
+    assert "pick up the red block" in second._lang_cache  # remembered, not recomputed: the same tokens
+    assert torch.equal(second.encode_language(["pick up the red block"]), tokens)
     threads = torch.get_num_threads()
     before = torch.random.get_rng_state()
     with rollout_state(7):
@@ -118,6 +122,36 @@ def test_every_rollout_gets_a_fresh_policy_one_thread_and_seeded_rngs(tiny_run) 
     with rollout_state(7):
         assert torch.equal(torch.rand(3), draw)
     assert torch.get_num_threads() == threads and torch.equal(torch.random.get_rng_state(), before)
+
+
+def test_copies_and_policies_grounding_with_one_clip_share_its_exact_memories(tiny_run, tmp_path) -> None:
+    from abm.evaluation.policies import clip_grounders, forget_policies
+    from abm.train.synthetic import synthetic_episodes
+
+    other = tmp_path / "other"  # another model grounding with the same CLIP
+    shutil.copytree(tiny_run, other)
+    settings = EvalSettings(grounder="clip", clip_model="tiny")
+    forget_policies()
+    try:
+        first, again, second = load_policy(tiny_run, settings), load_policy(tiny_run, settings), load_policy(
+            other, settings)
+        (g1,), (g2,), (g3,) = (clip_grounders(p.grounder) for p in (first, again, second))
+        assert g1 is not g2 and next(first.parameters()) is not next(again.parameters())
+        assert all(a is b for a, b in zip(g1.exact_memories(), g2.exact_memories(), strict=True))
+        assert all(a is b for a, b in zip(g1.exact_memories()[1:], g3.exact_memories()[1:], strict=True))
+        assert g1.backbone is not g3.backbone  # each model loads its CLIP; the memories are one
+
+        episode = synthetic_episodes(1, camera_resolution=32)[0]
+        obs = episode.steps[0][0]
+        act = (obs, episode.instruction, episode.object_names)
+        shared = first.act(*act).matrix, second.act(*act).matrix
+        assert g1.backbone_calls > 0 and g3.backbone_calls == 0  # the second model grounded from memory
+        forget_policies()  # a process that loads only the other model: nothing remembered
+        alone = load_policy(other, settings)
+        assert np.array_equal(alone.act(*act).matrix, shared[1]) and np.array_equal(shared[0], shared[1])
+        assert clip_grounders(alone.grounder)[0].backbone_calls > 0
+    finally:
+        forget_policies()
 
 
 def _fake_runner(job: Any, settings: EvalSettings) -> EpisodeOutcome:

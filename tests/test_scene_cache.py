@@ -112,6 +112,36 @@ def test_a_build_serves_rollouts_with_and_without_segmentation_as_fresh_builds(c
     reused_env.close()
 
 
+@pytest.mark.parametrize("first, then", [(True, False), (False, True), (True, True)])
+def test_the_first_observation_is_drawn_once_per_scene_and_is_a_fresh_builds(
+        compiles, monkeypatch: pytest.MonkeyPatch, first: bool, then: bool) -> None:
+    from abm.sim.cameras import CameraRig
+
+    draws: list[int] = []
+    render = CameraRig.render
+    monkeypatch.setattr(CameraRig, "render", lambda rig, data: draws.append(1) or render(rig, data))
+    earlier = make_env("place_food", "seen", 3, resolution=32, segmentation=first)
+    _episode(earlier, keyframes=1)  # the earlier rollout moved the arm, then its environment was reset again
+    earlier.reset()
+    drawn = len(draws)
+    reused_env = make_env("place_food", "seen", 3, resolution=32, segmentation=then, reuse=earlier)
+    reused = reused_env.reset()
+    assert len(draws) - drawn == (then and not first)  # drawn again only for a segmentation the kept one lacks
+    with make_env("place_food", "seen", 3, resolution=32, segmentation=then) as fresh_env:
+        fresh = fresh_env.reset()
+    assert len(compiles) == 2 and reused.step == fresh.step == 0
+    assert np.array_equal(reused.gripper_pose, fresh.gripper_pose) and reused.gripper_open == fresh.gripper_open
+    for name, frame in fresh.cameras.items():
+        mine = reused.cameras[name]
+        assert np.array_equal(mine.rgb, frame.rgb) and np.array_equal(mine.depth, frame.depth), name
+        assert np.array_equal(mine.extrinsics, frame.extrinsics), name
+        assert (mine.segmentation is None) == (not then) and np.array_equal(mine.segmentation, frame.segmentation)
+        mine.rgb[:] = 0  # the caller's own copy: the kept observation is not changed
+    again = make_env("place_food", "seen", 3, resolution=32, segmentation=then, reuse=reused_env).reset()
+    assert all(np.array_equal(again.cameras[n].rgb, f.rgb) for n, f in fresh.cameras.items())
+    scene_cache.forget_scenes()
+
+
 def test_the_process_keeps_the_last_scene(compiles) -> None:
     for seed in (1, 2):
         with scene_cache.kept_scene("pick_block", "seen", seed, 32, 5) as env:
@@ -128,9 +158,11 @@ def test_the_process_keeps_the_last_scene(compiles) -> None:
 
 def test_models_rolled_out_on_one_scene_give_the_outcomes_of_fresh_builds(compiles) -> None:
     pytest.importorskip("torch")
-    models = [ZOO / "abm_oracle_v2.pt", ZOO / "abm_clip_v2.pt"]  # with and without segmentation
+    # with and without segmentation; two grounding with one CLIP (the second from the first's memories)
+    models = [ZOO / "abm_oracle_v2.pt", ZOO / "abm_clip_v2.pt", ZOO / "abm_clip_hash_v2.pt"]
     if not all(m.is_file() for m in models):
         pytest.skip("the committed model zoo is not in this checkout")
+    from abm.evaluation.policies import forget_policies
     from abm.evaluation.runner import run_job
 
     settings = EvalSettings(max_steps=2)
@@ -147,8 +179,9 @@ def test_models_rolled_out_on_one_scene_give_the_outcomes_of_fresh_builds(compil
     fresh = []
     for m in models:
         scene_cache.forget_scenes()
+        forget_policies()  # nor any grounding remembered
         fresh.append(outcome(m))
-    assert fresh == shared and shared[0] != shared[1]  # two different models, each as if alone
+    assert fresh == shared and shared[0] != shared[1]  # different models, each as if alone
 
 
 def _recording_runner(calls: list[tuple[str, str, int]]) -> Any:

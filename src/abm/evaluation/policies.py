@@ -33,6 +33,7 @@ import torch
 from abm.errors import CheckpointError
 from abm.evaluation.settings import EvalSettings
 from abm.grounding.config import GrounderConfig, grounder_config_from_dict, grounder_from_flags
+from abm.grounding.grounders import ClipGrounder
 from abm.policy import KeyframePolicy
 from abm.policy.checkpoint import load_checkpoint, resolve_checkpoint
 from abm.policy.language_config import LanguageConfig, as_language_config
@@ -41,6 +42,7 @@ ROLLOUT_THREADS = 1
 """torch threads of every rollout (the pool workers' and Ray actors' count, also for ``--workers 1`` in-process)."""
 
 _ORIGINALS: dict[tuple[Any, ...], KeyframePolicy] = {}  # per process: policies as loaded, never acted with
+_CLIP_MEMORIES: dict[str, ClipGrounder] = {}  # per process and CLIP: the grounder whose memories the others use
 
 
 class PolicyLoadError(CheckpointError):
@@ -155,23 +157,51 @@ def _build(path: Path, settings: EvalSettings) -> KeyframePolicy:
     with contextlib.chdir(root) if root is not None else contextlib.nullcontext():
         policy = KeyframePolicy.from_checkpoint(path, device=settings.device, grounder=grounder)
         policy.grounder  # noqa: B018 - the grounder loads lazily: build it here, where its CLIP path resolves
+    for grounder in clip_grounders(policy.grounder):  # one set of memories per CLIP in the process
+        first = _CLIP_MEMORIES.setdefault(grounder.model_name, grounder)
+        if first is not grounder:
+            grounder.share_memories(first)
     return policy
 
 
+def clip_grounders(grounder: Any) -> list[ClipGrounder]:
+    """The CLIP grounders in ``grounder``: itself, or the one a tracking grounder wraps (``inner``)."""
+    out: list[ClipGrounder] = []
+    while grounder is not None:
+        if isinstance(grounder, ClipGrounder):
+            out.append(grounder)
+        grounder = getattr(grounder, "inner", None)
+    return out
+
+
 def load_policy(run: str | Path, settings: EvalSettings) -> KeyframePolicy:
-    """A fresh copy of the run's policy for one rollout (the checkpoint is read once per process and file
-    version; every call returns a deep copy of that original, so no state carries over between rollouts)."""
+    """A fresh copy of the run's policy for one rollout.
+
+    The checkpoint is read once per process and file version; every call returns a deep copy of that original,
+    so no state carries over between rollouts, except what is remembered exactly: the language tokens of each
+    text, and the CLIP grounder's frozen backbone, text features, crop embeddings and grounding results
+    (:meth:`abm.grounding.grounders.ClipGrounder.exact_memories`), which every copy shares with the original and
+    every policy of the process grounding with the same CLIP shares with the others. A rollout's outcome is the
+    one it has alone (the memories give what would be computed again), and the second model rolled out on a
+    scene grounds its first observation from memory (:meth:`abm.sim.simulation.Simulation.first_observation`
+    gives it the same observation).
+    """
     path = resolve_checkpoint(run).resolve()
     stat = path.stat()
     key = (str(path), stat.st_mtime_ns, stat.st_size, settings.grounder, settings.clip_model, settings.device)
     if key not in _ORIGINALS:
         _ORIGINALS[key] = _build(path, settings)
-    return copy.deepcopy(_ORIGINALS[key])
+    original = _ORIGINALS[key]
+    shared: list[object] = [original._lang_cache]
+    for grounder in clip_grounders(original._grounder):
+        shared.extend(grounder.exact_memories())
+    return copy.deepcopy(original, {id(obj): obj for obj in shared})
 
 
 def forget_policies() -> None:
     """Drop this process's loaded originals (the driver after :func:`check_policies`, when workers roll out)."""
     _ORIGINALS.clear()
+    _CLIP_MEMORIES.clear()
 
 
 def check_policies(runs: Sequence[str | Path], settings: EvalSettings) -> None:

@@ -233,6 +233,24 @@ class ClipGrounder:
             kwargs["backbone"] = load_clip_model(config.clip_model())
         return cls(**kwargs)
 
+    def exact_memories(self) -> tuple[object, ...]:
+        """The objects that only remember results this grounder computes exactly the same again (the backbone,
+        whose weights are frozen; the text features, the crop embeddings and the results cache): a copy of the
+        grounder for another rollout may share them instead of copying them
+        (:func:`abm.evaluation.policies.load_policy`)."""
+        return self.backbone, self._text_memory, self._crop_memory, self.cache
+
+    def share_memories(self, other: ClipGrounder) -> None:
+        """Remember into ``other``'s text features, crop embeddings and (when both are memory-only) results
+        cache from now on, so two grounders of the same backbone compute each crop, text and grounding once
+        (the results are those each computes alone: the memories are exact, and the results cache is keyed by
+        everything a result depends on). Raises ``ValueError`` for another backbone."""
+        if other.model_name != self.model_name:
+            raise ValueError(f"cannot share the memories of CLIP {other.model_name!r} with CLIP {self.model_name!r}")
+        self._text_memory, self._crop_memory = other._text_memory, other._crop_memory
+        if self.cache.directory is None and other.cache.directory is None:
+            self.cache = other.cache
+
     @property
     def model_name(self) -> str:
         """The backbone's identity in cache keys (its content digest for a local folder)."""

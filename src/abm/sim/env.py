@@ -78,16 +78,18 @@ class TaskEnv:
         return list(self.instance.target_names)
 
     def reset(self) -> Observation:
-        """Build (first call) or reset the scene and return the first observation."""
+        """Build (first call) or reset the scene and return the first observation (at the first call the
+        scene's kept one when this environment took over an earlier one's simulation:
+        :meth:`abm.sim.simulation.Simulation.first_observation`)."""
+        self.steps = 0
         if self.sim is None:
             earlier, self._reuse = self._reuse, None
             self.sim = Simulation(self.instance.scene, self.resolution, self.camera_names, self.segmentation,
                                   reuse=earlier.sim if earlier is not None else None)
             if earlier is not None:
                 earlier.close()
-        else:
-            self.sim.reset()
-        self.steps = 0
+            return self.sim.first_observation()
+        self.sim.reset()
         return self.sim.observe()
 
     def _require_sim(self) -> Simulation:
