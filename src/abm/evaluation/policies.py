@@ -157,10 +157,10 @@ def _build(path: Path, settings: EvalSettings) -> KeyframePolicy:
     with contextlib.chdir(root) if root is not None else contextlib.nullcontext():
         policy = KeyframePolicy.from_checkpoint(path, device=settings.device, grounder=grounder)
         policy.grounder  # noqa: B018 - the grounder loads lazily: build it here, where its CLIP path resolves
-    for grounder in clip_grounders(policy.grounder):  # one set of memories per CLIP in the process
-        first = _CLIP_MEMORIES.setdefault(grounder.model_name, grounder)
-        if first is not grounder:
-            grounder.share_memories(first)
+    for clip in clip_grounders(policy.grounder):  # one set of memories per CLIP in the process
+        first = _CLIP_MEMORIES.setdefault(clip.model_name, clip)
+        if first is not clip:
+            clip.share_memories(first)
     return policy
 
 
