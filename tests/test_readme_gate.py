@@ -91,8 +91,8 @@ def test_a_closed_gate_leaves_the_readme_and_the_zoo_readme_as_they_are(
     # the exported third-edition models are in the index, but abm zoo eval keeps the second edition's until the gate
     assert _zoo_eval_models(root) == {"abm": "abm_clip_v2", "rvt": "rvt_clip_v2"}
     index = json.loads((root / "models/index.json").read_text())
-    assert {e["name"]: e["compared"] for e in index if e.get("edition") == 3} == {"abm_clip_v3": False,
-                                                                               "rvt_clip_v3": False}
+    third = {e["name"]: e["compared"] for e in index if e.get("edition") == 3}  # and those exported since
+    assert {"abm_clip_v3", "rvt_clip_v3"} <= set(third) and not any(third.values())
     assert "**Table 1**" in (root / V3.report.document).read_text()  # the edition's own page is written
     waiting = "Tables 1 and 2 are complete (Table 1: 80 of 112 cells evaluated, its seed pairs' included)"
     assert f"report: left README.md's paper-tables and headline blocks and models/README.md unchanged until " \
