@@ -30,6 +30,10 @@ trajectory digest) must be the same in both trees, else the benchmark fails. ``-
 rollout) to a JSON list, replacing the rows of the same commits::
 
     OMP_NUM_THREADS=1 python benchmarks/rollout_speed.py --against 65d6cab --record docs/results/rollout_speed.json
+
+``--together`` rolls the models out scene by scene (each episode: every model in turn), as an evaluation of several
+models orders them, so every model but the first of a scene takes over its build, its first observation and the
+CLIP memories; its rows are marked ``"together": true``.
 """
 
 from __future__ import annotations
@@ -216,15 +220,21 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
         try:
             servers = {commit: _server(src, args) for commit, src in trees.items()}
             results: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
-            for model in args.models:
-                for proc in servers.values():
-                    _ask(proc, model, "warmup")
-                for ep in range(args.episodes):
-                    for commit, proc in servers.items():
-                        result = _ask(proc, model, str(ep))
-                        results[commit, model].append(result)
-                        print(f"{commit} {model} episode {ep}: {result['total']:.2f} CPU s, outcome "
-                              f"{result['outcome']}", file=sys.stderr, flush=True)
+            if args.together:  # warm every model up first, then each scene's rollouts one after another
+                for model in args.models:
+                    for proc in servers.values():
+                        _ask(proc, model, "warmup")
+                order = [(model, ep) for ep in range(args.episodes) for model in args.models]
+            else:
+                order = [(model, ep) for model in args.models for ep in ("warmup", *range(args.episodes))]
+            for model, ep in order:
+                for commit, proc in servers.items():
+                    result = _ask(proc, model, str(ep))
+                    if ep == "warmup":
+                        continue
+                    results[commit, model].append(result)
+                    print(f"{commit} {model} episode {ep}: {result['total']:.2f} CPU s, outcome "
+                          f"{result['outcome']}", file=sys.stderr, flush=True)
         finally:
             for proc in servers.values():
                 if proc.stdin is not None:
@@ -243,19 +253,22 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
         for model in args.models:
             runs = results[commit, model]
             grounder = grounder_of(model)
+            mode = {"together": True} if args.together else {}
             for stage in STAGES:
                 seconds = sum(r["stages"].get(stage, 0.0) for r in runs) / len(runs)
                 rows.append({"commit": commit, "model": model, "grounder": grounder, "stage": stage,
-                             "seconds_per_rollout": round(seconds, 3)})
+                             "seconds_per_rollout": round(seconds, 3), **mode})
             rows.append({"commit": commit, "model": model, "grounder": grounder, "stage": "total",
-                         "seconds_per_rollout": round(sum(r["total"] for r in runs) / len(runs), 3)})
+                         "seconds_per_rollout": round(sum(r["total"] for r in runs) / len(runs), 3), **mode})
     return rows
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:
-    """A table: one row per stage, one column per (commit, grounder)."""
-    columns = list(dict.fromkeys((r["commit"], r["grounder"]) for r in rows))
-    value = {(r["commit"], r["grounder"], r["stage"]): r["seconds_per_rollout"] for r in rows}
+    """A table: one row per stage, one column per (commit, grounder), or per (commit, model) when two models
+    share a grounder."""
+    key = "grounder" if len({r["grounder"] for r in rows}) == len({r["model"] for r in rows}) else "model"
+    columns = list(dict.fromkeys((r["commit"], r[key]) for r in rows))
+    value = {(r["commit"], r[key], r["stage"]): r["seconds_per_rollout"] for r in rows}
     lines = ["| stage | " + " | ".join(f"{g} @ {c}" for c, g in columns) + " |",
              "|---|" + "---:|" * len(columns)]
     for stage in (*STAGES, "total"):
@@ -271,8 +284,11 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=3, help="timed rollouts per model (episodes 0..N-1, repeat 0)")
     p.add_argument("--max-steps", type=int, default=5, help="keyframes per rollout at most")
     p.add_argument("--against", default=None, metavar="REF", help="also run from a git worktree of REF, alternating")
+    p.add_argument("--together", action="store_true", help="roll out scene by scene (each episode: every model "
+                   "in turn), as an evaluation of several models does, so the second model of a scene takes over "
+                   "its build, first observation and CLIP memories (rows marked together)")
     p.add_argument("--record", type=Path, default=None, metavar="FILE", help="write the rows to this JSON list "
-                   "(rows of the same commits are replaced)")
+                   "(rows of the same commits and order are replaced)")
     p.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.serve:
@@ -285,10 +301,11 @@ def main() -> None:
           f"--max-steps {args.max_steps}, CPU seconds per rollout")
     print(markdown(rows))
     if args.record is not None:
-        commits = {r["commit"] for r in rows}
+        replaced = {(r["commit"], bool(r.get("together"))) for r in rows}
         old = json.loads(args.record.read_text()) if args.record.exists() else []
         args.record.parent.mkdir(parents=True, exist_ok=True)
-        args.record.write_text(json.dumps([r for r in old if r["commit"] not in commits] + rows, indent=1) + "\n")
+        kept = [r for r in old if (r["commit"], bool(r.get("together"))) not in replaced]
+        args.record.write_text(json.dumps(kept + rows, indent=1) + "\n")
 
 
 if __name__ == "__main__":
