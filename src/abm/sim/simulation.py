@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import dataclasses
+import copy
 from collections.abc import Sequence
 
 import numpy as np
@@ -169,9 +169,8 @@ def _has_segmentation(observation: Observation) -> bool:
 def _copy_observation(observation: Observation, segmentation: bool) -> Observation:
     """A copy of ``observation`` whose arrays are its own (the caller may change them), with the cameras'
     segmentation only when ``segmentation``."""
-    cameras = {name: dataclasses.replace(
-        frame, rgb=frame.rgb.copy(), depth=frame.depth.copy(), intrinsics=frame.intrinsics.copy(),
-        extrinsics=frame.extrinsics.copy(),
-        segmentation=frame.segmentation.copy() if segmentation and frame.segmentation is not None else None)
-        for name, frame in observation.cameras.items()}
-    return dataclasses.replace(observation, cameras=cameras, gripper_pose=observation.gripper_pose.copy())
+    copied = copy.deepcopy(observation)
+    if not segmentation:
+        for frame in copied.cameras.values():
+            frame.segmentation = None
+    return copied
