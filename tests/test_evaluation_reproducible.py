@@ -140,6 +140,7 @@ def test_copies_and_policies_grounding_with_one_clip_share_its_exact_memories(ti
         assert all(a is b for a, b in zip(g1.exact_memories(), g2.exact_memories(), strict=True))
         assert all(a is b for a, b in zip(g1.exact_memories()[1:], g3.exact_memories()[1:], strict=True))
         assert g1.backbone is not g3.backbone  # each model loads its CLIP; the memories are one
+        assert first.exact_memories() == (first._lang_cache, *g1.exact_memories())
 
         episode = synthetic_episodes(1, camera_resolution=32)[0]
         obs = episode.steps[0][0]
@@ -150,6 +151,21 @@ def test_copies_and_policies_grounding_with_one_clip_share_its_exact_memories(ti
         alone = load_policy(other, settings)
         assert np.array_equal(alone.act(*act).matrix, shared[1]) and np.array_equal(shared[0], shared[1])
         assert clip_grounders(alone.grounder)[0].backbone_calls > 0
+    finally:
+        forget_policies()
+
+
+def test_a_tracking_grounders_copies_share_the_memories_of_the_clip_it_wraps(tiny_run) -> None:
+    from abm.evaluation.policies import clip_grounders, forget_policies
+
+    settings = EvalSettings(grounder="tracking", clip_model="tiny")
+    forget_policies()
+    try:
+        first, again = load_policy(tiny_run, settings), load_policy(tiny_run, settings)
+        assert first.grounder is not again.grounder  # each rollout tracks its own target
+        (inner,), (inner_again,) = clip_grounders(first.grounder), clip_grounders(again.grounder)
+        assert inner is not inner_again and inner.backbone is inner_again.backbone
+        assert first.exact_memories() == (first._lang_cache, *inner.exact_memories())
     finally:
         forget_policies()
 

@@ -180,7 +180,7 @@ def load_policy(run: str | Path, settings: EvalSettings) -> KeyframePolicy:
     The checkpoint is read once per process and file version; every call returns a deep copy of that original,
     so no state carries over between rollouts, except what is remembered exactly: the language tokens of each
     text, and the CLIP grounder's frozen backbone, text features, crop embeddings and grounding results
-    (:meth:`abm.grounding.grounders.ClipGrounder.exact_memories`), which every copy shares with the original and
+    (:meth:`abm.policy.keyframe_policy.KeyframePolicy.exact_memories`), which every copy shares with the original and
     every policy of the process grounding with the same CLIP shares with the others. A rollout's outcome is the
     one it has alone (the memories give what would be computed again), and the second model rolled out on a
     scene grounds its first observation from memory (:meth:`abm.sim.simulation.Simulation.first_observation`
@@ -192,10 +192,7 @@ def load_policy(run: str | Path, settings: EvalSettings) -> KeyframePolicy:
     if key not in _ORIGINALS:
         _ORIGINALS[key] = _build(path, settings)
     original = _ORIGINALS[key]
-    shared: list[object] = [original._lang_cache]
-    for grounder in clip_grounders(original._grounder):
-        shared.extend(grounder.exact_memories())
-    return copy.deepcopy(original, {id(obj): obj for obj in shared})
+    return copy.deepcopy(original, {id(obj): obj for obj in original.exact_memories()})
 
 
 def forget_policies() -> None:

@@ -263,6 +263,15 @@ class KeyframePolicy(nn.Module):
         if self._grounder is not None and hasattr(self._grounder, "reset"):
             self._grounder.reset()
 
+    def exact_memories(self) -> tuple[object, ...]:
+        """The objects that only remember results this policy computes exactly the same again: the language
+        tokens of each text, and those of its grounder when it has any (a CLIP grounder's backbone, text
+        features, crop embeddings and results cache, also through a tracking grounder). A copy of the policy for
+        another rollout may share them instead of copying them (:func:`abm.evaluation.policies.load_policy`).
+        A grounder not built yet has none."""
+        memories = getattr(self._grounder, "exact_memories", None) if self._grounder is not None else None
+        return (self._lang_cache, *(memories() if memories is not None else ()))
+
     def sample_options(self) -> dict[str, bool]:
         """What the data pipeline must compute for this variant (``KeyframeDataset(**options)``)."""
         return {"split": self.spec.uses_mask or self.spec.language == "skill", "mask": self.spec.uses_mask,
