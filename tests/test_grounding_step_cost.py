@@ -68,6 +68,10 @@ def test_per_patch_similarity_is_the_per_point_one(scene):
     assert isinstance(lifted, LiftedFeatures) and len(lifted) == len(cloud)
     feats = grounder.point_features(obs, cloud)
     np.testing.assert_array_equal(lifted[np.arange(len(cloud))], feats)
+    compact = lifted.compact()  # what a grounding cache stores: the rows some point uses
+    assert len(compact.table) == len(np.unique(lifted.index)) < len(lifted.table)
+    np.testing.assert_array_equal(compact.dense(), feats)
+    np.testing.assert_array_equal(LiftedFeatures.per_point(feats).dense(), feats)
     text = grounder.text_features(["a photo of a block"]).astype(np.float64)[0]
     expected = (feats @ text).astype(np.float32)
     np.testing.assert_allclose(point_similarity(lifted, text), expected, rtol=0, atol=1e-7)

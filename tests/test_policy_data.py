@@ -113,7 +113,8 @@ def test_ifd_features_through_index_map(episodes, monkeypatch, tmp_path) -> None
                                       features=True, show_progress=False) == 0  # resumable: nothing left
     ds = _dataset(episodes, policy, grounder={"kind": "clip"}, cache_dir=tmp_path)
     s = ds[(0, 0)]
-    assert s["point_features"].shape == (s["points"].shape[0], 8)
+    assert s["feature_table"].shape == (s["points"].shape[0], 8)  # point features of its own: one row per point
+    assert torch.equal(s["feature_row"], torch.arange(s["points"].shape[0]))
     inputs = policy.model_inputs(collate([s, ds[(1, 1)]]))
     idx, feats = inputs["ifd_index"], inputs["ifd_features"]
     assert idx.shape == (2, 5, 48, 48) and feats.shape[0] == 2 and feats.shape[2] == 8
@@ -125,6 +126,55 @@ def test_ifd_features_through_index_map(episodes, monkeypatch, tmp_path) -> None
     wrong.config.ifd_feature_dim = 16
     with pytest.raises(ValueError, match="ifd_feature_dim"):
         wrong.model_inputs(collate([s]))
+
+
+def test_a_cached_patch_table_gives_the_features_and_predictions_of_the_per_point_array(episodes, monkeypatch,
+                                                                                      tmp_path) -> None:
+    """A grounder's patch table is cached with only the rows some point uses (not the ``(N, F)`` array that
+    entries written before tables hold); both give every point the same feature and the network the same
+    input at every pixel and the same output."""
+    from abm.grounding.feature_cloud import LiftedFeatures
+
+    class TableClip:
+        def lifted_features(self, observation, cloud):
+            table = np.random.default_rng(0).standard_normal((300, 8)).astype(np.float32)
+            return LiftedFeatures(table, (np.arange(len(cloud)) * 7) % 250)  # rows 250..299 unused
+
+        def point_features(self, observation, cloud):  # pragma: no cover - lifted_features is preferred
+            raise AssertionError
+
+    monkeypatch.setattr(keyframes, "build_grounder", lambda config: TableClip())
+    policy = _policy("ifd")
+    tables, dense = tmp_path / "tables", tmp_path / "dense"
+    keyframes.ground_keyframes(episodes, policy.workspace, {"kind": "clip"}, tables, mask=False, features=True,
+                               show_progress=False)
+    dense.mkdir()
+    for entry in tables.glob("*.npz"):  # the same features as an entry written before tables
+        with np.load(entry) as data:
+            np.savez(dense / entry.name, features=data["feature_table"][data["feature_row"]])
+    ds, ds_dense = (_dataset(episodes, policy, grounder={"kind": "clip"}, cache_dir=c) for c in (tables, dense))
+    keys = [(0, 0), (1, 1)]
+    for key in keys:
+        s, old = ds[key], ds_dense[key]
+        n = s["points"].shape[0]
+        assert s["feature_table"].shape == (250, 8) and old["feature_table"].shape == (n, 8)
+        assert torch.equal(s["feature_table"][s["feature_row"]], old["feature_table"][old["feature_row"]])
+    size = {c.name: sum(f.stat().st_size for f in c.glob("*.npz")) for c in (tables, dense)}
+    assert size["tables"] * 3 < size["dense"]  # 250 rows of 8 and an int32 per point, not 8 float16 per point
+    batch, batch_dense = collate([ds[k] for k in keys]), collate([ds_dense[k] for k in keys])
+    assert batch["feature_table"].shape == (2, 250, 8)
+    with torch.no_grad():
+        inputs, inputs_dense = policy.model_inputs(batch), policy.model_inputs(batch_dense)
+        pixels = []
+        for x in (inputs, inputs_dense):  # the feature at every pixel, zero where empty
+            idx = x["ifd_index"].flatten(1)
+            pixels.append(torch.stack([f[i.clamp(min=0)] * (i >= 0).unsqueeze(-1)
+                                       for f, i in zip(x["ifd_features"], idx, strict=True)]))
+        assert inputs["ifd_features"].shape[1] < inputs_dense["ifd_features"].shape[1]  # patches, not points
+        assert torch.equal(pixels[0], pixels[1]) and torch.equal(inputs["images"], inputs_dense["images"])
+        out, out_dense = policy.model(**inputs), policy.model(**inputs_dense)
+    torch.testing.assert_close(out.heatmap, out_dense.heatmap, atol=1e-6, rtol=0)
+    torch.testing.assert_close(out.rotation, out_dense.rotation, atol=1e-6, rtol=0)
 
 
 def test_workers_give_the_same_batches(episodes) -> None:

@@ -96,7 +96,8 @@ def _policy_and_batch(case: str, state: dict[str, np.ndarray] | None) -> tuple[K
     samples = [ds[0], ds[1]]
     for s in samples:
         if features:
-            s["point_features"] = _point_features(s["points"], s["colors"])
+            s["feature_table"] = _point_features(s["points"], s["colors"])  # one row per point
+            s["feature_row"] = torch.arange(len(s["points"]))
         if "point_heatmap" in s:  # the oracle's heatmap equals its binary mask: make it soft
             s["point_heatmap"] = _soft_heatmap(s["point_mask"], s["colors"])
     return policy, collate(samples)

@@ -150,7 +150,8 @@ def test_checkpoint_round_trip_predicts_the_same(variant: str, tmp_path: object,
     if variant == "ifd":  # stand-in CLIP point features
         points = samples["points"]
         assert isinstance(points, torch.Tensor)
-        samples["point_features"] = torch.cat([points, points.flip(-1), points[..., :2]], -1)
+        samples["feature_table"] = torch.cat([points, points.flip(-1), points[..., :2]], -1)  # (B, N, 8)
+        samples["feature_row"] = torch.arange(points.shape[1]).expand(points.shape[0], -1)
     if policy.sample_options()["mask"] is False:
         samples.pop("point_mask", None)
         samples.pop("point_heatmap", None)

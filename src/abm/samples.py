@@ -7,7 +7,9 @@ A sample is a dict. Scene entries (training and inference):
 * ``point_mask`` / ``point_heatmap`` ``(N,)`` float32: the mask field of the target X (only when asked for);
 * ``destination_mask`` / ``destination_heatmap`` ``(N,)`` float32: the mask field of the destination (the plate, the
   target pad, ...; all zeros for a task without one; only when asked for);
-* ``point_features`` ``(N, F)`` float16: per-point CLIP features (only when asked for);
+* ``feature_table`` ``(P, F)`` float16 and ``feature_row`` ``(N,)`` int64: per-point CLIP features (only when
+  asked for), point ``i``'s being ``feature_table[feature_row[i]]`` (a scene's points share a few hundred
+  camera patches, so the table is ~50x smaller than the ``(N, F)`` array);
 * ``gripper_open`` ``()`` float32 (1 = open) and ``gripper_position`` ``(3,)`` float32, world metres;
 * ``keyframe_index`` ``()`` int64: the observation's keyframe index in its episode (``Observation.step``: 0 at the
   start, one more per executed keyframe, in demonstrations and rollouts alike);
@@ -19,7 +21,8 @@ Training targets (the keyframe to reach): ``action_position`` ``(3,)`` float32 m
 ``action_collision`` int64 (1 = ignore collisions).
 
 :func:`collate` stacks samples into a batch: point arrays are zero-padded to the longest cloud and a
-``valid`` ``(B, N)`` bool marks the real points; strings become lists. The policy renders the batch
+``valid`` ``(B, N)`` bool marks the real points (padded ``feature_row`` entries are 0); feature tables are
+zero-padded to the longest; strings become lists. The policy renders the batch
 itself (:class:`abm.policy.KeyframePolicy`), on its own device.
 """
 
@@ -34,8 +37,9 @@ import torch
 from abm.grounding.conditioning import ConditionedCloud
 from abm.types import KeyframeAction
 
-POINT_KEYS = ("points", "colors", "point_mask", "point_heatmap", "point_features", "destination_mask",
+POINT_KEYS = ("points", "colors", "point_mask", "point_heatmap", "feature_row", "destination_mask",
               "destination_heatmap")
+TABLE_KEYS = ("feature_table",)
 TEXT_KEYS = ("instruction", "skill")
 
 
@@ -59,7 +63,8 @@ class Sample(TypedDict):
     skill: str
     point_mask: NotRequired[torch.Tensor]
     point_heatmap: NotRequired[torch.Tensor]
-    point_features: NotRequired[torch.Tensor]
+    feature_table: NotRequired[torch.Tensor]
+    feature_row: NotRequired[torch.Tensor]
     destination_mask: NotRequired[torch.Tensor]
     destination_heatmap: NotRequired[torch.Tensor]
     keyframe_index: NotRequired[torch.Tensor]
@@ -81,7 +86,8 @@ class Batch(TypedDict):
     valid: NotRequired[torch.Tensor]  # (B, N) real points; always set by collate
     point_mask: NotRequired[torch.Tensor]
     point_heatmap: NotRequired[torch.Tensor]
-    point_features: NotRequired[torch.Tensor]
+    feature_table: NotRequired[torch.Tensor]
+    feature_row: NotRequired[torch.Tensor]
     destination_mask: NotRequired[torch.Tensor]
     destination_heatmap: NotRequired[torch.Tensor]
     keyframe_index: NotRequired[torch.Tensor]
@@ -119,7 +125,8 @@ def cloud_sample(conditioned: ConditionedCloud, gripper_open: float, gripper_pos
         sample["destination_mask"] = torch.from_numpy(np.asarray(conditioned.destination_mask.mask, np.float32))
         sample["destination_heatmap"] = torch.from_numpy(np.asarray(conditioned.destination_mask.heatmap, np.float32))
     if conditioned.features is not None:
-        sample["point_features"] = torch.from_numpy(np.asarray(conditioned.features, np.float16))
+        sample["feature_table"] = torch.from_numpy(np.asarray(conditioned.features.table, np.float16))
+        sample["feature_row"] = torch.from_numpy(np.asarray(conditioned.features.index, np.int64))
     return sample
 
 
@@ -145,8 +152,9 @@ def collate(samples: Sequence[Sample]) -> Batch:
         vals = [s[key] for s in rows]
         if key in TEXT_KEYS:
             out[key] = list(vals)
-        elif key in POINT_KEYS:
-            padded = vals[0].new_zeros((len(vals), n, *vals[0].shape[1:]))
+        elif key in POINT_KEYS or key in TABLE_KEYS:
+            length = n if key in POINT_KEYS else max(int(v.shape[0]) for v in vals)
+            padded = vals[0].new_zeros((len(vals), length, *vals[0].shape[1:]))
             for i, v in enumerate(vals):
                 padded[i, : v.shape[0]] = v
             out[key] = padded

@@ -48,6 +48,7 @@ from abm.files import atomic_path
 from abm.geometry import Workspace, augment_cloud, transform_points
 from abm.grounding.conditioning import ConditionedCloud, PointMask, condition_cloud
 from abm.grounding.config import GROUNDERS, GrounderConfig, OracleGrounderConfig, as_grounder_config, build_grounder
+from abm.grounding.feature_cloud import LiftedFeatures
 from abm.grounding.grounders import Grounder, resolved_spec
 from abm.language.roles import instruction_destination, split_roles
 from abm.progress import Progress
@@ -398,8 +399,10 @@ class KeyframeDataset(Dataset[Sample]):
                 if scene.point_mask is not None:
                     arrays.update(mask=scene.point_mask.mask.astype(np.float16),
                                   heatmap=scene.point_mask.heatmap.astype(np.float16))
-                if scene.features is not None:
-                    arrays["features"] = scene.features.astype(np.float16)
+                if scene.features is not None:  # the patch rows the points use and each point's row
+                    table = scene.features.compact()
+                    arrays.update(feature_table=table.table.astype(np.float16),
+                                  feature_row=table.index.astype(np.int32))
                 _save_entry(files["target"], arrays)
             if "destination" in files and not files["destination"].exists():
                 found = self._scene(j, obs, grounder, False, False, destination=True).destination_mask
@@ -428,7 +431,7 @@ class KeyframeDataset(Dataset[Sample]):
         if "target" in files:
             with np.load(files["target"], allow_pickle=False) as data:
                 pm = _point_mask(data) if self.mask else None
-                feats = data["features"] if self.features else None
+                feats = _cached_features(data) if self.features else None
         dest = None
         if self.destination:  # none declared: an empty mask, as condition_cloud gives
             empty = np.zeros(len(scene.cloud), np.float32)
@@ -477,6 +480,14 @@ def _save_entry(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
     """Write one grounding cache entry (named arrays) atomically."""
     with atomic_path(path) as tmp, tmp.open("wb") as fh:
         np.savez(fh, **arrays)  # type: ignore[arg-type]  # numpy's stub confuses **arrays with allow_pickle
+
+
+def _cached_features(data: Mapping[str, np.ndarray]) -> LiftedFeatures:
+    """Cached CLIP point features (``feature_table`` float16 and ``feature_row`` int32; an entry written before
+    tables, ``features`` ``(N, F)`` float16, gives one row per point) as :class:`LiftedFeatures`."""
+    if "feature_table" in data:
+        return LiftedFeatures(np.asarray(data["feature_table"]), np.asarray(data["feature_row"], np.int64))
+    return LiftedFeatures.per_point(np.asarray(data["features"]))
 
 
 def _point_mask(data: Mapping[str, np.ndarray]) -> PointMask:

@@ -35,13 +35,15 @@ from abm.language.roles import instruction_destination, split_roles
 from abm.types import Observation
 
 if TYPE_CHECKING:
+    from abm.grounding.feature_cloud import LiftedFeatures
     from abm.grounding.grounders import Grounder  # types only: grounders.py loads torch
     from abm.grounding.mask_field import MaskField
 
 
 class PointFeatureGrounder(Protocol):
     """A grounder that also gives per-point CLIP features (the CLIP grounder; the tracking grounder passes its
-    inner grounder's on)."""
+    inner grounder's on). One that also has ``lifted_features`` (the CLIP grounder) gives them as the patch table
+    they are lifted from (:class:`~abm.grounding.feature_cloud.LiftedFeatures`)."""
 
     def point_features(self, observation: Observation, cloud: PointCloud) -> np.ndarray: ...
 
@@ -107,7 +109,7 @@ class ConditionedCloud:
             split).
         skill: the skill text with X replaced by ``"X"`` (``None`` when not split).
         point_mask: the mask field over the cloud's points (``None`` unless asked for).
-        features: ``(N, F)`` float32 per-point CLIP features (``None`` unless asked for).
+        features: the per-point CLIP features as a table and each point's row in it (``None`` unless asked for).
         role: index of the active sub-goal (:func:`active_role`).
         destination: the destination object's name (:func:`~abm.language.roles.destination_for`; ``None``: none, or
             not asked for).
@@ -119,7 +121,7 @@ class ConditionedCloud:
     target: str | None
     skill: str | None
     point_mask: PointMask | None
-    features: np.ndarray | None
+    features: LiftedFeatures | None
     role: int = 0
     destination: str | None = None
     destination_mask: PointMask | None = None
@@ -182,11 +184,24 @@ def condition_cloud(
         point_mask = ground_points(grounder, observation, cloud, target, object_names or {})
     feats = None
     if features:
-        # features=True needs a grounder with point features (documented above); mypy cannot know which one
-        feats = np.asarray(cast("PointFeatureGrounder", grounder).point_features(observation, cloud), np.float32)
+        feats = point_feature_table(cast("PointFeatureGrounder", grounder), observation, cloud)
     destination_mask = None
     if destination:
         assert grounder is not None  # checked above
         destination_mask = ground_destination(grounder, observation, cloud, destination_name, object_names or {})
     return ConditionedCloud(cloud, instruction, target, skill, point_mask, feats, role,
                             destination_name if destination else None, destination_mask)
+
+
+def point_feature_table(grounder: PointFeatureGrounder, observation: Observation, cloud: PointCloud
+                        ) -> LiftedFeatures:
+    """The grounder's per-point CLIP features of ``cloud`` as a float32 table and each point's row in it: its
+    ``lifted_features`` when it has them (the CLIP grounder, also through a tracking grounder), else its
+    ``point_features`` with one row per point."""
+    from abm.grounding.feature_cloud import LiftedFeatures  # torch-backed module: only when features are asked for
+
+    lifted = getattr(grounder, "lifted_features", None)
+    found = lifted(observation, cloud) if lifted is not None else grounder.point_features(observation, cloud)
+    if isinstance(found, LiftedFeatures):
+        return LiftedFeatures(np.asarray(found.table, np.float32), found.index)
+    return LiftedFeatures.per_point(np.asarray(found, np.float32))

@@ -98,6 +98,43 @@ def lift_patch_index(
     return table, np.asarray(cloud.gather(index_maps), np.int64)
 
 
+@dataclass(frozen=True)
+class LiftedFeatures:
+    """Per-point features kept as the patch table they were lifted from (:func:`lift_patch_index`): point ``i``'s
+    feature is ``table[index[i]]``. Indexing gives the rows of the ``(N, D)`` array without building it (a
+    scene's ~50k points share ~1000 patches, so the table is ~50x smaller than the array).
+
+    Attributes:
+        table: ``(P, D)`` patch features, float32 (float16 when read from a grounding cache).
+        index: ``(N,)`` int64 row of each point.
+    """
+
+    table: NDArray[np.floating]
+    index: NDArray[np.int64]
+
+    @classmethod
+    def per_point(cls, features: NDArray[np.floating]) -> LiftedFeatures:
+        """``(N, D)`` features as a table of their own: one row per point (features that are no lookup, e.g. a
+        mean over several input scales)."""
+        return cls(features, np.arange(len(features), dtype=np.int64))
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, rows: NDArray[np.intp]) -> NDArray[np.floating]:
+        picked: NDArray[np.floating] = self.table[self.index[rows]]
+        return picked
+
+    def dense(self) -> NDArray[np.floating]:
+        """The ``(N, D)`` array ``table[index]``."""
+        return self[np.arange(len(self))]
+
+    def compact(self) -> LiftedFeatures:
+        """The same features with only the rows some point uses, in table order (what a cache stores)."""
+        used, index = np.unique(self.index, return_inverse=True)
+        return LiftedFeatures(self.table[used], index.astype(np.int64).reshape(-1))
+
+
 @dataclass
 class FeatureCloud:
     """A point cloud with one CLIP feature per point.

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, cast, runtime_checkable
 
@@ -47,7 +46,7 @@ from abm.grounding.config import (  # the defaults live with the typed configura
     grounder_config_from_dict,
 )
 from abm.grounding.decision import normalize_name
-from abm.grounding.feature_cloud import lift_patch_features, lift_patch_index
+from abm.grounding.feature_cloud import LiftedFeatures, lift_patch_features, lift_patch_index
 from abm.grounding.mask_field import MaskField, mask_field_from_features, negative_prompts
 from abm.grounding.proposals import object_proposals, with_base_points
 from abm.language.instruction import clip_prompt
@@ -456,28 +455,6 @@ class ClipGrounder:
 
 SIMILARITY_ROWS = 1024
 """Points per block of :func:`point_similarity` (a block's float64 copy, 1 MiB at D = 128, stays in cache)."""
-
-
-@dataclass(frozen=True)
-class LiftedFeatures:
-    """Per-point features kept as the patch table they were lifted from (:func:`lift_patch_index`): point ``i``'s
-    feature is ``table[index[i]]``. Indexing gives the rows of the ``(N, D)`` array without building it (a
-    scene's ~50k points share ~1000 patches).
-
-    Attributes:
-        table: ``(P, D)`` float32 patch features.
-        index: ``(N,)`` int64 row of each point.
-    """
-
-    table: NDArray[np.float32]
-    index: NDArray[np.int64]
-
-    def __len__(self) -> int:
-        return len(self.index)
-
-    def __getitem__(self, rows: NDArray[np.intp]) -> NDArray[np.float32]:
-        picked: NDArray[np.float32] = self.table[self.index[rows]]
-        return picked
 
 
 def point_similarity(feats: LiftedFeatures | NDArray[np.float32], text: NDArray[np.float64]) -> NDArray[np.float32]:

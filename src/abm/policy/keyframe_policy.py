@@ -329,9 +329,10 @@ class KeyframePolicy(nn.Module):
                 extra += [batch["destination_mask"].to(dev, torch.float32),
                           batch["destination_heatmap"].to(dev, torch.float32)]
         if self.spec.clip_features:
-            if "point_features" not in batch:
-                raise ValueError(f"variant {self.spec.name!r} needs per-point CLIP features (point_features)")
-            extra.append(torch.arange(n, device=dev, dtype=torch.float32).expand(b, n))
+            if "feature_table" not in batch or "feature_row" not in batch:
+                raise ValueError(f"variant {self.spec.name!r} needs per-point CLIP features (feature_table and "
+                                 "feature_row)")
+            extra.append(batch["feature_row"].to(dev, torch.float32))  # each pixel: its point's table row (exact)
         with torch.no_grad():
             views = renderer.render(points, batch["colors"].to(dev, torch.float32),
                                     extra=torch.stack(extra, -1) if extra else None, valid=valid)
@@ -342,7 +343,7 @@ class KeyframePolicy(nn.Module):
             inputs["mask"] = (torch.cat(channels, 2) if len(channels) > 1 else channels[0]).contiguous()
         if self.spec.clip_features:
             inputs["ifd_features"], inputs["ifd_index"] = self._visible_features(
-                batch["point_features"].to(dev), views.extra[:, :, -1], views.occupied)
+                batch["feature_table"].to(dev), views.extra[:, :, -1], views.occupied)
         inputs["proprio"] = proprioception(batch, self.config, self.workspace, dev)
         inputs["lang"] = self.encode_language(
             [self.language_goal(i, s) for i, s in zip(batch["instruction"], batch["skill"], strict=True)])
@@ -350,8 +351,9 @@ class KeyframePolicy(nn.Module):
 
     def _visible_features(self, features: torch.Tensor, index: torch.Tensor, occupied: torch.Tensor
                           ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Keep the features of the points seen in some view: ``(B, M, F)`` float32 and the views'
-        index into them ``(B, V, H, W)`` (-1 = empty pixel)."""
+        """Keep the feature-table rows seen in some view (``index``: ``(B, V, H, W)`` the table row rendered
+        in each pixel): ``(B, M, F)`` float32 and the views' index into them ``(B, V, H, W)`` (-1 = empty
+        pixel)."""
         if features.shape[-1] != self.config.ifd_feature_dim:
             raise ConfigError(f"CLIP point features have width {features.shape[-1]}, expected "
                               f"{self.config.ifd_feature_dim}; set the policy's ifd_feature_dim to the CLIP width")

@@ -1,0 +1,123 @@
+"""Size and CPU cost of the IFD baseline's CLIP point features: a patch table with each point's row in it (what the
+samples and the grounding cache hold) against the per-point ``(N, F)`` float16 array they held before.
+
+For one first observation of each benchmark task, the CLIP grounder of a zoo IFD model lifts the features of the
+cloud the model sees (:func:`abm.grounding.conditioning.condition_cloud`). Both forms are written as grounding-cache
+entries (the table keeps only the rows some point uses, :meth:`LiftedFeatures.compact`; the array is the entry
+written before tables), then timed in process CPU seconds with one torch thread:
+
+* ``load``: reading the entries and building the samples' feature tensors (``np.load``, :func:`cloud_sample`);
+* ``inputs``: collating the samples into one batch and the policy's ``model_inputs`` (the virtual views and the
+  features of the rows some pixel shows);
+* ``forward``: the coarse network on those inputs.
+
+The per-point form is the same work the code did before tables (its rows are the points). Both forms must give the
+same network output, else the script fails.
+
+    OMP_NUM_THREADS=1 python benchmarks/ifd_features.py --model ifd_clip_v3 --record docs/results/ifd_features.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import subprocess
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from abm.data.keyframes import _cached_features
+from abm.evaluation.policies import load_policy
+from abm.evaluation.settings import EvalSettings
+from abm.grounding.conditioning import ConditionedCloud, condition_cloud
+from abm.grounding.feature_cloud import LiftedFeatures
+from abm.samples import Sample, cloud_sample, collate
+from abm.sim.env import make_env
+from abm.sim.tasks import TASKS
+from abm.types import Observation
+
+
+def _cpu(fn: Callable[[], Any], repeats: int) -> tuple[float, Any]:
+    """Mean process CPU seconds of ``fn`` over ``repeats`` calls, and its last result."""
+    start = time.process_time()
+    for _ in range(repeats):
+        out = fn()
+    return (time.process_time() - start) / repeats, out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--model", default="ifd_clip_v3", help="zoo model or checkpoint of an IFD policy")
+    p.add_argument("--tasks", nargs="*", default=sorted(TASKS), help="one scene per task (default: all)")
+    p.add_argument("--repeats", type=int, default=5, help="timed repeats of each stage")
+    p.add_argument("--record", type=Path, default=None, help="write the result (one JSON object) here")
+    args = p.parse_args()
+    torch.set_num_threads(1)
+    model = Path("models") / f"{args.model}.pt" if not args.model.endswith(".pt") else Path(args.model)
+    policy = load_policy(model, EvalSettings())
+    if not policy.spec.clip_features:
+        raise SystemExit(f"{model} is a {policy.spec.name!r} policy; this benchmark needs an IFD one")
+    observed: list[tuple[Observation, ConditionedCloud, LiftedFeatures]] = []
+    for i, task in enumerate(args.tasks):
+        env = make_env(task, "seen", seed=i)
+        obs = env.reset()
+        scene = condition_cloud(obs, env.instruction, policy.workspace, grounder=policy.grounder, features=True)
+        assert scene.features is not None  # asked for
+        observed.append((obs, scene, scene.features))
+    with tempfile.TemporaryDirectory() as tmp:
+        entries: dict[str, list[Path]] = {"table": [], "per_point": []}
+        for i, (_obs, _scene, lifted) in enumerate(observed):
+            compact = lifted.compact()
+            for form, arrays in (("table", {"feature_table": compact.table.astype(np.float16),
+                                            "feature_row": compact.index.astype(np.int32)}),
+                                 ("per_point", {"features": lifted.dense().astype(np.float16)})):
+                path = Path(tmp) / f"{form}_{i}.npz"
+                np.savez(path, **arrays)
+                entries[form].append(path)
+        result: dict[str, Any] = {
+            "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                     check=False).stdout.strip(),
+            "model": args.model, "scenes": len(observed), "threads": 1,
+            "points_per_scene": round(float(np.mean([len(f) for _, _, f in observed]))),
+            "table_rows_per_scene": round(float(np.mean([len(np.unique(f.index)) for _, _, f in observed]))),
+            "feature_width": int(observed[0][2].table.shape[1]),
+        }
+        outputs = {}
+        for form, paths in entries.items():
+            def load(paths: list[Path] = paths) -> list[Sample]:
+                samples = []
+                for path, (obs, scene, _lifted) in zip(paths, observed, strict=True):
+                    with np.load(path) as data:
+                        features = _cached_features(data)
+                    samples.append(cloud_sample(dataclasses.replace(scene, features=features), obs.gripper_open,
+                                                obs.gripper_pose[:3, 3]))
+                return samples
+
+            def inputs_of(samples: list[Sample]) -> dict[str, torch.Tensor]:
+                return policy.model_inputs(collate(samples))
+
+            load_s, samples = _cpu(load, args.repeats)
+            with torch.no_grad():
+                inputs_s, inputs = _cpu(functools.partial(inputs_of, samples), args.repeats)
+                forward_s, out = _cpu(functools.partial(policy.model, **inputs), args.repeats)
+            outputs[form] = out.heatmap
+            result[form] = {"bytes_per_entry": round(float(np.mean([f.stat().st_size for f in paths]))),
+                            "load_s_per_scene": round(load_s / len(paths), 5),
+                            "inputs_s_per_batch": round(inputs_s, 4), "forward_s_per_batch": round(forward_s, 4),
+                            "visible_rows_per_scene": round(inputs["ifd_features"].shape[1])}
+    torch.testing.assert_close(outputs["table"], outputs["per_point"], atol=1e-5, rtol=0)
+    result["same_output"] = True
+    print(json.dumps(result, indent=1))
+    if args.record is not None:
+        args.record.write_text(json.dumps(result, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
