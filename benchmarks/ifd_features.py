@@ -40,6 +40,7 @@ from abm.grounding.conditioning import ConditionedCloud, condition_cloud
 from abm.grounding.feature_cloud import LiftedFeatures
 from abm.samples import Sample, cloud_sample, collate
 from abm.sim.env import make_env
+from abm.sim.split_file import read_splits
 from abm.sim.tasks import TASKS
 from abm.types import Observation
 
@@ -65,7 +66,8 @@ def main() -> None:
     policy = load_policy(model, EvalSettings())
     if not policy.spec.clip_features:
         raise SystemExit(f"{model} is a {policy.spec.name!r} policy; this benchmark needs an IFD one")
-    tasks = args.tasks or [t for t in sorted(TASKS) if "seen" in TASKS[t].splits.tasks.get(t, {})]
+    splits = read_splits(None, TASKS)
+    tasks = args.tasks or [t for t in sorted(TASKS) if "seen" in splits.tasks.get(t, {})]
     observed: list[tuple[Observation, ConditionedCloud, LiftedFeatures]] = []
     for i, task in enumerate(tasks):
         env = make_env(task, "seen", seed=i)
