@@ -114,7 +114,7 @@ def test_ifd_features_through_index_map(episodes, monkeypatch, tmp_path) -> None
     ds = _dataset(episodes, policy, grounder={"kind": "clip"}, cache_dir=tmp_path)
     s = ds[(0, 0)]
     assert s["feature_table"].shape == (s["points"].shape[0], 8)  # point features of its own: one row per point
-    assert torch.equal(s["feature_row"], torch.arange(s["points"].shape[0]))
+    assert torch.equal(s["feature_row"], torch.arange(s["points"].shape[0], dtype=torch.int32))
     inputs = policy.model_inputs(collate([s, ds[(1, 1)]]))
     idx, feats = inputs["ifd_index"], inputs["ifd_features"]
     assert idx.shape == (2, 5, 48, 48) and feats.shape[0] == 2 and feats.shape[2] == 8
@@ -165,16 +165,23 @@ def test_a_cached_patch_table_gives_the_features_and_predictions_of_the_per_poin
     assert batch["feature_table"].shape == (2, 250, 8)
     with torch.no_grad():
         inputs, inputs_dense = policy.model_inputs(batch), policy.model_inputs(batch_dense)
-        pixels = []
-        for x in (inputs, inputs_dense):  # the feature at every pixel, zero where empty
-            idx = x["ifd_index"].flatten(1)
-            pixels.append(torch.stack([f[i.clamp(min=0)] * (i >= 0).unsqueeze(-1)
-                                       for f, i in zip(x["ifd_features"], idx, strict=True)]))
         assert inputs["ifd_features"].shape[1] < inputs_dense["ifd_features"].shape[1]  # patches, not points
-        assert torch.equal(pixels[0], pixels[1]) and torch.equal(inputs["images"], inputs_dense["images"])
+        assert torch.equal(_pixel_features(inputs), _pixel_features(inputs_dense))
+        assert torch.equal(inputs["images"], inputs_dense["images"])
         out, out_dense = policy.model(**inputs), policy.model(**inputs_dense)
+        # a table and a per-point entry padded into one batch: each sample's pixels are those it has alone
+        mixed = _pixel_features(policy.model_inputs(collate([ds[keys[0]], ds_dense[keys[1]]])))
+        alone = [_pixel_features(policy.model_inputs(collate([d[k]]))) for d, k in ((ds, keys[0]), (ds_dense, keys[1]))]
+        assert torch.equal(mixed[0], alone[0][0]) and torch.equal(mixed[1], alone[1][0])
     torch.testing.assert_close(out.heatmap, out_dense.heatmap, atol=1e-6, rtol=0)
     torch.testing.assert_close(out.rotation, out_dense.rotation, atol=1e-6, rtol=0)
+
+
+def _pixel_features(inputs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """``(B, V*H*W, F)``: the CLIP feature each pixel of the views shows (zero where empty)."""
+    idx = inputs["ifd_index"].flatten(1)
+    return torch.stack([f[i.clamp(min=0)] * (i >= 0).unsqueeze(-1)
+                        for f, i in zip(inputs["ifd_features"], idx, strict=True)])
 
 
 def test_workers_give_the_same_batches(episodes) -> None:

@@ -7,9 +7,10 @@ A sample is a dict. Scene entries (training and inference):
 * ``point_mask`` / ``point_heatmap`` ``(N,)`` float32: the mask field of the target X (only when asked for);
 * ``destination_mask`` / ``destination_heatmap`` ``(N,)`` float32: the mask field of the destination (the plate, the
   target pad, ...; all zeros for a task without one; only when asked for);
-* ``feature_table`` ``(P, F)`` float16 and ``feature_row`` ``(N,)`` int64: per-point CLIP features (only when
-  asked for), point ``i``'s being ``feature_table[feature_row[i]]`` (a scene's points share a few hundred
-  camera patches, so the table is ~50x smaller than the ``(N, F)`` array);
+* ``feature_table`` ``(P, F)`` float16 and ``feature_row`` ``(N,)`` int32: per-point CLIP features (only when
+  asked for), point ``i``'s being ``feature_table[feature_row[i]]`` (a CLIP grounder's table holds the camera
+  patches, a few hundred rows that a scene's ~50k points share; features that are no patch lookup, such as a
+  mean over several CLIP input sizes, have one row per point);
 * ``gripper_open`` ``()`` float32 (1 = open) and ``gripper_position`` ``(3,)`` float32, world metres;
 * ``keyframe_index`` ``()`` int64: the observation's keyframe index in its episode (``Observation.step``: 0 at the
   start, one more per executed keyframe, in demonstrations and rollouts alike);
@@ -126,7 +127,7 @@ def cloud_sample(conditioned: ConditionedCloud, gripper_open: float, gripper_pos
         sample["destination_heatmap"] = torch.from_numpy(np.asarray(conditioned.destination_mask.heatmap, np.float32))
     if conditioned.features is not None:
         sample["feature_table"] = torch.from_numpy(np.asarray(conditioned.features.table, np.float16))
-        sample["feature_row"] = torch.from_numpy(np.asarray(conditioned.features.index, np.int64))
+        sample["feature_row"] = torch.from_numpy(np.asarray(conditioned.features.index, np.int32))
     return sample
 
 

@@ -224,12 +224,12 @@ class MultiViewTransformer(nn.Module):
         if spec.clip_features:
             if ifd_features is None or ifd_index is None:
                 raise ValueError(
-                    f"variant {spec.name!r} needs ifd_features (B, N, {cfg.ifd_feature_dim}) and ifd_index "
+                    f"variant {spec.name!r} needs ifd_features (B, M, {cfg.ifd_feature_dim}) and ifd_index "
                     f"(B, V, H, W) (re-rendered CLIP point features); got none"
                 )
             if ifd_features.dim() != 3 or ifd_features.shape[0] != b or ifd_features.shape[2] != cfg.ifd_feature_dim:
                 raise ValueError(
-                    f"ifd_features must be ({b}, N, {cfg.ifd_feature_dim}), got {tuple(ifd_features.shape)}"
+                    f"ifd_features must be ({b}, M, {cfg.ifd_feature_dim}), got {tuple(ifd_features.shape)}"
                 )
             if tuple(ifd_index.shape) != (b, cfg.num_views, cfg.resolution, cfg.resolution):
                 raise ValueError(f"ifd_index must be ({b}, {cfg.num_views}, H, W), got {tuple(ifd_index.shape)}")
@@ -263,8 +263,10 @@ class MultiViewTransformer(nn.Module):
             lang: ``(B, L, lang_dim)`` language token embeddings.
             mask: ``(B, V, M, H, W)`` the variant's mask channels (mask variants only): the target's, and with
                 ``destination_mask`` the destination's (``M = config.mask_channels``).
-            ifd_features: ``(B, N, ifd_feature_dim)`` per-point CLIP features (``ifd`` only).
-            ifd_index: ``(B, V, H, W)`` int64 index of the point visible in each pixel, -1 where empty
+            ifd_features: ``(B, M, ifd_feature_dim)`` CLIP features, one row per feature some pixel shows (the
+                rows of the samples' feature tables seen in a view, :meth:`KeyframePolicy.model_inputs`; any
+                ``M``, zero-padded) (``ifd`` only).
+            ifd_index: ``(B, V, H, W)`` int64 row of ``ifd_features`` each pixel shows, -1 where empty
                 (``ifd`` only).
             pool_weights: ``(B, V, H, W)`` per-view distributions (each summing to 1) at which the
                 rotation/gripper head pools tokens. Training passes the ground-truth heatmap (as
@@ -352,10 +354,10 @@ class MultiViewTransformer(nn.Module):
         )
 
     def _render_features(self, features: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-        """Project per-point features to the stem width and gather them into the views.
+        """Project the feature rows to the stem width and gather them into the views.
 
         Projection and gathering commute (rendering picks one point per pixel), so projecting the
-        ``N`` points first is the cheap way of fusing re-rendered CLIP feature maps.
+        ``M`` visible rows first is the cheap way of fusing re-rendered CLIP feature maps.
 
         Returns:
             ``(B*V, H, W, C)`` (channels last), zero where no point is visible.
