@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import csv
+import gc
 import hashlib
 import json
 import logging
@@ -698,9 +699,19 @@ class Trainer:
         return summary
 
     def _leave_process_group(self) -> None:
+        """Every rank leaves the process group together, with nothing else holding it.
+
+        DistributedDataParallel keeps its own reference to the group (and its reducer sits in reference cycles), so
+        ``destroy_process_group`` alone would leave the gloo/nccl backend alive until the garbage collector or the
+        interpreter's exit frees it. Freed at exit, its C++ threads can abort the process after the run has finished
+        ("terminate called without an active exception", seen once in CI under torchrun). The wrapper is dropped
+        and collected here, so the backend is freed in the main thread while the interpreter is whole."""
         if self.dinfo.enabled:
+            self.train_policy = self.policy
+            gc.collect()
             dist.barrier()
             dist.destroy_process_group()
+            gc.collect()
 
 
 def train(
