@@ -127,7 +127,8 @@ class LiftedFeatures:
 
     def dense(self) -> NDArray[np.floating]:
         """The ``(N, D)`` array ``table[index]``."""
-        return self[np.arange(len(self))]
+        features: NDArray[np.floating] = self.table[self.index]
+        return features
 
     def compact(self) -> LiftedFeatures:
         """The same features with only the rows some point uses, in table order (what a cache stores)."""
