@@ -31,6 +31,13 @@ rollout) to a JSON list, replacing the rows of the same commits::
 
     OMP_NUM_THREADS=1 python benchmarks/rollout_speed.py --against 65d6cab --record docs/results/rollout_speed.json
 
+A model may name the grounder its rollouts use instead of the one its checkpoint stores: ``abm_clip_v2@tracking``
+grounds once per episode with the stored CLIP grounder and then tracks the target's points (``abm eval --grounder
+tracking``), a protocol of its own, so its row is its own (grounder ``tracking``) and its outcomes are compared
+only with the same model and grounder in the other tree::
+
+    OMP_NUM_THREADS=1 python benchmarks/rollout_speed.py --models abm_clip_v2 abm_clip_v2@tracking --against 65d6cab
+
 ``--together`` rolls the models out scene by scene (each episode: every model in turn), as an evaluation of several
 models orders them, so every model but the first of a scene takes over its build, its first observation and the
 CLIP memories; its rows are marked ``"together": true``.
@@ -136,7 +143,6 @@ def serve(args: argparse.Namespace) -> None:
     from abm.policy.checkpoint import resolve_checkpoint
 
     torch.set_num_threads(1)
-    settings = EvalSettings(max_steps=args.max_steps)
     clock = StageClock()
     instrument(clock)
     import abm
@@ -144,7 +150,9 @@ def serve(args: argparse.Namespace) -> None:
     print(json.dumps({"ready": True, "abm": abm.__file__}), flush=True)
     for line in sys.stdin:
         model, episode = line.split()
-        path = str(resolve_checkpoint(ROOT / "models" / f"{model}.pt").resolve())
+        name, override = split_model(model)
+        settings = EvalSettings(max_steps=args.max_steps, grounder=override)
+        path = str(resolve_checkpoint(ROOT / "models" / f"{name}.pt").resolve())
         load_policy(path, settings)  # once per process, as the evaluation's driver / worker does
         repeat, ep = (9, 0) if episode == "warmup" else (0, int(episode))
         job = EvalJob(path, model, args.task, args.split, repeat, ep, eval_seed(repeat, ep), checkpoint=path,
@@ -199,10 +207,23 @@ def _ask(proc: subprocess.Popen[str], model: str, episode: str) -> dict[str, Any
     return result
 
 
+def split_model(model: str) -> tuple[str, str | None]:
+    """``NAME@GROUNDER`` -> (NAME, GROUNDER); a plain zoo name -> (NAME, None: the checkpoint's own grounder)."""
+    name, _, override = model.partition("@")
+    return name, override or None
+
+
 def grounder_of(model: str) -> str:
-    """The grounder a zoo model names in ``models/index.json`` (``clip``, ``oracle``)."""
+    """The grounder a model's rollouts use: the ``@GROUNDER`` it names, else the one its entry in
+    ``models/index.json`` stores (``clip``, ``oracle``; ``none`` for a model without a grounder)."""
+    name, override = split_model(model)
+    if override is not None:
+        return override
     index = json.loads((ROOT / "models" / "index.json").read_text())
-    spec = next(e for e in index if e["name"] == model).get("grounder_spec") or {}
+    entry = next((e for e in index if e["name"] == name), None)
+    if entry is None:
+        raise SystemExit(f"{name!r} is not a model of models/index.json")
+    spec = entry.get("grounder_spec") or {}
     return str(spec.get("kind", "none"))
 
 
@@ -278,7 +299,8 @@ def markdown(rows: list[dict[str, Any]]) -> str:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--models", nargs="+", default=["abm_oracle_v2", "abm_clip_v2"], help="zoo model names")
+    p.add_argument("--models", nargs="+", default=["abm_oracle_v2", "abm_clip_v2"],
+                   help="zoo model names; NAME@GROUNDER rolls NAME out with another grounder (clip, oracle, tracking)")
     p.add_argument("--task", default="place_food")
     p.add_argument("--split", default="seen")
     p.add_argument("--episodes", type=int, default=3, help="timed rollouts per model (episodes 0..N-1, repeat 0)")
@@ -294,6 +316,13 @@ def main() -> None:
     if args.serve:
         serve(args)
         return
+    from abm.grounding.config import GROUNDERS
+
+    for model in args.models:  # fail before any server starts
+        grounder_of(model)
+        override = split_model(model)[1]
+        if override is not None and override not in GROUNDERS.names():
+            p.error(f"{model}: unknown grounder {override!r} (known: {', '.join(GROUNDERS.names())})")
     from abm.machine import describe_machine
 
     rows = run(args)

@@ -57,6 +57,7 @@ def test_the_estimate_multiplies_what_is_left_by_measured_rates_and_says_where_t
         [{"commit": "old", "stage": "total", "seconds_per_rollout": 40.0},  # a baseline measured beside it
          {"commit": "new", "stage": "total", "seconds_per_rollout": 4.0},
          {"commit": "new", "stage": "total", "seconds_per_rollout": 6.0},
+         {"commit": "new", "model": "m@tracking", "stage": "total", "seconds_per_rollout": 1.0},  # another protocol
          {"commit": "new", "stage": "render", "seconds_per_rollout": 100.0}]))
     lines = estimate(spec, layout, engine.status())
     assert lines[1] == ("  training: 2 job(s), 4 steps left × 5.00 s per step = 0.3 min (~0.2 min with 2 at a "

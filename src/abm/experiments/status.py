@@ -234,7 +234,9 @@ def episode_rate(spec: ExperimentSpec, layout: Layout) -> Rate | None:
     if seconds:
         return Rate(mean(seconds), f"{len(seconds)} episodes evaluated by this spec")
     speed = layout.root / ROLLOUT_SPEED
-    rows = [r for r in json.loads(speed.read_text()) if r.get("stage") == "total"] if speed.is_file() else []
+    # the totals of rollouts with the checkpoints' own grounders (a NAME@GROUNDER row is another protocol's)
+    rows = [r for r in json.loads(speed.read_text()) if r.get("stage") == "total" and "@" not in r.get("model", "")
+            ] if speed.is_file() else []
     if not rows:
         return None
     newest = rows[-1].get("commit")  # the file grows at its end: the latest code's rollouts, not its baselines'
