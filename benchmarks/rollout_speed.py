@@ -25,9 +25,10 @@ One untimed rollout (another seed) warms each process up first, so the numbers a
 Side by side (``--against REF``): one server process runs from a temporary ``git worktree`` of REF (its library,
 this script) and one from this tree; the rollouts alternate between them (REF's episode 0, this tree's
 episode 0, REF's episode 1, ...), so both see the same machine. Each episode's outcome (success, steps, failure,
-trajectory digest) must be the same in both trees, else the benchmark fails. ``--record FILE`` writes the rows
-``{commit, grounder, stage, seconds_per_rollout}`` (mean over the episodes, stage ``total`` = CPU seconds per
-rollout) to a JSON list, replacing the rows of the same commits::
+trajectory digest) must be the same in both trees, else the benchmark fails. ``--record FILE`` appends the rows
+``{commit, model, grounder, stage, seconds_per_rollout, measured, machine}`` (mean over the episodes, stage
+``total`` = CPU seconds per rollout; ``measured``: the run's UTC time, the same for every row of a run, so a
+run's columns stay together beside earlier runs of the same commits) to a JSON list::
 
     OMP_NUM_THREADS=1 python benchmarks/rollout_speed.py --against 65d6cab --record docs/results/rollout_speed.json
 
@@ -56,6 +57,7 @@ import time
 from collections import defaultdict
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
@@ -309,8 +311,8 @@ def main() -> None:
     p.add_argument("--together", action="store_true", help="roll out scene by scene (each episode: every model "
                    "in turn), as an evaluation of several models does, so the second model of a scene takes over "
                    "its build, first observation and CLIP memories (rows marked together)")
-    p.add_argument("--record", type=Path, default=None, metavar="FILE", help="write the rows to this JSON list "
-                   "(rows of the same commits and order are replaced)")
+    p.add_argument("--record", type=Path, default=None, metavar="FILE", help="append the rows to this JSON list, "
+                   "each with the run's UTC time and machine")
     p.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.serve:
@@ -326,15 +328,22 @@ def main() -> None:
     from abm.machine import describe_machine
 
     rows = run(args)
-    print(f"machine: {describe_machine()}; {args.task} ({args.split}), {args.episodes} episodes, "
+    machine = describe_machine()
+    print(f"machine: {machine}; {args.task} ({args.split}), {args.episodes} episodes, "
           f"--max-steps {args.max_steps}, CPU seconds per rollout")
     print(markdown(rows))
     if args.record is not None:
-        replaced = {(r["commit"], bool(r.get("together"))) for r in rows}
-        old = json.loads(args.record.read_text()) if args.record.exists() else []
-        args.record.parent.mkdir(parents=True, exist_ok=True)
-        kept = [r for r in old if (r["commit"], bool(r.get("together"))) not in replaced]
-        args.record.write_text(json.dumps(kept + rows, indent=1) + "\n")
+        record(args.record, rows, machine)
+
+
+def record(path: Path, rows: list[dict[str, Any]], machine: str, now: datetime | None = None) -> None:
+    """Append one run's rows to the JSON list at ``path``, each stamped with the run's UTC time and machine;
+    earlier rows stay (other runs of the same commits included)."""
+    measured = (now or datetime.now(UTC)).strftime("%Y-%m-%dT%H:%M:%SZ")
+    old = json.loads(path.read_text()) if path.exists() else []
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(old + [{**r, "measured": measured, "machine": machine} for r in rows], indent=1)
+                    + "\n")
 
 
 if __name__ == "__main__":

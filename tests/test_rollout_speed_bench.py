@@ -3,7 +3,9 @@ rows carry that grounder, and a wrong name fails before any server starts."""
 
 from __future__ import annotations
 
+import json
 import sys
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
@@ -38,3 +40,15 @@ def test_an_unknown_grounder_fails_before_a_server_starts(monkeypatch: pytest.Mo
         rollout_speed.main()
     assert exit_.value.code == 2
     assert "abm_clip_v2@psychic: unknown grounder 'psychic' (known: " in capsys.readouterr().err
+
+
+def test_a_recorded_run_is_appended_with_its_time_and_machine(tmp_path: Path) -> None:
+    path = tmp_path / "results" / "rollout_speed.json"
+    first = [{"commit": "abc", "model": "abm_clip_v2", "grounder": "clip", "stage": "total",
+              "seconds_per_rollout": 3.0}]
+    rollout_speed.record(path, first, "machine A", datetime(2026, 11, 29, 19, 0, tzinfo=UTC))
+    second = [{**first[0], "seconds_per_rollout": 2.0}]  # the same commit and model measured again
+    rollout_speed.record(path, second, "machine B", datetime(2026, 11, 30, 8, 5, 9, tzinfo=UTC))
+    rows = json.loads(path.read_text())
+    assert [(r["seconds_per_rollout"], r["measured"], r["machine"]) for r in rows] == [
+        (3.0, "2026-11-29T19:00:00Z", "machine A"), (2.0, "2026-11-30T08:05:09Z", "machine B")]
