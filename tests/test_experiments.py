@@ -5,6 +5,7 @@ machines, and ``abm experiment run|status|list`` drive it."""
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 import threading
 import time
@@ -439,6 +440,29 @@ def test_a_stopped_stage_closes_its_spans_and_leaves_the_job_to_do(tmp_path: Pat
     status = {j.id: j for j in Engine(spec, root=tmp_path).status()}
     assert status["train/abm_oracle"].state == LEFT  # neither failed nor done: the next run resumes it
     assert (tmp_path / "models/carry/abm_oracle/step_00000001.pt").is_file()
+
+
+def test_an_evaluation_finished_before_a_stop_is_kept_for_a_fresh_clone(tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    # finished, it is not carried (the carry holds unfinished work), so the stop must keep it as the report would
+    data = _one_run()
+    data["evaluation"]["splits"] = {"seen": {"tasks": "two"}, "unseen": {"tasks": "two"}}
+    spec, _ = _spec(tmp_path, data)
+    runner = FakeRunner(tmp_path, stop="eval/abm_oracle/unseen")
+    monkeypatch.setattr(LocalRunner, "run", _fake_export(tmp_path, runner.ran))
+    assert Engine(spec, root=tmp_path, runner=runner).run(["train", "export"]) == 0
+    engine = Engine(spec, root=tmp_path, runner=runner)
+    with pytest.raises(KeyboardInterrupt):
+        engine.run(["eval", "report"])
+    kept = engine.layout.kept / "abm_oracle_seen.json"
+    assert kept.read_bytes() == (engine.layout.eval_dir("abm_oracle", "seen") / "results.json").read_bytes()
+    assert not (engine.layout.kept / "abm_oracle_unseen.json").exists()  # stopped: left, not kept
+    shutil.rmtree(tmp_path / "runs")  # a fresh clone: only what is committed
+    fresh = {j.id: j.state for j in Engine(spec, root=tmp_path, runner=FakeRunner(tmp_path)).plan("eval")}
+    assert fresh == {"eval/abm_oracle/seen": DONE, "eval/abm_oracle/unseen": LEFT}
+    runner = FakeRunner(tmp_path)
+    assert Engine(spec, root=tmp_path, runner=runner).run(["eval"]) == 0
+    assert runner.ran == ["eval/abm_oracle/unseen"]  # the kept one is restored, not run again
 
 
 def test_a_job_resumed_over_sessions_counts_every_session_s_minutes() -> None:

@@ -64,7 +64,6 @@ from abm.experiments.state import (
     holder_pid,
     job_events,
     keep,
-    keep_times,
     kept_pairs,
     last_logged_step,
     log_job,
@@ -700,10 +699,12 @@ class Engine:
         """Carry the unfinished trainings and evaluations (see :func:`carry_unfinished`); a carry folder holding
         files the carry did not write raises :class:`CarryError` (``strict``: ``--stages carry``) or is said in
         one line (the carry after a failed or stopped stage, which must not hide why it stopped). A carried
-        training that nothing needs any more (:meth:`served`) is removed. The stage times and machines are kept
-        (:func:`keep_times`)."""
+        training that nothing needs any more (:meth:`served`) is removed. Every finished result is kept
+        (:func:`keep`, as the report stage keeps them): an evaluation or diagnosis that ended in a session stopped
+        before its report is neither carried (it is finished) nor run again on a fresh clone, and the session's stage
+        times and machine count there too."""
         served = self.served()
-        keep_times(self.layout)  # this session's stage times and machine count on a fresh clone too
+        keep(self.spec, self.layout)
         try:
             copied = [name for name in carry_unfinished(self.spec, self.layout) if name not in served]
         except CarryError as err:

@@ -206,12 +206,6 @@ def _keep_file(made: Path, copy: Path, merged: bool) -> bool:
     return True
 
 
-def keep_times(layout: Layout) -> int:
-    """Merge OUT's stage times and machines into KEPT (what :func:`keep` does for them), so a session stopped
-    before its report still counts on a fresh clone; returns how many files changed."""
-    return sum(_keep_file(made, layout.kept / made.name, True) for made in (layout.times, layout.machines))
-
-
 def keep(spec: ExperimentSpec, layout: Layout) -> int:
     """Copy every finished result of OUT into KEPT (the committed copy); returns how many changed."""
     merged = (layout.times, layout.machines)
