@@ -320,11 +320,10 @@ def main() -> None:
         return
     from abm.grounding.config import GROUNDERS
 
-    for model in args.models:  # fail before any server starts
-        grounder_of(model)
-        override = split_model(model)[1]
-        if override is not None and override not in GROUNDERS.names():
-            p.error(f"{model}: unknown grounder {override!r} (known: {', '.join(GROUNDERS.names())})")
+    for model in args.models:  # fail before any server starts (grounder_of: a name the zoo index lacks)
+        grounder = grounder_of(model)
+        if "@" in model and grounder not in GROUNDERS.names():
+            p.error(f"{model}: unknown grounder {grounder!r} (known: {', '.join(GROUNDERS.names())})")
     from abm.machine import describe_machine
 
     rows = run(args)
