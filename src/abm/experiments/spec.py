@@ -360,6 +360,8 @@ class Section:
         seeds: run -> the same run with another seed (a ``seeds`` section: their difference is the seed spread).
         explain: a ``targets`` section measures a miss against the seed spread, and a ``target_diagnosis``
             section says, for each target it misses, what the run's diagnosis shows.
+        earlier: an ``editions`` table's earlier editions: label -> their records JSON (relative to the root), oldest
+            first.
         only: ``readme``: the section is written into the README block only; ``document``: into the document
             only; "" (default): into both.
     """
@@ -387,6 +389,7 @@ class Section:
     spread: bool = False
     seeds: Mapping[str, str] = field(default_factory=dict)
     explain: bool = False
+    earlier: Mapping[str, str] = field(default_factory=dict)
     only: str = ""
 
 
@@ -741,6 +744,12 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
             if run not in known or other not in known or run == other:
                 raise sub.error(f"expected two different runs of this spec, got {run!r}: {other!r}", run)
             seeds[run] = other
+    earlier: dict[str, str] = {}
+    if reader.has("earlier"):
+        sub = reader.sub("earlier")
+        earlier = {label: sub.path(label) for label in list(sub.data)}
+        if not earlier or not all(earlier.values()):
+            raise reader.error("expected earlier editions as LABEL: RECORDS_JSON (oldest first)", "earlier")
     checks: tuple[TargetCheck, ...] = ()
     if reader.has("checks"):
         raw = reader.raw("checks")
@@ -791,7 +800,7 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
                       column=reader.text("column", ""), show=show, describe=reader.flag("describe"),
                       kinds=reader.names("kinds", ()), sentences=tuple(sentences), source=reader.path("source", ""),
                       config=reader.text("config", ""), spread=reader.flag("spread"), seeds=seeds,
-                      explain=reader.flag("explain"),
+                      explain=reader.flag("explain"), earlier=earlier,
                       only=reader.choice("only", ("readme", "document")) if reader.has("only") else "")
     if kind == "headline" and (not section_runs or not splits):
         raise reader.error("a 'headline' section needs its runs and splits", "runs")
@@ -804,6 +813,9 @@ def _section(reader: _Reader, runs: Sequence[str]) -> Section:
             raise reader.error(f"{', '.join('{' + f + '}' for f in unknown)}: no such value (a headline fills in "
                                "{RUN_SPLIT}, {RUN_SPLIT_paper}, {RUN_SPLIT_minus_OTHER} and, with of_table, "
                                "{RUN_SPLIT_minus_OTHER_vs_spread} of its runs and splits)", "text")
+    if kind == "editions" and (not section_runs or not splits or not earlier):
+        raise reader.error("an 'editions' section needs its runs, splits and earlier editions (LABEL: RECORDS_JSON)",
+                           "earlier")
     if kind == "seeds" and (not seeds or section.of_table is None):
         raise reader.error("a 'seeds' section needs seeds (RUN: RUN_OTHER_SEED) and the table it measures (of_table)",
                            "seeds")

@@ -97,6 +97,9 @@ register_section("destination_grounding", SectionKind(
     writer="abm.experiments.report.sections.grounding_quality:write_destination"))
 register_section("seeds", SectionKind(
     ("title", "of_table", "seeds", "splits", "digits"), "the seed spread of a table, and the differences above it"))
+register_section("editions", SectionKind(
+    ("title", "runs", "splits", "earlier", "of_table", "names", "digits"),
+    "each run's averages beside the same run's in the earlier editions' records, and the change"))
 register_section("diagnosis", SectionKind(
     ("title", "runs", "splits", "kinds"),
     "per model: keyframe accuracy per kind, the skill-text probe and why its rollouts failed"))
