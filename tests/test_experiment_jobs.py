@@ -45,7 +45,7 @@ JOBS_OF_EVERY_KIND = [
                          progress=False), Path("runs/x/recipes/rvt.yaml")),
     ExportJob(Path("runs/x/rvt"), Path("models/rvt.pt"), "bfloat16"),
     EVAL,
-    ZooEvalJob(Path("models"), Path("runs/x/zoo_eval"), episodes=2),
+    ZooEvalJob(Path("models"), Path("runs/x/zoo_eval"), episodes=2, models=("abm_clip_v3", "rvt_clip_v3")),
     DiagnoseJob(KeyframeAccuracy((Path("models/abm_clip.pt"),), ("pick_block",), Path("runs/x/ka.json"),
                                  steps=(1000, 2000), grounder="oracle")),
     DiagnoseJob(SkillTextProbe(Path("models/abm_clip.pt"), "pick_block", ("pick_block", "place_food"),

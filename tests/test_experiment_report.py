@@ -215,6 +215,10 @@ def test_the_timed_zoo_eval_enters_the_report_once_it_ran(tmp_path: Path) -> Non
     assert "took 9 min" in text and "| abm_clip | 60.0 (3/5) |" in text
     assert "(pick_block; 5 episodes per task and split)" in text
     assert "`abm zoo eval --tasks pick_block --episodes 5` reproduces it" in text
+    # a gated edition (the third) names its models: before its gate they are not abm zoo eval's default
+    v3 = load_spec("paper_tables_v3")
+    (text,) = rep.write_section(rep.Context(v3, rep.collect(SPEC, layout), layout), _kind("zoo_eval"))
+    assert "`abm zoo eval --tasks pick_block --episodes 5 --models abm_clip_v3 rvt_clip_v3` reproduces it" in text
 
 
 def test_weakest_keyframes_ranks_kinds_by_their_median_error_over_tasks() -> None:

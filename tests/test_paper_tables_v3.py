@@ -123,6 +123,11 @@ def test_a_dry_run_plans_every_job_and_writes_nothing(tmp_path: Path, capsys: py
     cells = {f"eval/{r}/{s}" for r in V3.runs for s in ("seen", "unseen")} | {
         f"eval/{r}/compositional" for r in TABLE_1}
     assert set(plan["eval"]) == cells | {"eval/zoo"} and set(plan["eval"].values()) == {BLOCKED}
+    # the timed zoo eval names this edition's models: until the README gate opens, abm zoo eval's default is the
+    # second edition's
+    (zoo_eval,) = [j for j in engine.plan("eval") if j.id == "eval/zoo"]
+    assert zoo_eval.work.models == ("abm_clip_v3", "rvt_clip_v3")
+    assert zoo_eval.work.command()[-3:] == ["--models", "abm_clip_v3", "rvt_clip_v3"]
     oracle = {f"diagnose/{r}@oracle" for r in MASK_RUNS if V3.runs[r].config.grounder.kind == "clip"}
     probes = {f"diagnose/skill_text/{r}/{t}" for r in MASK_RUNS for t in ("place_wine", "pick_block")}
     assert set(plan["diagnose"]) == {f"diagnose/{r}" for r in V3.runs} | oracle | probes | {

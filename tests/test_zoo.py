@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from abm.cli import main
-from abm.zoo import ZooError, pick, read_index, verify
+from abm.zoo import ZooError, named, pick, read_index, verify
 
 
 def _zoo(tmp_path: Path, names: tuple[str, ...] = ("abm_oracle", "rvt_clip")) -> Path:
@@ -97,6 +97,30 @@ def test_pick_takes_the_newest_editions_compared_model_and_falls_back_to_the_fir
     assert pick(entries, "abm")["name"] == "abm_clip_v3"
     # without the benchmark CLIP none of the CLIP models can run: the first edition's oracle model
     assert pick([e for e in entries if e["name"] != "benchmark-clip"], "abm")["name"] == "abm_oracle"
+
+
+def test_models_named_are_taken_in_order_whatever_pick_would_take(tmp_path: Path) -> None:
+    entries = read_index(_zoo(tmp_path, ("abm_oracle", "abm_clip", "rvt_clip")))
+    assert [e["name"] for e in named(entries, ["abm_oracle"])] == ["abm_oracle"]  # needs no CLIP
+    with pytest.raises(ZooError, match="abm_clip grounds or words its instruction with the benchmark CLIP, which the "
+                                       "zoo does not hold"):
+        named(entries, ["abm_clip"])
+    entries.append({"name": "benchmark-clip", "file": "benchmark-clip/", "method": "clip"})
+    assert [e["name"] for e in named(entries, ("rvt_clip", "abm_oracle"))] == ["rvt_clip", "abm_oracle"]
+    with pytest.raises(ZooError, match=r"'abm_clip_v9' is no model of the zoo's index \(it lists abm_oracle, "
+                                       r"abm_clip, rvt_clip\)"):
+        named(entries, ["abm_clip", "abm_clip_v9"])
+    with pytest.raises(ZooError, match="'benchmark-clip' is no model"):
+        named(entries, ["benchmark-clip"])
+
+
+def test_zoo_eval_with_an_unknown_model_is_one_clear_error(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    zoo = _zoo(tmp_path)
+    assert main(["zoo", "eval", "--zoo", str(zoo), "--models", "abm_clip_v3", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "'abm_clip_v3' is no model of the zoo's index (it lists abm_oracle, rvt_clip)" in err
+    assert not (tmp_path / "out").exists()
 
 
 def test_an_edition_that_is_not_a_whole_number_is_refused(tmp_path: Path) -> None:

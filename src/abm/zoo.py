@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -119,6 +120,28 @@ def edition(entry: dict[str, Any]) -> int:
     """The edition of an entry's model (1: the first edition's entries, which record none)."""
     value = entry.get("edition", 1)
     return value if isinstance(value, int) and not isinstance(value, bool) else 1
+
+
+def named(entries: list[dict[str, Any]], names: Sequence[str]) -> list[dict[str, Any]]:
+    """The entries of ``names``, in that order (``abm zoo eval --models``: e.g. an edition's models before its
+    README gate makes them the ones :func:`pick` takes).
+
+    Raises:
+        ZooError: a name the index does not list, or one that needs the benchmark CLIP when the zoo has none.
+    """
+    by_name = {e.get("name"): e for e in entries}
+    has_clip = "benchmark-clip" in by_name
+    chosen = []
+    for name in names:
+        entry = by_name.get(name)
+        if entry is None or name == "benchmark-clip":
+            models = ", ".join(str(e.get("name")) for e in entries if e.get("name") != "benchmark-clip")
+            raise ZooError(f"{name!r} is no model of the zoo's index (it lists {models})")
+        if not has_clip and needs_clip(entry):
+            raise ZooError(f"{name} grounds or words its instruction with the benchmark CLIP, which the zoo does "
+                           "not hold (benchmark-clip)")
+        chosen.append(entry)
+    return chosen
 
 
 def pick(entries: list[dict[str, Any]], method: str) -> dict[str, Any] | None:

@@ -43,5 +43,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                     help=f"parallel rollout processes (default {WORKERS})")
     ev.add_argument("--max-steps", type=int_range(1, 100), default=ZOO_EVAL_MAX_STEPS,
                     help=f"keyframes per episode (default {ZOO_EVAL_MAX_STEPS})")
+    ev.add_argument("--models", nargs="+", default=[], metavar="NAME",
+                    help="the zoo's models to evaluate, by their index name (e.g. abm_clip_v3 rvt_clip_v3; default: "
+                         "of abm and rvt each the newest edition's compared model, as the README's tables)")
     ev.add_argument("--out", type=Path, default=Path("out/zoo"), help="output folder (default out/zoo)")
     ev.set_defaults(func="abm.cli.commands.zoo:evaluate_zoo")

@@ -56,7 +56,7 @@ from abm.measured import reproducibility_text
 from abm.policy.checkpoint import load_checkpoint
 from abm.sim.splits import load_splits
 from abm.sim.tasks import TASKS
-from abm.zoo import COMPARED_METHODS, ZooError, edition, entry_path, pick, read_index, verify
+from abm.zoo import COMPARED_METHODS, ZooError, edition, entry_path, named, pick, read_index, verify
 
 
 @dataclass(frozen=True)
@@ -399,17 +399,18 @@ def edition_page(number: int) -> str:
 
 
 def evaluate_zoo(zoo: Path, out: Path, tasks: Sequence[str] = ZOO_EVAL_TASKS, episodes: int = ZOO_EVAL_EPISODES,
-                 workers: int = WORKERS, max_steps: int = ZOO_EVAL_MAX_STEPS) -> None:
-    """Evaluate the zoo's abm and rvt models (:data:`abm.zoo.COMPARED_METHODS`, each checked against its sha256,
-    with the zoo's own benchmark CLIP) on seen and unseen objects of ``tasks``, ``episodes`` each, and write their
-    table to ``out/results.md`` (the outcomes in ``out/seen``, ``out/unseen``).
+                 workers: int = WORKERS, max_steps: int = ZOO_EVAL_MAX_STEPS, models: Sequence[str] = ()) -> None:
+    """Evaluate the zoo's abm and rvt models (:data:`abm.zoo.COMPARED_METHODS`, :func:`abm.zoo.pick`; or the
+    ``models`` named, :func:`abm.zoo.named`), each checked against its sha256, with the zoo's own benchmark CLIP, on
+    seen and unseen objects of ``tasks``, ``episodes`` each, and write their table to ``out/results.md`` (the
+    outcomes in ``out/seen``, ``out/unseen``).
 
     Raises:
-        ZooError: no runnable model, a file that fails its check, or a model naming another CLIP;
+        ZooError: no runnable model, an unknown name, a file that fails its check, or a model naming another CLIP;
         ExternalError: an episode that crashed (the table is written first).
     """
     entries = read_index(zoo)
-    chosen = [e for e in (pick(entries, method) for method in COMPARED_METHODS) if e]
+    chosen = named(entries, models) if models else [e for e in (pick(entries, m) for m in COMPARED_METHODS) if e]
     if not chosen:
         raise ZooError(f"{zoo} holds no runnable {' or '.join(COMPARED_METHODS)} model (a CLIP-grounded one "
                        "needs the benchmark CLIP in the zoo too)")

@@ -510,8 +510,10 @@ class Engine:
     def _zoo_eval(self) -> Job:
         folder = self.layout.zoo_eval
         assert self.layout.zoo is not None
-        job = Job("eval/zoo", "eval", ZooEvalJob(Path(self.rel(self.layout.zoo)), Path(self.rel(folder))),
-                  folder=folder / "seen")
+        # the spec's own models by name: before a README gate opens, abm zoo eval's default is an earlier edition's
+        models = tuple(self.spec.zoo_name(r) for r in self.spec.evaluation.zoo_eval)
+        job = Job("eval/zoo", "eval", ZooEvalJob(Path(self.rel(self.layout.zoo)), Path(self.rel(folder)),
+                                                 models=models), folder=folder / "seen")
         missing = [r for r in self.spec.evaluation.zoo_eval if not self.exported(r)]
         if self.have(folder / "seconds"):
             job.state = DONE

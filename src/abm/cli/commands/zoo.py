@@ -40,5 +40,5 @@ def list_zoo(args: argparse.Namespace) -> int:
 
 
 def evaluate_zoo(args: argparse.Namespace) -> int:
-    session.evaluate_zoo(args.zoo, args.out, args.tasks, args.episodes, args.workers, args.max_steps)
+    session.evaluate_zoo(args.zoo, args.out, args.tasks, args.episodes, args.workers, args.max_steps, args.models)
     return 0

@@ -252,14 +252,16 @@ class ZooEvalJob(TypedJob):
     tasks: tuple[str, ...] = ZOO_EVAL_TASKS
     episodes: int = ZOO_EVAL_EPISODES
     max_steps: int = ZOO_EVAL_MAX_STEPS
+    models: tuple[str, ...] = ()  #: the zoo's models by name (default: abm zoo eval's choice, abm.zoo.pick)
 
     def run(self) -> None:
-        evaluate_zoo(self.zoo, self.out, self.tasks, self.episodes, max_steps=self.max_steps)
+        evaluate_zoo(self.zoo, self.out, self.tasks, self.episodes, max_steps=self.max_steps, models=self.models)
 
     def command(self) -> list[str]:
         changed = [*(["--tasks", *self.tasks] if self.tasks != ZOO_EVAL_TASKS else []),
                    *(["--episodes", str(self.episodes)] if self.episodes != ZOO_EVAL_EPISODES else []),
-                   *(["--max-steps", str(self.max_steps)] if self.max_steps != ZOO_EVAL_MAX_STEPS else [])]
+                   *(["--max-steps", str(self.max_steps)] if self.max_steps != ZOO_EVAL_MAX_STEPS else []),
+                   *(["--models", *self.models] if self.models else [])]
         return ["zoo", "eval", "--zoo", self.zoo.as_posix(), "--out", self.out.as_posix(), *changed]
 
 
