@@ -9,6 +9,7 @@ import hashlib
 import json
 import math
 import statistics
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -294,8 +295,20 @@ def test_both_editions_share_the_zoo_and_abm_zoo_eval_takes_the_newest(tmp_path:
 
 
 # ----------------------------------------------------------------------------------- headline, blocks
+#: the headline the second edition wrote into the README until the third edition's gate opened (its text without
+#: the seed-spread phrases): the third edition's section with the second's words
+HEADLINE = replace(
+    load_spec("paper_tables_v3").report.blocks["headline"][0], of_table=None,
+    names={"abm_clip": "abm (CLIP mask field)", "rvt_clip": "rvt (CLIP text)"},
+    text="**Result:** on objects it never saw, abm succeeds in {abm_clip_unseen} % of the episodes and the rvt "
+         "baseline in {rvt_clip_unseen} % (the paper: {abm_clip_unseen_paper} % and {rvt_clip_unseen_paper} %); "
+         "on the two compositional tasks no model was trained on, {abm_clip_compositional} % against "
+         "{rvt_clip_compositional} % (the paper: {abm_clip_compositional_paper} % and "
+         "{rvt_clip_compositional_paper} %).")
+
+
 def test_the_headline_states_ours_beside_the_paper_once_every_number_is_measured(tmp_path: Path) -> None:
-    (section,) = V2.report.blocks["headline"]
+    section = HEADLINE
     comp = V2.split_tasks()["compositional"]
     cells: rep.Cells = {}
     for run, seen, unseen, composed in (("abm_clip", 60.0, 50.0, 70.0), ("rvt_clip", 40.0, 20.0, 10.0)):
@@ -318,23 +331,27 @@ def test_the_headline_states_ours_beside_the_paper_once_every_number_is_measured
 
 def test_the_readme_block_leaves_the_diagnosis_to_the_page_and_the_dash_note_to_reports_with_dashes(
         tmp_path: Path) -> None:
+    v3 = load_spec("paper_tables_v3")  # the edition that writes the README's blocks since its gate opened
     cells = _cells("abm_clip", "seen", [60.0] * 3) | _cells("abm_clip", "unseen", [20.0] * 3)
     outcomes = rep.Outcomes(cells=cells, summaries=SUMMARIES, probes=PROBES)
-    written = rep.compose(V2, Layout.of(V2, tmp_path, tmp_path / "out"), outcomes)
+    written = rep.compose(v3, Layout.of(v3, tmp_path, tmp_path / "out"), outcomes)
     assert "Per model, what it gets wrong" in written.document and "## Diagnosis" in written.document
     assert "Where a target is missed" in written.document
     assert "Per model, what it gets wrong" not in written.block and "Where a target is missed" not in written.block
-    assert "[the diagnosis](docs/results/paper_tables_v2.md#diagnosis)" in written.block
-    assert "(paper_tables_v2.md#diagnosis)" not in written.document  # the readme-only link stays out of the page
-    assert written.block.count("Reproduce: `abm experiment run paper_tables_v2`") == 1  # once, after the tables
+    assert "[the diagnosis](docs/results/paper_tables_v3.md#diagnosis)" in written.block
+    assert "(paper_tables_v3.md#diagnosis)" not in written.document  # the readme-only link stays out of the page
+    assert written.block.count("Reproduce: `abm experiment run paper_tables_v3`") == 1  # once, after the tables
     assert "cells not evaluated yet show –" in written.block.splitlines()[0]  # most cells are missing
-    assert set(written.blocks) == {"headline"} and "| abm (CLIP mask field), ours | 60.0 | 20.0 | – |" in (
+    assert set(written.blocks) == {"headline"} and "| abm (CLIP mask fields), ours | 60.0 | 20.0 | – |" in (
         written.blocks["headline"])
+    # the second edition writes no README block any more: its page, records and zoo index only
+    assert not V2.report.readme and not V2.report.blocks
     assert not rep.shows_dash(["| a | 1.0 |\n|---|---|\n| b | 44.5–59.0 |"]) and rep.shows_dash(["| a | **–** |"])
 
 
 def test_further_readme_blocks_are_checked_when_the_spec_is_loaded(tmp_path: Path) -> None:
-    data = yaml.safe_load(V2.path.read_text())
+    data = yaml.safe_load(load_spec("paper_tables_v3").path.read_text())
+    data["report"].pop("readme_when")
     data["report"]["blocks"] = {"paper-tables": []}  # the block's own marker
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump(data))
