@@ -24,6 +24,7 @@ from abm.evaluation.policies import checkpoint_clips, clip_root, load_policy, ro
 from abm.evaluation.results import EpisodeOutcome, OutcomeLog
 from abm.evaluation.runner import EvalSettings, evaluate, method_labels
 from abm.policy.checkpoint import load_checkpoint, save_checkpoint
+from abm.zoo import COMPARED_METHODS, edition, pick, read_index
 
 ZOO = Path(__file__).resolve().parents[1] / "models"
 SETTINGS = EvalSettings(max_steps=3)
@@ -44,10 +45,12 @@ def test_outcomes_are_the_same_whatever_the_command_workers_gifs_or_working_fold
     pytest.importorskip("transformers")
     if not (ZOO / "abm_clip.pt").is_file() or not (ZOO / "benchmark-clip" / "config.json").is_file():
         pytest.skip("the committed model zoo is not in this checkout")
-    # the models abm zoo eval runs: the index's compared ones (the newest edition's abm_clip and rvt_clip)
-    compared = [e["file"] for e in json.loads((ZOO / "index.json").read_text()) if e.get("compared")]
-    models = [str((ZOO / file).resolve()) for file in compared]
-    assert len(models) == 2
+    # the models abm zoo eval runs: of abm and rvt each the newest edition's compared one (earlier editions' stay
+    # marked compared in the index)
+    entries = read_index(ZOO)
+    chosen = [pick(entries, method) for method in COMPARED_METHODS]
+    models = [str((ZOO / e["file"]).resolve()) for e in chosen if e is not None]
+    assert len(models) == 2 and all(e is not None and e["edition"] == max(edition(x) for x in entries) for e in chosen)
 
     threads = torch.get_num_threads()
     torch.set_num_threads(2)  # what a process gets by default on a 2-core machine (pool workers run 1)
