@@ -8,9 +8,10 @@ training.
   (simulator, grounding, policy, executor) and prints one table. The default budget is 5 episodes per task and
   split: 160 rollouts (its measured time: ``abm zoo eval --help``, from :mod:`abm.measured`).
 
-Of each method (abm, rvt) it runs the first model of the index that the zoo can run: a CLIP-grounded one when
-the benchmark CLIP is in the zoo too (abm_clip, rvt_clip in the committed zoo), else one that needs no CLIP
-(abm_oracle).
+Of each method (abm, rvt) it runs the model the README's tables show: the newest edition's marked ``compared`` in
+the index (abm_clip_v3, rvt_clip_v3 in the committed zoo); in a zoo without such marks, the first model of the index
+that the zoo can run, a CLIP-grounded one when the benchmark CLIP is in the zoo too, else one that needs no CLIP
+(abm_oracle). ``--models NAME ...`` names the models instead (e.g. an earlier edition's: abm_clip_v2 rvt_clip_v2).
 """
 
 from __future__ import annotations
