@@ -5,6 +5,7 @@ with where it was measured."""
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -13,7 +14,15 @@ from tests.test_experiments import TINY, _spec, _touch_checkpoint, _with
 from abm.cli import main
 from abm.evaluation.results import EpisodeOutcome, OutcomeLog, write_outcome_archive
 from abm.experiments.stages import DONE, Engine
-from abm.experiments.status import carried_lines, episode_rate, estimate, kept_minutes, not_estimated, step_rate
+from abm.experiments.status import (
+    carried_lines,
+    diagnosis_rates,
+    episode_rate,
+    estimate,
+    kept_minutes,
+    not_estimated,
+    step_rate,
+)
 
 
 def _carry_a_training(engine: Engine, run: str, step: int, elapsed_s: float) -> None:
@@ -141,3 +150,28 @@ def test_the_jobs_without_an_estimate_are_counted_past_three_of_a_stage() -> Non
         "data, ground/masks, ground/features, eval/zoo, diagnose/run0, diagnose/run1, diagnose/run2 and 33 more "
         "diagnose jobs")
     assert not_estimated(diagnoses[:4]) == "diagnose/run0, diagnose/run1, diagnose/run2, diagnose/run3"  # 1 more
+
+
+@dataclass
+class _Job:
+    id: str
+    stage: str
+    state: str
+    minutes: float | None = None
+
+
+def test_the_diagnosis_left_is_estimated_from_the_finished_jobs_of_its_kind(tmp_path: Path) -> None:
+    spec, _ = _spec(tmp_path)
+    layout = Engine(spec, root=tmp_path).layout
+    jobs = [_Job("diagnose/a", "diagnose", "done", 3.0), _Job("diagnose/b@oracle", "diagnose", "done", 5.0),
+            _Job("diagnose/c", "diagnose", "left"), _Job("diagnose/d@oracle", "diagnose", "running", 1.0),
+            _Job("diagnose/skill_text/a/pick_block", "diagnose", "left"),
+            _Job("diagnose/destination_grounding", "diagnose", "left")]
+    rates = diagnosis_rates(jobs)
+    assert set(rates) == {"keyframe accuracy"} and rates["keyframe accuracy"].seconds == 240.0  # (3 + 5) / 2 min
+    lines = estimate(spec, layout, jobs)
+    assert lines[0] == "estimate of what is left: 8.0 min of CPU work"
+    assert lines[1] == ("  diagnosis (keyframe accuracy): 2 job(s), 2 jobs left × 240.00 s per job = 8.0 min (~4.0 "
+                        "min with 2 at a time); measured from 2 finished keyframe accuracy job(s) of this spec")
+    # kinds with nothing finished yet stay unestimated, by name
+    assert lines[2] == "  not estimated: diagnose/skill_text/a/pick_block, diagnose/destination_grounding"

@@ -11,7 +11,9 @@ training steps left (the budget less the step the run's log or carried checkpoin
 this spec's runs (their logs' ``elapsed_s`` in OUT or the carry, else its finished runs' minutes in the zoo index or
 ``KEPT/runs.json``, else the minutes of the zoo's models of an earlier edition trained with the same network sizes:
 :func:`network_of`); evaluation episodes left × seconds per episode of this spec's evaluated episodes (OUT, the
-carry, the kept archives), else of ``docs/results/rollout_speed.json`` (``benchmarks/rollout_speed.py``).
+carry, the kept archives), else of ``docs/results/rollout_speed.json`` (``benchmarks/rollout_speed.py``);
+diagnosis jobs left × the mean minutes of the finished diagnosis jobs of the same kind in this working folder
+(:func:`diagnosis_rates`).
 """
 
 from __future__ import annotations
@@ -263,6 +265,26 @@ def episodes_left(spec: ExperimentSpec, layout: Layout, name: str, split: str) -
     return max(0, total - len(episode_seconds(layout, name, split)))
 
 
+def diagnosis_kind(job_id: str) -> str:
+    """What a diagnosis job measures, so that a finished one's minutes stand for the others of its kind:
+    ``skill-text probe`` (``diagnose/skill_text/RUN/TASK``), ``destination grounding`` (the spec's one grounder
+    job) or ``keyframe accuracy`` (``diagnose/RUN``, ``diagnose/RUN@oracle``)."""
+    if job_id.startswith("diagnose/skill_text/"):
+        return "skill-text probe"
+    return "destination grounding" if job_id == "diagnose/destination_grounding" else "keyframe accuracy"
+
+
+def diagnosis_rates(jobs: Sequence[StatusJob]) -> dict[str, Rate]:
+    """Kind (:func:`diagnosis_kind`) -> the mean seconds of this working folder's finished diagnosis jobs of that
+    kind (their job log's minutes; a fresh clone has none, so nothing is estimated from it)."""
+    done: dict[str, list[float]] = {}
+    for job in jobs:
+        if job.stage == "diagnose" and job.state == "done" and job.minutes is not None:
+            done.setdefault(diagnosis_kind(job.id), []).append(job.minutes * 60)
+    return {kind: Rate(mean(seconds), f"{len(seconds)} finished {kind} job(s) of this spec")
+            for kind, seconds in done.items()}
+
+
 def _minutes(value: float) -> str:
     return f"{value:.0f} min" if value >= 10 else f"{value:.1f} min"
 
@@ -311,7 +333,19 @@ def estimate(spec: ExperimentSpec, layout: Layout, jobs: Sequence[StatusJob]) ->
         line, cost = _cost("evaluation", len(evaluations), left, "episode", episode_rate(spec, layout),
                            spec.evaluation.workers, "worker(s)")
         lines, minutes = [*lines, line], minutes + cost
-    others = [j.id for j in open_jobs if j.stage in ("data", "ground", "diagnose") or j.id == "eval/zoo"]
+    rates = diagnosis_rates(jobs)
+    diagnoses: dict[str, list[str]] = {}
+    for job in open_jobs:
+        if job.stage == "diagnose" and diagnosis_kind(job.id) in rates:
+            diagnoses.setdefault(diagnosis_kind(job.id), []).append(job.id)
+    parallel = spec.resources.trainings_at_a_time * spec.resources.threads_each  # the engine's diagnosis slots
+    for kind, found in diagnoses.items():
+        line, cost = _cost(f"diagnosis ({kind})", len(found), len(found), "job", rates[kind],
+                           min(len(found), parallel), "at a time")
+        lines, minutes = [*lines, line], minutes + cost
+    estimated = {job for found in diagnoses.values() for job in found}
+    others = [j.id for j in open_jobs if (j.stage in ("data", "ground", "diagnose") or j.id == "eval/zoo")
+              and j.id not in estimated]
     if others:
         lines.append(f"  not estimated: {not_estimated(others)}")
     if not lines:
