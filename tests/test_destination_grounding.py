@@ -137,7 +137,7 @@ def test_the_section_shows_target_and_destination_per_task_and_split(tmp_path: P
     assert tasks == [t for t in in_order for _ in range(1 if t == "take_off_pan" else 2)]
     assert "| pick_block | seen | 3 | 0.98 | 100 % | 0.00 | 0 % |" in lines
     assert "| water_plants | unseen | 3 | 0.64 | 67 % | 0.99 | 100 % |" in lines
-    assert "| take_off_pan | seen | 3 | – | 0 % | – | – |" in lines  # no IoU, no destination
+    assert "| take_off_pan | seen | 3 | – | 0 % | none | none |" in lines  # no IoU, no destination
     assert "`models/benchmark-clip`" in note and "docs/results/paper_tables_v3/destination_grounding.json" in note
 
 

@@ -59,10 +59,12 @@ def write_destination(ctx: Context, section: Section) -> list[str]:
             if target is None and destination is None:
                 continue
             scenes = (target or destination or {})["n"]
-            lines.append(table_row([task, split, str(scenes), *quality_cells(target), *quality_cells(destination)]))
+            # a task without a destination is no cell left to evaluate: "none", not the report's "–"
+            lines.append(table_row([task, split, str(scenes), *quality_cells(target),
+                                    *(quality_cells(destination) if destination is not None else ["none", "none"])]))
     kept = ctx.layout.show(ctx.layout.kept / ctx.layout.destination_grounding.name)
     note = (f"The benchmark CLIP (`{ctx.spec.clip}`) grounder in its default configuration, on the first observation "
             "of each evaluation scene (held-out seeds); IoU: the mask's points against the simulator's segmentation "
-            "of the true object; hit: the mask's centre inside the object's box grown by 1 cm; –: the task names no "
-            f"destination (both cells), or no IoU (neither mask had a point). JSON: `{kept}`.")
+            "of the true object; hit: the mask's centre inside the object's box grown by 1 cm; none: the task names no "
+            f"destination; –: no IoU (neither mask had a point). JSON: `{kept}`.")
     return [section.title, "\n".join(lines), note]
