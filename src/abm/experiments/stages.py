@@ -53,6 +53,7 @@ from abm.experiments.report import held_back, keep_training_log, write_report, z
 from abm.experiments.scheduler import Command, LocalRunner, RayRunner, Runner, Source
 from abm.experiments.spec import EXTRA_STAGES, ORACLE_MASK, STAGES, DestinationGroundingSpec, ExperimentSpec
 from abm.experiments.state import (
+    DESTINATION_GROUNDING_JOB,
     CarryError,
     Layout,
     carry_unfinished,
@@ -83,7 +84,6 @@ from abm.zoo import ZooError
 
 LOG = logging.getLogger("abm")
 DONE, RUNNING, LEFT, BLOCKED, FAILED = "done", "running", "left", "blocked", "failed"
-DESTINATION_GROUNDING_JOB = "diagnose/destination_grounding"  #: the one job of the spec's grounder
 
 
 @dataclass

@@ -400,6 +400,7 @@ def _eval_folders(layout: Layout) -> Iterator[tuple[str, Path]]:
             yield folder.relative_to(root).as_posix(), folder
 
 
+DESTINATION_GROUNDING_JOB = "diagnose/destination_grounding"  #: the one diagnosis job of a spec's grounder
 CARRIED = "carried.json"  #: the manifest of a carried folder: the files the carry wrote there, with their sha256
 
 

@@ -32,7 +32,15 @@ from typing import Any, Protocol
 from abm.evaluation.results import OUTCOME_ARCHIVE, OutcomeLog, read_outcome_archive
 from abm.experiments.report import Context, Outcomes, collect_cells, status_line
 from abm.experiments.spec import STAGES, ExperimentSpec
-from abm.experiments.state import Layout, job_events, last_logged_step, pid_alive, span_minutes, stage_spans
+from abm.experiments.state import (
+    DESTINATION_GROUNDING_JOB,
+    Layout,
+    job_events,
+    last_logged_step,
+    pid_alive,
+    span_minutes,
+    stage_spans,
+)
 
 ROLLOUT_SPEED = "docs/results/rollout_speed.json"  #: seconds per rollout measured by benchmarks/rollout_speed.py
 _STEP_FILE = re.compile(r"^step_(\d+)\.pt$")
@@ -271,7 +279,7 @@ def diagnosis_kind(job_id: str) -> str:
     job) or ``keyframe accuracy`` (``diagnose/RUN``, ``diagnose/RUN@oracle``)."""
     if job_id.startswith("diagnose/skill_text/"):
         return "skill-text probe"
-    return "destination grounding" if job_id == "diagnose/destination_grounding" else "keyframe accuracy"
+    return "destination grounding" if job_id == DESTINATION_GROUNDING_JOB else "keyframe accuracy"
 
 
 def diagnosis_rates(jobs: Sequence[StatusJob]) -> dict[str, Rate]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from statistics import mean
 
 from abm.errors import ConfigError
 from abm.experiments.report.context import Context
@@ -70,8 +71,7 @@ def write(ctx: Context, section: Section) -> list[str]:
     for split in section.splits:
         if split not in moved:
             continue
-        mean = sum(moved[split]) / len(moved[split])
-        part = f"{split} {mean:+.{digits}f} points over {len(moved[split])} run(s)"
+        part = f"{split} {mean(moved[split]):+.{digits}f} points over {len(moved[split])} run(s)"
         if split in spread:
             part += f" (Table {section.of_table}'s seed spread: {spread[split]:.{digits}f})"
         parts.append(part)
