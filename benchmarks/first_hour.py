@@ -13,6 +13,8 @@ Each section is recorded from measured runs; sections not given keep their recor
     python benchmarks/first_hour.py --zoo-eval out/zoo --zoo-eval-minutes 6.5 --cross-cpu out/zoo-avx2
     # abm --help (timed here) and the test script (minutes from its own run)
     python benchmarks/first_hour.py --help-time --tests 8.5 14
+    # the README's speed table: runs its benchmark commands here, one after another (~10 min on 2 cores)
+    python benchmarks/first_hour.py --speed
 
 The machine is this one's (its CPU model and core count) unless ``--machine`` names it.
 """
@@ -118,6 +120,73 @@ def help_seconds(runs: int = 5) -> float:
     return round(statistics.median(times), 2)
 
 
+def render_ms(output: str) -> float:
+    """``benchmarks/render_speed.py``'s milliseconds per call for 100k points, batch 1."""
+    found = re.search(r"^\| 100k \| 1 \| ([\d.]+) \|", output, re.M)
+    if not found:
+        raise SystemExit("first_hour: no '| 100k | 1 |' row in render_speed.py's output")
+    return float(found.group(1))
+
+
+def policy_step(output: str) -> dict[str, float]:
+    """``benchmarks/policy_speed.py``'s median seconds per step of the small and paper presets (CPU) and the paper
+    preset's parameter count."""
+    runs = {r["preset"]: r for r in map(json.loads, re.findall(r"^\{.*\}$", output, re.M))
+            if r.get("device") == "cpu" and "preset" in r}
+    if not {"small", "paper"} <= set(runs):
+        raise SystemExit(f"first_hour: policy_speed.py measured {sorted(runs)}, not small and paper on the CPU")
+    return {"policy_small_s": runs["small"]["median_s"], "policy_paper_s": runs["paper"]["median_s"],
+            "paper_parameters": runs["paper"]["parameters"]}
+
+
+def mask_field_s(output: str) -> float:
+    """``benchmarks/grounding_speed.py``'s mask field total (seconds) of its vit-b16 row."""
+    found = re.search(r"^\| vit-b16 \|(?:[^|]*\|){4}\s*([\d.]+) \|", output, re.M)
+    if not found:
+        raise SystemExit("first_hour: no vit-b16 row in grounding_speed.py's output")
+    return float(found.group(1))
+
+
+def train_samples_per_s(output: str) -> float:
+    """``benchmarks/train_speed.py``'s samples per second (its last JSON line)."""
+    lines = re.findall(r"^\{.*\}$", output, re.M)
+    if not lines:
+        raise SystemExit("first_hour: no JSON result in train_speed.py's output")
+    return float(json.loads(lines[-1])["samples_per_s"])
+
+
+def generation_range(output: str) -> list[float]:
+    """``benchmarks/generation_throughput.py``'s lowest and highest episodes per minute over its tasks."""
+    rates = [float(r) for r in re.findall(r"^\| \w+ \| \d+ \| \d+ \| ([\d.]+) \|", output, re.M)]
+    if not rates:
+        raise SystemExit("first_hour: no task rows in generation_throughput.py's output")
+    return [min(rates), max(rates)]
+
+
+SPEED_PARSERS = {"benchmarks/render_speed.py": lambda out: {"render_ms": render_ms(out)},
+                 "benchmarks/policy_speed.py": policy_step,
+                 "benchmarks/grounding_speed.py": lambda out: {"mask_field_s": mask_field_s(out)},
+                 "benchmarks/train_speed.py": lambda out: {"train_samples_per_s": train_samples_per_s(out)},
+                 "benchmarks/generation_throughput.py": lambda out: {"generation_episodes_per_min":
+                                                                     generation_range(out)}}
+"""What each command of the README's speed table contributes to the ``speed`` section, by its script."""
+
+
+def speed(commands: Iterable[str]) -> dict[str, Any]:
+    """Run the speed table's commands (``python SCRIPT ARGS``, from the checkout, this interpreter) one after
+    another and parse what each measured."""
+    values: dict[str, Any] = {}
+    for command in commands:
+        args = command.split()[1:]
+        print(f"first_hour: {command}", flush=True)
+        done = subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True,
+                              env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
+        if done.returncode != 0:
+            raise SystemExit(f"first_hour: '{command}' failed:\n{done.stderr[-2000:]}")
+        values.update(SPEED_PARSERS[args[0]](done.stdout))
+    return values
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quickstart", type=Path, help="the quickstart's output folder (its outcomes)")
@@ -130,6 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--help-time", action="store_true", help="time abm --help now")
     parser.add_argument("--tests", type=float, nargs=2, metavar=("PYTEST_MIN", "CI_MIN"),
                         help="the test script's minutes: pytest alone, .ci/run on a fresh clone")
+    parser.add_argument("--speed", action="store_true", help="run the README speed table's commands now")
     parser.add_argument("--commit", default=None, help="the commit the runs measured (default: that of the checkout "
                         "their folder lies in, else this one)")
     parser.add_argument("--machine", default=None, help="the machine the runs were measured on (default: this one)")
@@ -155,10 +225,14 @@ def main(argv: list[str] | None = None) -> int:
         data["help"] = {"seconds": help_seconds(), "machine": machine}
     if args.tests:
         data["tests"] = {"pytest_minutes": args.tests[0], "ci_minutes": args.tests[1], "machine": machine}
-    FILE.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
     sys.path.insert(0, str(ROOT / "src"))
     from abm import measured
     from abm.experiments.report.pages import first_hour
+
+    if args.speed:
+        commands = [r.command for r in first_hour.SPEED_ROWS if r.command != "same"]
+        data["speed"] = {**speed(commands), "machine": machine, "date": today, "commit": args.commit or commit(ROOT)}
+    FILE.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
 
     measured.measured.cache_clear()
     for path in first_hour.write(ROOT):

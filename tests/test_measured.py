@@ -106,3 +106,64 @@ def test_zoo_eval_points_at_its_models_edition_page() -> None:
     for number in editions:
         assert (ROOT / edition_page(number)).is_file()
     assert edition_page(2) == "docs/results/paper_tables_v2.md"
+
+
+RENDER_OUT = """device: cpu (M, 2 cores)
+| points | batch | ms / call | ms / sample |
+|---|---|---|---|
+| 50k | 1 | 16.2 | 16.2 |
+| 100k | 1 | 24.6 | 24.6 |
+| 200k | 1 | 44.3 | 44.3 |
+| 50k | 8 | 181.1 | 22.6 |
+"""
+GROUNDING_OUT = """device: cpu (M); 4 cameras at 128x128, 42368 points
+| model | input | dtype | image encoder (s) | text (s) | mask field, total (s) | mask -> 5 views (s) |
+|---|---|---|---|---|---|---|
+| vit-b16 | 224x224 | float32 | 0.612 | 0.051 | 0.734 | 0.020 |
+"""
+GENERATION_OUT = """
+2 worker(s), 128x128, 4 cameras
+
+| task | episodes | seconds | episodes/min | MB/episode |
+|---|---|---|---|---|
+| pick_block | 6 | 21 | 17.1 | 1.20 |
+| put_in_shelf | 6 | 40 | 9.0 | 2.31 |
+"""
+
+
+def test_the_speed_commands_outputs_are_parsed(script) -> None:
+    assert script.render_ms(RENDER_OUT) == 24.6  # the 100k-point, batch-1 row, not the 50k one before it
+    assert script.mask_field_s(GROUNDING_OUT) == 0.734  # the total column, not the encoder's
+    assert script.generation_range(GENERATION_OUT) == [9.0, 17.1]
+    policy = "\n".join([json.dumps({"preset": "small", "device": "cpu", "median_s": 0.05, "parameters": 2_000_000}),
+                        json.dumps({"device": "cuda", "skipped": "CUDA not available"}),
+                        json.dumps({"preset": "paper", "device": "cpu", "median_s": 0.9, "parameters": 30_800_000})])
+    assert script.policy_step(policy) == {"policy_small_s": 0.05, "policy_paper_s": 0.9, "paper_parameters": 30_800_000}
+    assert script.train_samples_per_s('warming up\n{"samples_per_s": 12.5, "threads": 1}\n') == 12.5
+    with pytest.raises(SystemExit, match="100k"):
+        script.render_ms(RENDER_OUT.replace("| 100k |", "| 120k |"))
+    with pytest.raises(SystemExit, match="not small and paper"):
+        script.policy_step(policy.splitlines()[0])
+
+
+def test_a_failing_speed_command_stops_with_its_error(script) -> None:
+    with pytest.raises(SystemExit, match="no_such_benchmark.py' failed"):
+        script.speed(["python benchmarks/no_such_benchmark.py"])
+
+
+def test_the_speed_table_is_made_from_the_measurement(script, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(measured, "measured", lambda: {})
+    assert "not measured yet" in first_hour.speed_block()
+    values = {"render_ms": 24.6, "policy_small_s": 0.05, "policy_paper_s": 0.9, "paper_parameters": 30_800_000,
+              "mask_field_s": 0.734, "train_samples_per_s": 12.5, "generation_episodes_per_min": [9.0, 17.1],
+              "machine": "M, 2 cores", "date": "2026-11-30", "commit": "abc1234"}
+    monkeypatch.setattr(measured, "measured", lambda: {"speed": values})
+    block = first_hour.speed_block()
+    assert "on M, 2 cores, 2026-11-30, at abc1234" in block
+    assert "| `python benchmarks/render_speed.py` | 24.6 ms | — |" in block
+    assert "| same | 0.90 s (1.11 FPS; 30.8 M parameters) | 0.68 FPS |" in block
+    assert "0.05 s (20.0 FPS)" in block and "0.73 s" in block and "12.5 samples/s" in block
+    assert "9–17 episodes/min (by task)" in block
+    # every command the table shows is one the recorder knows how to read
+    commands = [r.command.split()[1] for r in first_hour.SPEED_ROWS if r.command != "same"]
+    assert sorted(commands) == sorted(script.SPEED_PARSERS)

@@ -1,9 +1,9 @@
 """What the first hour costs, measured: one generated file that every stated time and expected result reads.
 
-``abm/configs/measured.json`` is written by ``benchmarks/first_hour.py --record`` from measured runs (the
-quickstart on a fresh clone, ``abm zoo eval`` with the default and with AVX-512-free kernels, ``abm --help``, the
-test script); nothing in it is typed by hand. ``abm quickstart --help``, ``abm zoo eval --help`` and its last
-lines, the README's first-hour block and docs/evaluation.md's quickstart block are sentences made from it here, so
+``abm/configs/measured.json`` is written by ``benchmarks/first_hour.py`` from measured runs (the quickstart on a
+fresh clone, ``abm zoo eval`` with the default and with AVX-512-free kernels, ``abm --help``, the test script, the
+speed benchmarks); nothing in it is typed by hand. ``abm quickstart --help``, ``abm zoo eval --help`` and its last
+lines, the README's first-hour block and speed table and docs/evaluation.md's quickstart block are made from it, so
 one re-measurement changes every place at once.
 
 Sections of the file (each optional; a missing one reads "not measured"):
@@ -15,7 +15,10 @@ Sections of the file (each optional; a missing one reads "not measured"):
   ``differing`` (success flipped), ``cells``, ``cells_differing``, ``max_per_cell``, ``identical_trajectories``,
   ``kernels``, ``machine``;
 * ``help``: ``seconds`` (median wall time of ``abm --help``);
-* ``tests``: ``pytest_minutes``, ``ci_minutes`` (``bash .ci/run`` on a fresh clone, setup included), ``machine``.
+* ``tests``: ``pytest_minutes``, ``ci_minutes`` (``bash .ci/run`` on a fresh clone, setup included), ``machine``;
+* ``speed``: the README's speed table (``benchmarks/first_hour.py --speed`` runs its commands): ``render_ms``,
+  ``policy_small_s``, ``policy_paper_s``, ``paper_parameters``, ``mask_field_s``, ``train_samples_per_s``,
+  ``generation_episodes_per_min`` (lowest and highest over the tasks), ``machine``, ``date``, ``commit``.
 """
 
 from __future__ import annotations

@@ -1,15 +1,19 @@
-"""The first-hour blocks: the README's measured times and reproducibility, and docs/evaluation.md's measured
-quickstart run, written from ``abm/configs/measured.json`` (:mod:`abm.measured`) between their markers."""
+"""The first-hour blocks: the README's measured times and reproducibility, its speed table, and docs/evaluation.md's
+measured quickstart run, written from ``abm/configs/measured.json`` (:mod:`abm.measured`) between their markers."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from abm import measured
 from abm.experiments.report.files import replace_between
 
 README_START, README_END = "<!-- first_hour:start -->", "<!-- first_hour:end -->"
 EVAL_START, EVAL_END = "<!-- quickstart_measured:start -->", "<!-- quickstart_measured:end -->"
+SPEED_START, SPEED_END = "<!-- speed:start -->", "<!-- speed:end -->"
 SOURCE = "generated from src/abm/configs/measured.json by `python benchmarks/first_hour.py`"
 
 
@@ -34,15 +38,62 @@ def quickstart_block() -> str:
             f"| defaults | {cells} | {q['wall_minutes']:.1f} min | {q['cpu_minutes']:.1f} min |\n")
 
 
+@dataclass(frozen=True)
+class SpeedRow:
+    """One row of the README's speed table: what is measured, the command that measures it (run by
+    ``benchmarks/first_hour.py --speed`` exactly as shown), the result from the ``speed`` section's values, and the
+    paper's number where it gives one."""
+
+    label: str
+    command: str
+    result: Callable[[dict[str, Any]], str]
+    paper: str = "—"
+
+
+MASK_FIELD_DOC = "docs/performance.md#the-mask-field-on-2-cpu-cores"
+SPEED_ROWS: tuple[SpeedRow, ...] = (
+    SpeedRow("render 5 × 220² virtual views from 100k points", "python benchmarks/render_speed.py",
+             lambda v: f"{v['render_ms']:.1f} ms"),
+    SpeedRow("one policy step, `small` (fuse + ground + render + model + decode)",
+             "python benchmarks/policy_speed.py --presets small paper",
+             lambda v: f"{v['policy_small_s']:.2f} s ({1 / v['policy_small_s']:.1f} FPS)"),
+    SpeedRow("one policy step, `paper` size, CPU", "same",
+             lambda v: f"{v['policy_paper_s']:.2f} s ({1 / v['policy_paper_s']:.2f} FPS; "
+                       f"{v['paper_parameters'] / 1e6:.1f} M parameters)", "0.68 FPS"),
+    SpeedRow("mask field, 4 cameras 128², ViT-B/16 (random weights, the real architecture)",
+             "python benchmarks/grounding_speed.py --models vit-b16 --repeats 5",
+             lambda v: f"{v['mask_field_s']:.2f} s ([where the time goes]({MASK_FIELD_DOC}))",
+             "~1 s (ViT-L, 0.98 FPS)"),
+    SpeedRow("training throughput, `small`, batch 8", "python benchmarks/train_speed.py --preset small --batch 8",
+             lambda v: f"{v['train_samples_per_s']:.1f} samples/s"),
+    SpeedRow("demonstration generation, 128², 2 workers", "python benchmarks/generation_throughput.py",
+             lambda v: "{:.0f}–{:.0f} episodes/min (by task)".format(*v["generation_episodes_per_min"])),
+)
+
+
+def speed_block() -> str:
+    """The README's speed table, from the ``speed`` section (every command run one after another on one machine,
+    torch's default threads, nothing else running)."""
+    sp = measured.measured().get("speed")
+    if not sp:
+        return "The speed table is not measured yet (`python benchmarks/first_hour.py --speed`).\n"
+    rows = "".join(f"| {r.label} | {r.command if r.command == 'same' else f'`{r.command}`'} | {r.result(sp)} "
+                   f"| {r.paper} |\n" for r in SPEED_ROWS)
+    return (f"Measured ({SOURCE.replace('first_hour.py`', 'first_hour.py --speed`')}) on {sp['machine']}, "
+            f"{sp['date']}, at {sp['commit']}, each command alone on the machine with torch's default threads:\n\n"
+            "| measurement | command | result | paper (RTX 3090) |\n|---|---|---|---|\n" + rows)
+
+
 def write(root: Path) -> list[Path]:
-    """Rewrite both blocks under ``root`` (the checkout); the files written."""
+    """Rewrite the blocks under ``root`` (the checkout); the files written."""
     written = []
     for name, start, end, body in (("README.md", README_START, README_END, readme_block()),
+                                   ("README.md", SPEED_START, SPEED_END, speed_block()),
                                    ("docs/evaluation.md", EVAL_START, EVAL_END, quickstart_block())):
         path = root / name
         text = path.read_text()
         new = replace_between(text, start, end, body, name)
         if new != text:
             path.write_text(new)
-            written.append(path)
+            written += [] if path in written else [path]
     return written
