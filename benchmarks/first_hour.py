@@ -230,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     from abm.experiments.report.pages import first_hour
 
     if args.speed:
-        commands = [r.command for r in first_hour.SPEED_ROWS if r.command != "same"]
+        commands = [r.command for r in first_hour.SPEED_ROWS if r.command]
         data["speed"] = {**speed(commands), "machine": machine, "date": today, "commit": args.commit or commit(ROOT)}
     FILE.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
 

@@ -15,6 +15,7 @@ README_START, README_END = "<!-- first_hour:start -->", "<!-- first_hour:end -->
 EVAL_START, EVAL_END = "<!-- quickstart_measured:start -->", "<!-- quickstart_measured:end -->"
 SPEED_START, SPEED_END = "<!-- speed:start -->", "<!-- speed:end -->"
 SOURCE = "generated from src/abm/configs/measured.json by `python benchmarks/first_hour.py`"
+SPEED_SOURCE = "generated from src/abm/configs/measured.json by `python benchmarks/first_hour.py --speed`"
 
 
 def readme_block() -> str:
@@ -41,11 +42,11 @@ def quickstart_block() -> str:
 @dataclass(frozen=True)
 class SpeedRow:
     """One row of the README's speed table: what is measured, the command that measures it (run by
-    ``benchmarks/first_hour.py --speed`` exactly as shown), the result from the ``speed`` section's values, and the
-    paper's number where it gives one."""
+    ``benchmarks/first_hour.py --speed`` exactly as shown; ``None``: the row above's command), the result from the
+    ``speed`` section's values, and the paper's number where it gives one."""
 
     label: str
-    command: str
+    command: str | None
     result: Callable[[dict[str, Any]], str]
     paper: str = "—"
 
@@ -57,7 +58,7 @@ SPEED_ROWS: tuple[SpeedRow, ...] = (
     SpeedRow("one policy step, `small` (fuse + ground + render + model + decode)",
              "python benchmarks/policy_speed.py --presets small paper",
              lambda v: f"{v['policy_small_s']:.2f} s ({1 / v['policy_small_s']:.1f} FPS)"),
-    SpeedRow("one policy step, `paper` size, CPU", "same",
+    SpeedRow("one policy step, `paper` size, CPU", None,
              lambda v: f"{v['policy_paper_s']:.2f} s ({1 / v['policy_paper_s']:.2f} FPS; "
                        f"{v['paper_parameters'] / 1e6:.1f} M parameters)", "0.68 FPS"),
     SpeedRow("mask field, 4 cameras 128², ViT-B/16 (random weights, the real architecture)",
@@ -77,23 +78,24 @@ def speed_block() -> str:
     sp = measured.measured().get("speed")
     if not sp:
         return "The speed table is not measured yet (`python benchmarks/first_hour.py --speed`).\n"
-    rows = "".join(f"| {r.label} | {r.command if r.command == 'same' else f'`{r.command}`'} | {r.result(sp)} "
-                   f"| {r.paper} |\n" for r in SPEED_ROWS)
-    return (f"Measured ({SOURCE.replace('first_hour.py`', 'first_hour.py --speed`')}) on {sp['machine']}, "
+    rows = "".join(f"| {r.label} | {f'`{r.command}`' if r.command else 'same'} | {r.result(sp)} | {r.paper} |\n"
+                   for r in SPEED_ROWS)
+    return (f"Measured ({SPEED_SOURCE}) on {sp['machine']}, "
             f"{sp['date']}, at {sp['commit']}, each command alone on the machine with torch's default threads:\n\n"
             "| measurement | command | result | paper (RTX 3090) |\n|---|---|---|---|\n" + rows)
 
 
 def write(root: Path) -> list[Path]:
     """Rewrite the blocks under ``root`` (the checkout); the files written."""
+    blocks = {"README.md": [(README_START, README_END, readme_block()), (SPEED_START, SPEED_END, speed_block())],
+              "docs/evaluation.md": [(EVAL_START, EVAL_END, quickstart_block())]}
     written = []
-    for name, start, end, body in (("README.md", README_START, README_END, readme_block()),
-                                   ("README.md", SPEED_START, SPEED_END, speed_block()),
-                                   ("docs/evaluation.md", EVAL_START, EVAL_END, quickstart_block())):
+    for name, replacements in blocks.items():
         path = root / name
-        text = path.read_text()
-        new = replace_between(text, start, end, body, name)
+        text = new = path.read_text()
+        for start, end, body in replacements:
+            new = replace_between(new, start, end, body, name)
         if new != text:
             path.write_text(new)
-            written += [] if path in written else [path]
+            written.append(path)
     return written
